@@ -1,0 +1,2 @@
+//! Model building: base model from a generic model, procedural anatomy for
+//! the embedded default, and patient-specific model generation.

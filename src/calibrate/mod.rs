@@ -1,0 +1,1 @@
+//! Experiments (`../shared/formats/experiment.md`) and stiffness calibration.

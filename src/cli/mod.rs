@@ -1,0 +1,29 @@
+//! The command-line interface: a thin clap shell over the library. Each
+//! subcommand lives in its own file with an `Args` struct and a `run`.
+
+use clap::{Parser, Subcommand};
+
+/// osim-spine: patient-specific scoliotic OpenSim spine models.
+#[derive(Debug, Parser)]
+#[command(name = "osim-spine", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {}
+
+/// Parse the command line and run; returns the process exit code.
+pub fn main() -> i32 {
+    let cli = Cli::parse();
+    let result: anyhow::Result<i32> = match cli.command {};
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            1
+        }
+    }
+}

@@ -1,0 +1,1 @@
+//! Reports: JSON, SVG figures and Markdown.

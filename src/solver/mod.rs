@@ -1,0 +1,2 @@
+//! Rigid-body solver: an immutable system description built from a model and
+//! a reusable workspace; statics (Newton) and forward dynamics.

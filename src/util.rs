@@ -1,0 +1,60 @@
+//! Small shared helpers: atomic output and deterministic number formatting.
+
+use crate::error::{Error, Result};
+use std::io::Write;
+use std::path::Path;
+
+/// Write `bytes` to `path` atomically: a temporary file in the same folder,
+/// flushed and then renamed over `path`. Readers never see a half-written
+/// file, and on error nothing is left behind.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".osim-spine-")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(|e| Error::io(dir, e))?;
+    tmp.write_all(bytes).map_err(|e| Error::io(path, e))?;
+    tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
+    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
+    Ok(())
+}
+
+/// Format a float the way the project writes numbers into text files: the
+/// shortest representation that reads back to the same f64 (Rust's `{}`),
+/// with `-0` normalised to `0` so outputs are byte-stable.
+pub fn fmt_f64(x: f64) -> String {
+    if x == 0.0 {
+        "0".to_string()
+    } else {
+        format!("{x}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn atomic_write_replaces_and_leaves_no_temp() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("out.txt");
+        write_atomic(&p, b"one").unwrap();
+        write_atomic(&p, b"two").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"two");
+        let n = std::fs::read_dir(dir.path()).unwrap().count();
+        assert_eq!(n, 1, "temporary file left behind");
+    }
+
+    #[test]
+    fn float_format_round_trips() {
+        for x in [0.1, 1e-300, -2.5, 149000.0, std::f64::consts::PI] {
+            assert_eq!(fmt_f64(x).parse::<f64>().unwrap(), x);
+        }
+        assert_eq!(fmt_f64(-0.0), "0");
+    }
+}
