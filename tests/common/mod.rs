@@ -1,0 +1,95 @@
+//! Shared helpers for integration tests: locating `../shared/` and the
+//! OpenSim Python bindings, with a printed reason when a test must skip.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The repository root (where Cargo.toml is).
+pub fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// `../shared/` beside the repository, or `None` (and a printed reason).
+/// CI always has it; a user's clone may not.
+pub fn shared_dir() -> Option<PathBuf> {
+    let p = repo_root().join("..").join("shared");
+    if p.join("data").is_dir() {
+        Some(p)
+    } else {
+        eprintln!("SKIP: ../shared/ not found beside the repository ({})", p.display());
+        None
+    }
+}
+
+/// A path inside `../shared/`, or `None` with a printed reason.
+pub fn shared(rel: &str) -> Option<PathBuf> {
+    let p = shared_dir()?.join(rel);
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!("SKIP: {} not found", p.display());
+        None
+    }
+}
+
+/// A Python interpreter that can `import opensim`: `$OSIM_SPINE_PYTHON`,
+/// then `.venv/bin/python` in the repository. `None` with a printed reason.
+/// Under CI (`CI=true`) a missing OpenSim is a failure, not a skip.
+pub fn opensim_python() -> Option<PathBuf> {
+    let mut candidates = Vec::new();
+    if let Ok(p) = std::env::var("OSIM_SPINE_PYTHON") {
+        candidates.push(PathBuf::from(p));
+    }
+    candidates.push(repo_root().join(".venv/bin/python"));
+    for c in candidates {
+        if c.exists() {
+            let ok = Command::new(&c)
+                .args(["-c", "import opensim"])
+                .output()
+                .map(|o| o.status.success())
+                .unwrap_or(false);
+            if ok {
+                return Some(c);
+            }
+        }
+    }
+    if std::env::var("CI").map(|v| v == "true").unwrap_or(false) {
+        panic!("CI=true but no Python with opensim found (set OSIM_SPINE_PYTHON or run .ci/run)");
+    }
+    eprintln!(
+        "SKIP: no Python with `opensim` (set OSIM_SPINE_PYTHON or create .venv: see README)"
+    );
+    None
+}
+
+/// Run a script from `tests/py/` with the OpenSim Python and the given
+/// arguments; returns its stdout parsed as JSON. Panics with the script's
+/// stderr when it fails (a test failure, not a skip).
+pub fn run_py(python: &Path, script: &str, args: &[&str]) -> serde_json::Value {
+    let script_path = repo_root().join("tests/py").join(script);
+    let out = Command::new(python)
+        .arg(&script_path)
+        .args(args)
+        .output()
+        .expect("failed to start python");
+    if !out.status.success() {
+        panic!(
+            "{} failed:\n{}",
+            script_path.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "{} printed no JSON ({e}):\n{}",
+            script_path.display(),
+            String::from_utf8_lossy(&out.stdout)
+        )
+    })
+}
+
+/// Path of the built `osim-spine` binary (for CLI tests).
+pub fn bin() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_osim-spine"))
+}
