@@ -8,7 +8,8 @@ N_STATES random admissible coordinate states (seeded; each unlocked
 coordinate uniform in its range, clipped to +-1 rad / +-0.05 m; coupled
 coordinates set from their CoordinateCouplerConstraint) sets the same values
 by name in both and compares, in ground: every body's transform, every
-marker's position, every muscle's path length. Prints JSON with the counts,
+marker's position, every muscle's path length (max_length) and every
+BushingForce's 12 record values (also in max_length). Prints JSON with the counts,
 the names that differ and the largest differences.
 """
 import json
@@ -83,6 +84,12 @@ def snapshot(m, s, vals):
     lengths = {}
     for mu in m.getMuscles():
         lengths[mu.getName()] = mu.getGeometryPath().getLength(s)
+    # Bushing forces (frames and stiffness): their 12 record values.
+    m.realizeVelocity(s)
+    for f in m.getForceSet():
+        if f.getConcreteClassName() == "BushingForce":
+            rv = f.getRecordValues(s)
+            lengths["bushing:" + f.getName()] = [rv.get(i) for i in range(rv.size())]
     return bodies, markers, lengths
 
 
@@ -115,7 +122,8 @@ def main():
         if first:
             res["bodies"] = len(br)
             res["markers"] = len(kr)
-            res["muscles"] = len(lr)
+            res["muscles"] = len([k for k in lr if not k.startswith("bushing:")])
+            res["bushings"] = len([k for k in lr if k.startswith("bushing:")])
             res["coordinates"] = mr.getCoordinateSet().getSize()
             res["name_mismatch"] = sorted(
                 set(br) ^ set(bc) | set(kr) ^ set(kc) | set(lr) ^ set(lc)
