@@ -299,7 +299,7 @@ pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
             return Err(Error::parse(
                 name,
                 rloc,
-                format!("type is {other:?}, expected \"PolyData\""),
+                format!("type=\"{}\", expected \"PolyData\"", other.unwrap_or("")),
             ))
         }
     }
