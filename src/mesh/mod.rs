@@ -26,6 +26,13 @@ pub mod stl;
 pub mod vtp;
 
 pub use geom::{EdgeReport, PrincipalAxes};
+pub use query::{MeshQuery, SurfaceHit};
+pub use register::{
+    gpa, gpa_meshes, icp, icp_mesh, kabsch, umeyama, GpaResult, IcpOptions, IcpResult, Residuals,
+    Similarity,
+};
+pub use sample::sample_surface;
+pub use sphere::{anterior_body_nodes, fit_sphere, AnatomicalFrame, Sphere};
 
 use crate::error::{Error, Result};
 use nalgebra::{Point3, Vector3};
