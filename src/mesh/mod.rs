@@ -30,7 +30,10 @@ impl TriMesh {
                 format!("triangle {i} {t:?} indexes past the {n} vertices"),
             ));
         }
-        if let Some(i) = vertices.iter().position(|v| !v.coords.iter().all(|c| c.is_finite())) {
+        if let Some(i) = vertices
+            .iter()
+            .position(|v| !v.coords.iter().all(|c| c.is_finite()))
+        {
             return Err(crate::Error::invalid(
                 "mesh",
                 format!("vertex {i} has a non-finite coordinate"),
@@ -58,6 +61,9 @@ impl TriMesh {
     /// Area-weighted unit normal of triangle `i` (zero for a degenerate one).
     pub fn triangle_normal(&self, i: usize) -> Vector3<f64> {
         let [a, b, c] = self.triangles[i].map(|k| self.vertices[k as usize]);
-        (b - a).cross(&(c - a)).try_normalize(0.0).unwrap_or_else(Vector3::zeros)
+        (b - a)
+            .cross(&(c - a))
+            .try_normalize(0.0)
+            .unwrap_or_else(Vector3::zeros)
     }
 }
