@@ -18,6 +18,7 @@ pub mod examples;
 pub mod forces;
 pub mod function;
 pub mod kinematics;
+pub mod output;
 pub mod scalar;
 pub mod spec;
 pub mod statics;
