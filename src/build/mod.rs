@@ -1,2 +1,4 @@
 //! Model building: base model from a generic model, procedural anatomy for
 //! the embedded default, and patient-specific model generation.
+
+pub mod anatomy;

@@ -3,6 +3,9 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod convert;
+pub mod info;
+
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
 #[derive(Debug, Parser)]
 #[command(name = "osim-spine", version, about, long_about = None)]
@@ -13,12 +16,20 @@ pub struct Cli {
 
 /// Subcommands.
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Summarise a model: bodies, joints, coordinates, forces, muscles, markers, meshes.
+    Info(info::Args),
+    /// Convert a model (any version -> canonical 4.x) or a mesh file.
+    Convert(convert::Args),
+}
 
 /// Parse the command line and run; returns the process exit code.
 pub fn main() -> i32 {
     let cli = Cli::parse();
-    let result: anyhow::Result<i32> = match cli.command {};
+    let result: anyhow::Result<i32> = match cli.command {
+        Command::Info(a) => info::run(a),
+        Command::Convert(a) => convert::run(a),
+    };
     match result {
         Ok(code) => code,
         Err(e) => {

@@ -16,6 +16,7 @@
 pub mod dynamics;
 pub mod examples;
 pub mod forces;
+pub mod from_model;
 pub mod function;
 pub mod kinematics;
 pub mod output;

@@ -17,7 +17,10 @@ pub fn shared_dir() -> Option<PathBuf> {
     if p.join("data").is_dir() {
         Some(p)
     } else {
-        eprintln!("SKIP: ../shared/ not found beside the repository ({})", p.display());
+        eprintln!(
+            "SKIP: ../shared/ not found beside the repository ({})",
+            p.display()
+        );
         None
     }
 }
@@ -57,9 +60,7 @@ pub fn opensim_python() -> Option<PathBuf> {
     if std::env::var("CI").map(|v| v == "true").unwrap_or(false) {
         panic!("CI=true but no Python with opensim found (set OSIM_SPINE_PYTHON or run .ci/run)");
     }
-    eprintln!(
-        "SKIP: no Python with `opensim` (set OSIM_SPINE_PYTHON or create .venv: see README)"
-    );
+    eprintln!("SKIP: no Python with `opensim` (set OSIM_SPINE_PYTHON or create .venv: see README)");
     None
 }
 

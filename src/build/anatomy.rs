@@ -1,0 +1,243 @@
+//! Anatomical reference data: the per-level vertebral dimension table
+//! (`templates/vertebra_dimensions.csv`, embedded at compile time).
+//!
+//! The table gives published means and standard deviations (Panjabi et al.
+//! 1991 thoracic, 1992 lumbar; Gilad & Nissan 1986 lumbar discs; see the
+//! file's header for the citation per column and the `source` column for
+//! which values are estimated by rule). Values are stored here in metres.
+//!
+//! Users: the landmark checks (`landmarks::check`, plausibility ranges), the
+//! synthetic landmark generator (`landmarks::synth`) and the procedural base
+//! model generator.
+
+use crate::error::{Error, Result};
+use crate::landmarks::Level;
+use std::path::Path;
+
+/// The embedded CSV text.
+pub const EMBEDDED_CSV: &str = include_str!("../../templates/vertebra_dimensions.csv");
+
+/// A measured quantity: mean and standard deviation, in metres.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Measure {
+    pub mean: f64,
+    pub sd: f64,
+}
+
+impl Measure {
+    /// `true` when the source gives no value (stored as 0).
+    pub fn is_missing(&self) -> bool {
+        self.mean <= 0.0
+    }
+    /// Range `mean +- k * sd` (sd floored at `floor_frac * mean`).
+    pub fn range(&self, k: f64, floor_frac: f64) -> (f64, f64) {
+        let sd = self.sd.max(floor_frac * self.mean);
+        (self.mean - k * sd, self.mean + k * sd)
+    }
+}
+
+/// One level's dimensions (metres). See the CSV header for definitions.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LevelDimensions {
+    pub level: Level,
+    pub sup_ep_width: Measure,
+    pub sup_ep_depth: Measure,
+    pub inf_ep_width: Measure,
+    pub inf_ep_depth: Measure,
+    pub ant_height: Measure,
+    pub post_height: Measure,
+    pub pedicle_height: Measure,
+    pub pedicle_width: Measure,
+    pub canal_width: Measure,
+    pub canal_depth: Measure,
+    pub spinous_length: Measure,
+    pub transverse_width: Measure,
+    /// Height of the disc below this level (0 for S1).
+    pub disc_height: Measure,
+    /// Provenance string of the row (`P91`, `P92`, `GN86`, `est-...`).
+    pub source: String,
+}
+
+impl LevelDimensions {
+    /// Mean vertebral body height (average of anterior and posterior).
+    pub fn body_height(&self) -> Measure {
+        Measure {
+            mean: 0.5 * (self.ant_height.mean + self.post_height.mean),
+            sd: 0.5 * (self.ant_height.sd + self.post_height.sd),
+        }
+    }
+}
+
+/// The dimension table: one row per level, cranial to caudal.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DimensionTable {
+    rows: Vec<LevelDimensions>,
+}
+
+const COLUMNS: [&str; 13] = [
+    "sup_ep_width",
+    "sup_ep_depth",
+    "inf_ep_width",
+    "inf_ep_depth",
+    "ant_height",
+    "post_height",
+    "pedicle_height",
+    "pedicle_width",
+    "canal_width",
+    "canal_depth",
+    "spinous_length",
+    "transverse_width",
+    "disc_height",
+];
+
+impl DimensionTable {
+    /// The table shipped with the crate. Parsing it cannot fail at run time
+    /// for a released build (a unit test parses it), but the error path is
+    /// kept rather than a panic.
+    pub fn embedded() -> Result<Self> {
+        Self::parse(EMBEDDED_CSV, Path::new("templates/vertebra_dimensions.csv"))
+    }
+
+    /// Parse a table in the same format (millimetres), e.g. a user's own.
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let mut header: Option<Vec<String>> = None;
+        let mut rows = Vec::new();
+        for (i, raw) in text.lines().enumerate() {
+            let line_no = i + 1;
+            let line = raw.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+            let Some(h) = &header else {
+                header = Some(fields.iter().map(|s| s.to_string()).collect());
+                continue;
+            };
+            if fields.len() != h.len() {
+                return Err(Error::parse(
+                    path,
+                    format!("line {line_no}"),
+                    format!("expected {} fields, found {}", h.len(), fields.len()),
+                ));
+            }
+            let get = |name: &str| -> Result<&str> {
+                h.iter()
+                    .position(|c| c == name)
+                    .and_then(|k| fields.get(k).copied())
+                    .ok_or_else(|| {
+                        Error::parse(path, "header", format!("missing column `{name}`"))
+                    })
+            };
+            let num = |name: &str| -> Result<f64> {
+                let s = get(name)?;
+                let v: f64 = s.parse().map_err(|_| {
+                    Error::parse(
+                        path,
+                        format!("line {line_no}"),
+                        format!("column `{name}`: expected a number, found `{s}`"),
+                    )
+                })?;
+                if !v.is_finite() || v < 0.0 {
+                    return Err(Error::parse(
+                        path,
+                        format!("line {line_no}"),
+                        format!("column `{name}`: expected a finite value >= 0, found {v}"),
+                    ));
+                }
+                Ok(v * 1e-3)
+            };
+            let measure = |name: &str| -> Result<Measure> {
+                Ok(Measure {
+                    mean: num(name)?,
+                    sd: num(&format!("{name}_sd"))?,
+                })
+            };
+            let level_s = get("level")?;
+            let level: Level = level_s.parse().map_err(|_| {
+                Error::parse(
+                    path,
+                    format!("line {line_no}"),
+                    format!("unknown level `{level_s}` (expected T1..T12, L1..L5, S1)"),
+                )
+            })?;
+            let m: Vec<Measure> = COLUMNS.iter().map(|c| measure(c)).collect::<Result<_>>()?;
+            rows.push(LevelDimensions {
+                level,
+                sup_ep_width: m[0],
+                sup_ep_depth: m[1],
+                inf_ep_width: m[2],
+                inf_ep_depth: m[3],
+                ant_height: m[4],
+                post_height: m[5],
+                pedicle_height: m[6],
+                pedicle_width: m[7],
+                canal_width: m[8],
+                canal_depth: m[9],
+                spinous_length: m[10],
+                transverse_width: m[11],
+                disc_height: m[12],
+                source: get("source")?.to_string(),
+            });
+        }
+        rows.sort_by_key(|r| r.level);
+        for w in rows.windows(2) {
+            if w[0].level == w[1].level {
+                return Err(Error::parse(
+                    path,
+                    "rows",
+                    format!("level {} appears twice", w[0].level),
+                ));
+            }
+        }
+        for l in Level::ALL {
+            if !rows.iter().any(|r| r.level == l) {
+                return Err(Error::parse(
+                    path,
+                    "rows",
+                    format!("level {l} missing (the table needs T1..L5 and S1)"),
+                ));
+            }
+        }
+        Ok(DimensionTable { rows })
+    }
+
+    /// Dimensions of one level.
+    pub fn level(&self, level: Level) -> &LevelDimensions {
+        // parse() guarantees every level is present exactly once, sorted.
+        &self.rows[level.index()]
+    }
+
+    /// All rows, cranial to caudal.
+    pub fn rows(&self) -> &[LevelDimensions] {
+        &self.rows
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_table_parses_and_is_anatomically_ordered() {
+        let t = DimensionTable::embedded().unwrap();
+        assert_eq!(t.rows().len(), 18);
+        // Published trend: endplates widen and bodies grow caudally T1 -> L4.
+        for w in t.rows()[..16].windows(2) {
+            assert!(w[1].sup_ep_width.mean >= w[0].sup_ep_width.mean, "{:?}", w[1].level);
+            assert!(w[1].sup_ep_depth.mean >= w[0].sup_ep_depth.mean - 1e-3);
+        }
+        let l3 = t.level(Level::L3);
+        assert!(l3.sup_ep_width.mean > 0.03 && l3.sup_ep_width.mean < 0.06);
+        assert!(t.level(Level::S1).ant_height.is_missing());
+    }
+
+    #[test]
+    fn malformed_table_is_rejected_with_line() {
+        let bad = "level,x\nT1,1\n";
+        let e = DimensionTable::parse(bad, Path::new("t.csv")).unwrap_err();
+        assert!(e.to_string().contains("t.csv"), "{e}");
+        let text = EMBEDDED_CSV.replace("T5,28.5", "T5,abc");
+        let e = DimensionTable::parse(&text, Path::new("t.csv")).unwrap_err();
+        assert!(e.to_string().contains("expected a number"), "{e}");
+    }
+}

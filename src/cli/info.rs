@@ -1,0 +1,189 @@
+//! `osim-spine info MODEL [--json] [--geometry DIR]`: a summary of a model
+//! (bodies, joints and coordinates, forces by class, muscles, markers, wrap
+//! objects, mesh files that cannot be found or escape their folder).
+
+use crate::osim::geometry::{self, MeshLookup};
+use crate::osim::model::Model;
+use crate::osim::Document;
+use clap::Args as ClapArgs;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// Arguments of `info`.
+#[derive(Debug, ClapArgs)]
+pub struct Args {
+    /// The .osim model (any version from 1.9 to 4.6).
+    pub model: PathBuf,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+    /// Extra folder to search for mesh files (after the model's folder and its Geometry/).
+    #[arg(long, value_name = "DIR")]
+    pub geometry: Vec<PathBuf>,
+}
+
+/// The summary printed by `info`.
+#[derive(Debug, Serialize)]
+pub struct Summary {
+    pub file: String,
+    pub name: String,
+    pub version_read: u32,
+    pub version: u32,
+    pub gravity: [f64; 3],
+    pub bodies: Vec<String>,
+    pub joints: Vec<JointSummary>,
+    pub coordinates: usize,
+    pub forces_by_class: BTreeMap<String, usize>,
+    pub muscles: usize,
+    pub markers: usize,
+    pub wrap_objects: BTreeMap<String, usize>,
+    pub constraints: usize,
+    pub mesh_files: usize,
+    pub meshes_missing: Vec<String>,
+    pub meshes_refused: Vec<String>,
+}
+
+/// One joint in the summary.
+#[derive(Debug, Serialize)]
+pub struct JointSummary {
+    pub name: String,
+    pub class: String,
+    pub parent: String,
+    pub child: String,
+    pub coordinates: Vec<String>,
+}
+
+/// Build the summary of a read model.
+pub fn summarize(doc: &Document, model: &Model, extra: &[PathBuf]) -> crate::Result<Summary> {
+    let frames = model.joint_frames()?;
+    let joints = model
+        .joints
+        .iter()
+        .zip(frames.iter())
+        .map(|(j, f)| JointSummary {
+            name: j.name.clone(),
+            class: j.class.clone(),
+            parent: f.parent_body.clone(),
+            child: f.child_body.clone(),
+            coordinates: j.coordinates.iter().map(|c| c.name.clone()).collect(),
+        })
+        .collect();
+    let mut forces_by_class = BTreeMap::new();
+    for f in &model.forces {
+        *forces_by_class.entry(f.class().to_string()).or_insert(0) += 1;
+    }
+    let mut wrap_objects = BTreeMap::new();
+    for w in model
+        .bodies
+        .iter()
+        .flat_map(|b| b.wrap_objects.iter())
+        .chain(model.ground.wrap_objects.iter())
+    {
+        *wrap_objects.entry(w.class().to_string()).or_insert(0) += 1;
+    }
+    let meshes = model.mesh_files();
+    let mut meshes_missing = Vec::new();
+    let mut meshes_refused = Vec::new();
+    for (body, file) in &meshes {
+        match geometry::resolve(doc.path(), file, extra) {
+            MeshLookup::Found(_) => {}
+            MeshLookup::Missing => meshes_missing.push(format!("{body}: {file}")),
+            MeshLookup::Escapes(why) => meshes_refused.push(format!("{body}: {why}")),
+        }
+    }
+    Ok(Summary {
+        file: doc.path().display().to_string(),
+        name: model.name.clone(),
+        version_read: doc.original_version(),
+        version: doc.version(),
+        gravity: [model.gravity.x, model.gravity.y, model.gravity.z],
+        bodies: model.bodies.iter().map(|b| b.name.clone()).collect(),
+        joints,
+        coordinates: model.coordinates().count(),
+        forces_by_class,
+        muscles: model.muscles().count(),
+        markers: model.markers.len(),
+        wrap_objects,
+        constraints: model.constraints.len(),
+        mesh_files: meshes.len(),
+        meshes_missing,
+        meshes_refused,
+    })
+}
+
+/// Human-readable rendering of a summary.
+pub fn render(s: &Summary) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "model {} ({}; document version {}, held as {})",
+        s.name, s.file, s.version_read, s.version
+    );
+    let _ = writeln!(
+        o,
+        "gravity {} {} {}",
+        s.gravity[0], s.gravity[1], s.gravity[2]
+    );
+    let _ = writeln!(o, "bodies: {}", s.bodies.len());
+    let _ = writeln!(
+        o,
+        "joints: {} ({} coordinates)",
+        s.joints.len(),
+        s.coordinates
+    );
+    for j in &s.joints {
+        let _ = writeln!(
+            o,
+            "  {} [{}] {} -> {}: {}",
+            j.name,
+            j.class,
+            j.parent,
+            j.child,
+            j.coordinates.join(" ")
+        );
+    }
+    let _ = writeln!(o, "forces: {}", s.forces_by_class.values().sum::<usize>());
+    for (c, n) in &s.forces_by_class {
+        let _ = writeln!(o, "  {c}: {n}");
+    }
+    let _ = writeln!(o, "muscles: {}", s.muscles);
+    let _ = writeln!(o, "markers: {}", s.markers);
+    let _ = writeln!(o, "constraints: {}", s.constraints);
+    let _ = writeln!(
+        o,
+        "wrap objects: {}",
+        s.wrap_objects.values().sum::<usize>()
+    );
+    for (c, n) in &s.wrap_objects {
+        let _ = writeln!(o, "  {c}: {n}");
+    }
+    let _ = writeln!(
+        o,
+        "mesh files: {} ({} not found, {} refused)",
+        s.mesh_files,
+        s.meshes_missing.len(),
+        s.meshes_refused.len()
+    );
+    for m in &s.meshes_missing {
+        let _ = writeln!(o, "  not found: {m}");
+    }
+    for m in &s.meshes_refused {
+        let _ = writeln!(o, "  refused: {m}");
+    }
+    o
+}
+
+/// Run `info`; returns the exit code.
+pub fn run(args: Args) -> anyhow::Result<i32> {
+    let doc = Document::read(&args.model)?;
+    let model = doc.model()?;
+    let s = summarize(&doc, &model, &args.geometry)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+    } else {
+        print!("{}", render(&s));
+    }
+    Ok(0)
+}

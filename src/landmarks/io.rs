@@ -1,0 +1,689 @@
+//! Landmark file readers (CSV, TRC, JSON) and the CSV writer.
+//!
+//! Readers produce [`RawLandmarks`]: the points exactly as written (file
+//! units, file frame, names as spelled, duplicates kept, line numbers), plus
+//! the header's declared units and frame. [`RawLandmarks::to_set`] then
+//! detects units and frame from the anatomy ([`super::detect`]) and builds a
+//! validated [`LandmarkSet`] (metres, OpenSim frame), refusing anything
+//! ambiguous; `osim-spine check` works on the raw form to report every
+//! problem rather than the first.
+//!
+//! Format decisions (extending `../shared/formats/landmarks.md`):
+//! - CSV: `# units:` / `# frame:` header comments; optional leading
+//!   `operator,repetition` columns (repeated palpations); a single-palpation
+//!   file may also carry `# operator:` / `# repetition:` comments.
+//! - TRC: units from the header's `Units` column; no frame (detected). With
+//!   several frames the landmark is the **mean over the frames** where it is
+//!   present (palpations are static); frames that disagree by more than
+//!   5 mm are refused as not static.
+//! - JSON: `{"units", "frame", "landmarks": {name: [x, y, z]}}`, optional
+//!   `operator`, `repetition`; unknown keys are refused; duplicate names are
+//!   detected (not silently merged).
+//! - Files larger than [`MAX_FILE_BYTES`] are refused before reading.
+
+use super::detect::{self, Detection};
+use super::{Frame, LandmarkId, LandmarkSet, Units};
+use crate::error::{Error, Result};
+use crate::util::{fmt_f64, write_atomic};
+use nalgebra::{Point3, Vector3};
+use std::path::{Path, PathBuf};
+
+/// Largest landmark file accepted (a 17-level set is ~10 kB; a 1000-palpation
+/// study ~10 MB).
+pub const MAX_FILE_BYTES: u64 = 32 * 1024 * 1024;
+
+/// File formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FileFormat {
+    Csv,
+    Trc,
+    Json,
+}
+
+/// One point as written in the file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawPoint {
+    /// Name as spelled in the file.
+    pub name: String,
+    /// Parsed id, `None` when the name is not `<LEVEL>_<CODE>`.
+    pub id: Option<LandmarkId>,
+    /// `true` when the name is spelled exactly as the format says.
+    pub canonical: bool,
+    /// Coordinates in file units and file frame.
+    pub xyz: [f64; 3],
+    /// 1-based line in the file, when known.
+    pub line: Option<usize>,
+}
+
+/// A landmark file's content before validation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawLandmarks {
+    pub path: PathBuf,
+    pub format: FileFormat,
+    pub declared_units: Option<Units>,
+    pub declared_frame: Option<Frame>,
+    pub points: Vec<RawPoint>,
+    /// Reader remarks (e.g. "TRC: mean of 3 frames").
+    pub notes: Vec<String>,
+}
+
+/// One palpation of a repeated-palpation study.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Palpation {
+    pub operator: String,
+    pub repetition: u32,
+    pub raw: RawLandmarks,
+}
+
+/// Read the file's bytes, refusing huge files before reading them.
+fn read_text(path: &Path) -> Result<String> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.len() > MAX_FILE_BYTES {
+        return Err(Error::parse(
+            path,
+            "file",
+            format!(
+                "file is {} bytes; landmark files are limited to {} bytes",
+                meta.len(),
+                MAX_FILE_BYTES
+            ),
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    String::from_utf8(bytes)
+        .map_err(|e| Error::parse(path, "file", format!("not UTF-8 text ({e})")))
+}
+
+fn format_of(path: &Path) -> Result<FileFormat> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("csv") | Some("txt") => Ok(FileFormat::Csv),
+        Some("trc") => Ok(FileFormat::Trc),
+        Some("json") => Ok(FileFormat::Json),
+        _ => Err(Error::parse(
+            path,
+            "file name",
+            "unknown extension: expected .csv, .trc or .json",
+        )),
+    }
+}
+
+/// Read one landmark set (one palpation). A CSV with `operator,repetition`
+/// columns holding more than one palpation is refused here: use
+/// [`read_palpations`].
+pub fn read_path(path: &Path) -> Result<RawLandmarks> {
+    let mut all = read_palpations(path)?;
+    if all.len() != 1 {
+        return Err(Error::parse(
+            path,
+            "file",
+            format!(
+                "holds {} palpations (operator,repetition columns); expected one landmark set",
+                all.len()
+            ),
+        ));
+    }
+    Ok(all.remove(0).raw)
+}
+
+/// Read a file holding one or more palpations. Files without operator and
+/// repetition information give operator `"1"`, repetition `1`.
+pub fn read_palpations(path: &Path) -> Result<Vec<Palpation>> {
+    let fmt = format_of(path)?;
+    let text = read_text(path)?;
+    match fmt {
+        FileFormat::Csv => parse_csv(&text, path),
+        FileFormat::Trc => Ok(vec![Palpation {
+            operator: "1".into(),
+            repetition: 1,
+            raw: parse_trc(&text, path)?,
+        }]),
+        FileFormat::Json => parse_json(&text, path),
+    }
+}
+
+/// Load and validate a landmark set (see [`RawLandmarks::to_set`]).
+pub fn load(path: &Path) -> Result<LandmarkSet> {
+    read_path(path)?.to_set()
+}
+
+fn strip_quotes(s: &str) -> &str {
+    let t = s.trim();
+    t.strip_prefix('"')
+        .and_then(|x| x.strip_suffix('"'))
+        .unwrap_or(t)
+}
+
+fn parse_number(s: &str, path: &Path, line: usize, col: &str) -> Result<f64> {
+    let t = strip_quotes(s);
+    let v: f64 = t.parse().map_err(|_| {
+        Error::parse(
+            path,
+            format!("line {line}"),
+            format!("column `{col}`: expected a number, found `{t}`"),
+        )
+    })?;
+    if !v.is_finite() {
+        return Err(Error::parse(
+            path,
+            format!("line {line}"),
+            format!("column `{col}`: expected a finite number, found `{t}`"),
+        ));
+    }
+    Ok(v)
+}
+
+fn header_value<'a>(comment: &'a str, key: &str) -> Option<&'a str> {
+    let c = comment.trim_start_matches('#').trim();
+    let (k, v) = c.split_once(':')?;
+    if k.trim().eq_ignore_ascii_case(key) {
+        Some(v.trim())
+    } else {
+        None
+    }
+}
+
+/// Parse a landmark CSV (see the module docs).
+pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
+    let mut units = None;
+    let mut frame = None;
+    let mut file_operator: Option<String> = None;
+    let mut file_repetition: Option<u32> = None;
+    let mut columns: Option<(bool, usize)> = None; // (has operator columns, n fields)
+    // Palpations in order of first appearance.
+    let mut groups: Vec<((String, u32), Vec<RawPoint>)> = Vec::new();
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    for (i, raw_line) in text.lines().enumerate() {
+        let line_no = i + 1;
+        let line = raw_line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        if line.starts_with('#') {
+            if let Some(v) = header_value(line, "units") {
+                units = Some(Units::parse_label(v).ok_or_else(|| {
+                    Error::parse(
+                        path,
+                        format!("line {line_no}"),
+                        format!("`# units: {v}`: expected `mm` or `m`"),
+                    )
+                })?);
+            } else if let Some(v) = header_value(line, "frame") {
+                frame = Some(Frame::parse_label(v).ok_or_else(|| {
+                    Error::parse(
+                        path,
+                        format!("line {line_no}"),
+                        format!("`# frame: {v}`: expected `LPS`, `RAS` or `opensim`"),
+                    )
+                })?);
+            } else if let Some(v) = header_value(line, "operator") {
+                file_operator = Some(v.to_string());
+            } else if let Some(v) = header_value(line, "repetition") {
+                file_repetition = Some(v.parse().map_err(|_| {
+                    Error::parse(
+                        path,
+                        format!("line {line_no}"),
+                        format!("`# repetition: {v}`: expected a positive integer"),
+                    )
+                })?);
+            }
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(strip_quotes).collect();
+        let Some((with_op, n)) = columns else {
+            let lower: Vec<String> = fields.iter().map(|f| f.to_ascii_lowercase()).collect();
+            let lower: Vec<&str> = lower.iter().map(String::as_str).collect();
+            columns = match lower.as_slice() {
+                ["name", "x", "y", "z"] => Some((false, 4)),
+                ["operator", "repetition", "name", "x", "y", "z"] => Some((true, 6)),
+                _ => {
+                    return Err(Error::parse(
+                        path,
+                        format!("line {line_no}"),
+                        format!(
+                            "expected the header `name,x,y,z` or `operator,repetition,name,x,y,z`, found `{line}`"
+                        ),
+                    ))
+                }
+            };
+            continue;
+        };
+        if fields.len() != n {
+            return Err(Error::parse(
+                path,
+                format!("line {line_no}"),
+                format!("expected {n} comma-separated fields, found {}", fields.len()),
+            ));
+        }
+        let (key, rest) = if with_op {
+            let rep: u32 = fields[1].parse().map_err(|_| {
+                Error::parse(
+                    path,
+                    format!("line {line_no}"),
+                    format!("column `repetition`: expected a positive integer, found `{}`", fields[1]),
+                )
+            })?;
+            if fields[0].is_empty() {
+                return Err(Error::parse(
+                    path,
+                    format!("line {line_no}"),
+                    "column `operator`: empty",
+                ));
+            }
+            ((fields[0].to_string(), rep), &fields[2..])
+        } else {
+            (
+                (
+                    file_operator.clone().unwrap_or_else(|| "1".into()),
+                    file_repetition.unwrap_or(1),
+                ),
+                &fields[..],
+            )
+        };
+        let name = rest[0].to_string();
+        if name.is_empty() {
+            return Err(Error::parse(
+                path,
+                format!("line {line_no}"),
+                "column `name`: empty landmark name",
+            ));
+        }
+        let x = parse_number(rest[1], path, line_no, "x")?;
+        let y = parse_number(rest[2], path, line_no, "y")?;
+        let z = parse_number(rest[3], path, line_no, "z")?;
+        let parsed = LandmarkId::parse_name(&name);
+        let point = RawPoint {
+            id: parsed.map(|p| p.0),
+            canonical: parsed.map(|p| p.1).unwrap_or(false),
+            name,
+            xyz: [x, y, z],
+            line: Some(line_no),
+        };
+        match groups.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, v)) => v.push(point),
+            None => groups.push((key, vec![point])),
+        }
+    }
+    if columns.is_none() {
+        return Err(Error::parse(
+            path,
+            "file",
+            "empty: expected a header line `name,x,y,z` and one landmark per row",
+        ));
+    }
+    if groups.is_empty() {
+        return Err(Error::parse(
+            path,
+            "file",
+            "no landmark rows after the header",
+        ));
+    }
+    Ok(groups
+        .into_iter()
+        .map(|((operator, repetition), points)| Palpation {
+            operator,
+            repetition,
+            raw: RawLandmarks {
+                path: path.to_path_buf(),
+                format: FileFormat::Csv,
+                declared_units: units,
+                declared_frame: frame,
+                points,
+                notes: Vec::new(),
+            },
+        })
+        .collect())
+}
+
+/// Parse an OpenSim TRC marker file (see the module docs).
+pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
+    let lines: Vec<&str> = text.lines().collect();
+    let at = |i: usize| -> Result<&str> {
+        lines.get(i).copied().ok_or_else(|| {
+            Error::parse(
+                path,
+                format!("line {}", i + 1),
+                "TRC header ends early: expected 5 header lines (PathFileType, keys, values, marker names, X1 Y1 Z1...)",
+            )
+        })
+    };
+    if !at(0)?.trim_start().starts_with("PathFileType") {
+        return Err(Error::parse(path, "line 1", "TRC: expected `PathFileType`"));
+    }
+    let keys: Vec<&str> = at(1)?.split('\t').map(str::trim).collect();
+    let vals: Vec<&str> = at(2)?.split('\t').map(str::trim).collect();
+    let units_idx = keys.iter().position(|k| k.eq_ignore_ascii_case("Units"));
+    let units = match units_idx.and_then(|k| vals.get(k)) {
+        Some(u) => Some(Units::parse_label(u).ok_or_else(|| {
+            Error::parse(path, "line 3", format!("TRC Units `{u}`: expected `mm` or `m`"))
+        })?),
+        None => {
+            return Err(Error::parse(path, "line 2", "TRC: no `Units` column in the header"));
+        }
+    };
+    let names_line = at(3)?;
+    let cols: Vec<&str> = names_line.split('\t').collect();
+    if cols.len() < 3 || !cols[0].trim().eq_ignore_ascii_case("Frame#") {
+        return Err(Error::parse(
+            path,
+            "line 4",
+            "TRC: expected `Frame#<TAB>Time<TAB>marker names`",
+        ));
+    }
+    let mut markers: Vec<(usize, String)> = Vec::new(); // (first column, name)
+    for (c, s) in cols.iter().enumerate().skip(2) {
+        let s = s.trim();
+        if !s.is_empty() {
+            markers.push((c, s.to_string()));
+        }
+    }
+    if markers.is_empty() {
+        return Err(Error::parse(path, "line 4", "TRC: no marker names"));
+    }
+    let mut sums = vec![[0.0f64; 3]; markers.len()];
+    let mut mins = vec![[f64::INFINITY; 3]; markers.len()];
+    let mut maxs = vec![[f64::NEG_INFINITY; 3]; markers.len()];
+    let mut counts = vec![0usize; markers.len()];
+    let mut first_line = vec![None; markers.len()];
+    let mut n_frames = 0usize;
+    for (i, l) in lines.iter().enumerate().skip(5) {
+        let line_no = i + 1;
+        if l.trim().is_empty() {
+            continue;
+        }
+        n_frames += 1;
+        let f: Vec<&str> = l.split('\t').collect();
+        for (m, (c, name)) in markers.iter().enumerate() {
+            let cell = |k: usize| f.get(c + k).map(|s| s.trim()).unwrap_or("");
+            let (sx, sy, sz) = (cell(0), cell(1), cell(2));
+            if sx.is_empty() && sy.is_empty() && sz.is_empty() {
+                continue; // marker missing in this frame
+            }
+            let mut v = [0.0; 3];
+            for (k, s) in [sx, sy, sz].iter().enumerate() {
+                let col = format!("{name} {}", ["X", "Y", "Z"][k]);
+                let x = parse_number(s, path, line_no, &col);
+                // OpenSim writes NaN for occluded markers: treat as missing.
+                if s.eq_ignore_ascii_case("nan") {
+                    v = [f64::NAN; 3];
+                    break;
+                }
+                v[k] = x?;
+            }
+            if v[0].is_nan() {
+                continue;
+            }
+            counts[m] += 1;
+            first_line[m].get_or_insert(line_no);
+            for k in 0..3 {
+                sums[m][k] += v[k];
+                mins[m][k] = mins[m][k].min(v[k]);
+                maxs[m][k] = maxs[m][k].max(v[k]);
+            }
+        }
+    }
+    if n_frames == 0 {
+        return Err(Error::parse(path, "line 6", "TRC: no data frames"));
+    }
+    let scale_mm = units.map(|u| u.to_metres() * 1e3).unwrap_or(1.0);
+    let mut points = Vec::new();
+    let mut max_spread = 0.0f64;
+    for (m, (_, name)) in markers.iter().enumerate() {
+        if counts[m] == 0 {
+            continue;
+        }
+        let spread = (0..3)
+            .map(|k| maxs[m][k] - mins[m][k])
+            .fold(0.0, f64::max)
+            * scale_mm;
+        max_spread = max_spread.max(spread);
+        if spread > 5.0 {
+            return Err(Error::parse(
+                path,
+                format!("marker `{name}`"),
+                format!(
+                    "moves by {spread:.1} mm across the {n_frames} frames; a landmark set must be static (extract one frame)"
+                ),
+            ));
+        }
+        let n = counts[m] as f64;
+        let parsed = LandmarkId::parse_name(name);
+        points.push(RawPoint {
+            name: name.clone(),
+            id: parsed.map(|p| p.0),
+            canonical: parsed.map(|p| p.1).unwrap_or(false),
+            xyz: [sums[m][0] / n, sums[m][1] / n, sums[m][2] / n],
+            line: first_line[m],
+        });
+    }
+    let mut notes = Vec::new();
+    if n_frames > 1 {
+        notes.push(format!(
+            "TRC: {n_frames} frames averaged per marker (largest spread {max_spread:.2} mm)"
+        ));
+    }
+    Ok(RawLandmarks {
+        path: path.to_path_buf(),
+        format: FileFormat::Trc,
+        declared_units: units,
+        declared_frame: None,
+        points,
+        notes,
+    })
+}
+
+/// Ordered JSON object entries, duplicates kept.
+struct Entries(Vec<(String, serde_json::Value)>);
+
+impl<'de> serde::Deserialize<'de> for Entries {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = Entries;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("an object {name: [x, y, z], ...}")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> std::result::Result<Entries, A::Error> {
+                let mut v = Vec::new();
+                while let Some((k, val)) = map.next_entry::<String, serde_json::Value>()? {
+                    v.push((k, val));
+                }
+                Ok(Entries(v))
+            }
+        }
+        d.deserialize_map(V)
+    }
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JsonFile {
+    units: Option<String>,
+    frame: Option<String>,
+    operator: Option<String>,
+    repetition: Option<u32>,
+    landmarks: Entries,
+}
+
+fn line_of(text: &str, needle: &str) -> Option<usize> {
+    let pos = text.find(&format!("\"{needle}\""))?;
+    Some(text[..pos].matches('\n').count() + 1)
+}
+
+/// Parse a JSON landmark file.
+pub fn parse_json(text: &str, path: &Path) -> Result<Vec<Palpation>> {
+    if text.trim().is_empty() {
+        return Err(Error::parse(
+            path,
+            "file",
+            "empty: expected {\"units\", \"frame\", \"landmarks\": {name: [x, y, z]}}",
+        ));
+    }
+    let f: JsonFile = serde_json::from_str(text).map_err(|e| {
+        Error::parse(
+            path,
+            format!("line {} column {}", e.line(), e.column()),
+            e.to_string(),
+        )
+    })?;
+    let units = match &f.units {
+        Some(u) => Some(Units::parse_label(u).ok_or_else(|| {
+            Error::parse(path, "units", format!("`{u}`: expected `mm` or `m`"))
+        })?),
+        None => None,
+    };
+    let frame = match &f.frame {
+        Some(u) => Some(Frame::parse_label(u).ok_or_else(|| {
+            Error::parse(
+                path,
+                "frame",
+                format!("`{u}`: expected `LPS`, `RAS` or `opensim`"),
+            )
+        })?),
+        None => None,
+    };
+    let mut points = Vec::new();
+    for (name, val) in f.landmarks.0 {
+        let arr = val.as_array().filter(|a| a.len() == 3).ok_or_else(|| {
+            Error::parse(
+                path,
+                format!("landmarks.{name}"),
+                format!("expected [x, y, z], found {val}"),
+            )
+        })?;
+        let mut xyz = [0.0; 3];
+        for (k, v) in arr.iter().enumerate() {
+            xyz[k] = v.as_f64().filter(|x| x.is_finite()).ok_or_else(|| {
+                Error::parse(
+                    path,
+                    format!("landmarks.{name}"),
+                    format!("coordinate {k}: expected a finite number, found {v}"),
+                )
+            })?;
+        }
+        let parsed = LandmarkId::parse_name(&name);
+        points.push(RawPoint {
+            line: line_of(text, &name),
+            id: parsed.map(|p| p.0),
+            canonical: parsed.map(|p| p.1).unwrap_or(false),
+            name,
+            xyz,
+        });
+    }
+    if points.is_empty() {
+        return Err(Error::parse(path, "landmarks", "no landmarks"));
+    }
+    Ok(vec![Palpation {
+        operator: f.operator.unwrap_or_else(|| "1".into()),
+        repetition: f.repetition.unwrap_or(1),
+        raw: RawLandmarks {
+            path: path.to_path_buf(),
+            format: FileFormat::Json,
+            declared_units: units,
+            declared_frame: frame,
+            points,
+            notes: Vec::new(),
+        },
+    }])
+}
+
+impl RawLandmarks {
+    /// Units/frame detection for this content.
+    pub fn detect(&self) -> Detection {
+        detect::detect(self)
+    }
+
+    /// Build the set with the given detection's units and frame, leniently:
+    /// the first of duplicated names wins, unknown names are skipped. For
+    /// the checker, which reports those problems itself.
+    pub fn build_set(&self, det: &Detection) -> LandmarkSet {
+        let scale = det.units.map(|u| u.to_metres()).unwrap_or(1e-3);
+        let rot = det.frame.unwrap_or(Frame::OpenSim).to_opensim();
+        let mut set = LandmarkSet::new();
+        for p in &self.points {
+            if let Some(id) = p.id {
+                if !id.level.allowed(id.code) {
+                    continue;
+                }
+                set.points.entry(id).or_insert_with(|| {
+                    Point3::from(rot * Vector3::from(p.xyz) * scale)
+                });
+            }
+        }
+        set.detection = Some(det.clone());
+        set
+    }
+
+    /// Validate strictly and build the set: every name must be
+    /// `<LEVEL>_<CODE>` valid at its level, no duplicates, units and frame
+    /// declared-and-consistent or detectable without doubt.
+    pub fn to_set(&self) -> Result<LandmarkSet> {
+        let mut seen: std::collections::BTreeMap<LandmarkId, Option<usize>> = Default::default();
+        for p in &self.points {
+            let loc = p
+                .line
+                .map(|l| format!("line {l}"))
+                .unwrap_or_else(|| format!("landmark `{}`", p.name));
+            let Some(id) = p.id else {
+                return Err(Error::parse(
+                    &self.path,
+                    loc,
+                    format!(
+                        "unknown landmark name `{}`: expected <LEVEL>_<CODE> (LEVEL T1..T12, L1..L5, S1; CODE SEC, IEC, PTR, PTL, PBR, PBL, SA, SP, SR, SL, IA, IP, IR, IL)",
+                        p.name
+                    ),
+                ));
+            };
+            if !id.level.allowed(id.code) {
+                return Err(Error::parse(
+                    &self.path,
+                    loc,
+                    format!("`{}` is not a sacral landmark (S1 has SEC, SA, SP, SR, SL, PTR, PTL)", p.name),
+                ));
+            }
+            if let Some(prev) = seen.insert(id, p.line) {
+                let prev = prev.map(|l| format!(" (first at line {l})")).unwrap_or_default();
+                return Err(Error::parse(
+                    &self.path,
+                    loc,
+                    format!("duplicate landmark `{id}`{prev}"),
+                ));
+            }
+        }
+        let det = self.detect();
+        if let Some(msg) = det.problems().into_iter().next() {
+            return Err(Error::invalid(self.path.display().to_string(), msg));
+        }
+        Ok(self.build_set(&det))
+    }
+}
+
+/// Render a set as CSV text in the given units and frame (the project's own
+/// fixtures). Rows in id order; numbers in shortest round-trip form.
+pub fn csv_string(set: &LandmarkSet, units: Units, frame: Frame) -> String {
+    let back = frame.to_opensim().transpose();
+    let s = 1.0 / units.to_metres();
+    let mut out = format!("# units: {units}\n# frame: {frame}\nname,x,y,z\n");
+    for (id, p) in &set.points {
+        let v = back * p.coords * s;
+        out.push_str(&format!(
+            "{id},{},{},{}\n",
+            fmt_f64(v.x),
+            fmt_f64(v.y),
+            fmt_f64(v.z)
+        ));
+    }
+    out
+}
+
+/// Write a set as CSV (atomically).
+pub fn write_csv(set: &LandmarkSet, path: &Path, units: Units, frame: Frame) -> Result<()> {
+    write_atomic(path, csv_string(set, units, frame).as_bytes())
+}

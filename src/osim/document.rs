@@ -1,0 +1,538 @@
+//! [`Document`]: an .osim file as a lossless XML tree in canonical 4.x form,
+//! with an editing API (components by set and name, properties, typed
+//! property helpers) used by every part of the tool that reads or writes
+//! models.
+
+use super::xml::{self, Element, Node, XmlTree};
+use crate::error::{Error, Result};
+use crate::util::fmt_f64;
+use nalgebra::Vector3;
+use std::path::{Path, PathBuf};
+
+/// The document version OpenSim 4.6 writes (and that upgraded documents get).
+pub const CURRENT_VERSION: u32 = 40600;
+/// Oldest document version accepted (OpenSim 1.9 era files still load in 4.6).
+pub const OLDEST_VERSION: u32 = 10500;
+
+/// Where an element is, for error messages: `<Tag name="x"> (line N)`.
+pub fn loc(e: &Element) -> String {
+    match e.attr("name") {
+        Some(n) if e.line > 0 => format!("<{} name=\"{}\"> (line {})", e.name, n, e.line),
+        Some(n) => format!("<{} name=\"{}\">", e.name, n),
+        None if e.line > 0 => format!("<{}> (line {})", e.name, e.line),
+        None => format!("<{}>", e.name),
+    }
+}
+
+/// The component sets of a Model (tag names), in the order OpenSim writes them.
+pub const SETS: [&str; 9] = [
+    "BodySet",
+    "JointSet",
+    "ControllerSet",
+    "ConstraintSet",
+    "ForceSet",
+    "MarkerSet",
+    "ContactGeometrySet",
+    "ProbeSet",
+    "ComponentSet",
+];
+
+/// An OpenSim document held as its XML tree (canonical 4.x form).
+#[derive(Debug, Clone)]
+pub struct Document {
+    tree: XmlTree,
+    path: PathBuf,
+    original_version: u32,
+}
+
+impl Document {
+    /// Read and check a .osim file (size-capped), upgrading 2.x/3.x documents.
+    pub fn read(path: impl AsRef<Path>) -> Result<Document> {
+        let path = path.as_ref();
+        let text = xml::read_file_capped(path)?;
+        Document::parse(&text, path)
+    }
+
+    /// Parse .osim text; `path` names the source in error messages.
+    pub fn parse(text: &str, path: impl AsRef<Path>) -> Result<Document> {
+        let path = path.as_ref().to_path_buf();
+        let mut tree = xml::parse(text, &path)?;
+        let root = &tree.root;
+        if root.name != "OpenSimDocument" {
+            return Err(Error::parse(
+                &path,
+                loc(root),
+                format!(
+                    "root element is <{}>, expected <OpenSimDocument>",
+                    root.name
+                ),
+            ));
+        }
+        let vtext = root.attr("Version").ok_or_else(|| {
+            Error::parse(
+                &path,
+                loc(root),
+                "missing the Version attribute of <OpenSimDocument>",
+            )
+        })?;
+        let version: u32 = vtext.trim().parse().map_err(|_| {
+            Error::parse(
+                &path,
+                loc(root),
+                format!("Version \"{vtext}\" is not an integer"),
+            )
+        })?;
+        if !(OLDEST_VERSION..=CURRENT_VERSION).contains(&version) {
+            return Err(Error::parse(
+                &path,
+                loc(root),
+                format!(
+                    "unknown document Version {version} (supported: {OLDEST_VERSION}..{CURRENT_VERSION}, OpenSim 1.9 to 4.6)"
+                ),
+            ));
+        }
+        let models: Vec<&Element> = root.elements().filter(|e| e.name == "Model").collect();
+        match models.len() {
+            1 => {}
+            0 => {
+                return Err(Error::parse(
+                    &path,
+                    loc(root),
+                    "no <Model> element in <OpenSimDocument>",
+                ));
+            }
+            _ => {
+                return Err(Error::parse(
+                    &path,
+                    loc(models[1]),
+                    "more than one <Model> in the document",
+                ));
+            }
+        }
+        if version < 40000 {
+            super::legacy::upgrade(&mut tree, version, &path)?;
+        }
+        Ok(Document {
+            tree,
+            path,
+            original_version: version,
+        })
+    }
+
+    /// An empty 4.x model document named `name` (ground and empty sets).
+    pub fn new_model(name: &str) -> Document {
+        let mut model = Element::new("Model").with_attr("name", name);
+        model.children.push(Node::Element(
+            Element::new("Ground").with_attr("name", "ground"),
+        ));
+        model.children.push(Node::Element(
+            Element::new("gravity").with_text("0 -9.8066499999999994 0"),
+        ));
+        for s in SETS {
+            model.children.push(Node::Element(empty_set(s)));
+        }
+        let root = Element::new("OpenSimDocument")
+            .with_attr("Version", CURRENT_VERSION.to_string())
+            .with_child(model);
+        Document {
+            tree: XmlTree {
+                declaration: Some("version=\"1.0\" encoding=\"UTF-8\"".into()),
+                prolog: vec![],
+                root,
+                epilog: vec![],
+            },
+            path: PathBuf::from(format!("<new model {name}>")),
+            original_version: CURRENT_VERSION,
+        }
+    }
+
+    /// The file this document came from (or a placeholder), for messages.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Version of the document as held (40600 for upgraded legacy files,
+    /// the file's own for 4.x files).
+    pub fn version(&self) -> u32 {
+        self.tree
+            .root
+            .attr("Version")
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(CURRENT_VERSION)
+    }
+
+    /// Version the file had when read (before any upgrade).
+    pub fn original_version(&self) -> u32 {
+        self.original_version
+    }
+
+    /// The XML tree.
+    pub fn tree(&self) -> &XmlTree {
+        &self.tree
+    }
+
+    /// The XML tree, mutable.
+    pub fn tree_mut(&mut self) -> &mut XmlTree {
+        &mut self.tree
+    }
+
+    /// Serialise (deterministic, tab-indented).
+    pub fn to_xml_string(&self) -> String {
+        self.tree.to_xml_string()
+    }
+
+    /// Write atomically to `path`.
+    pub fn write(&self, path: impl AsRef<Path>) -> Result<()> {
+        crate::util::write_atomic(path.as_ref(), self.to_xml_string().as_bytes())
+    }
+
+    /// The `<Model>` element.
+    pub fn model_element(&self) -> &Element {
+        // `parse`/`new_model` guarantee exactly one Model child.
+        self.tree
+            .root
+            .child("Model")
+            .expect("Document invariant: one <Model>")
+    }
+
+    /// The `<Model>` element, mutable.
+    pub fn model_element_mut(&mut self) -> &mut Element {
+        self.tree
+            .root
+            .child_mut("Model")
+            .expect("Document invariant: one <Model>")
+    }
+
+    /// The `<objects>` of set `set` (e.g. "BodySet"), if the set exists.
+    pub fn set_objects(&self, set: &str) -> Option<&Element> {
+        self.model_element().child(set)?.child("objects")
+    }
+
+    /// The `<objects>` of set `set`, created (with the set) when absent.
+    pub fn set_objects_mut(&mut self, set: &str) -> &mut Element {
+        let model = self.model_element_mut();
+        if model.child(set).is_none() {
+            model.children.push(Node::Element(empty_set(set)));
+        }
+        model.child_or_insert(set).child_or_insert("objects")
+    }
+
+    /// All components of a set, in file order.
+    pub fn components(&self, set: &str) -> Vec<&Element> {
+        self.set_objects(set)
+            .map(|o| o.elements().collect())
+            .unwrap_or_default()
+    }
+
+    /// The component named `name` in set `set`.
+    pub fn component(&self, set: &str, name: &str) -> Option<&Element> {
+        self.set_objects(set)?
+            .elements()
+            .find(|e| e.attr("name") == Some(name))
+    }
+
+    /// The component named `name` in set `set`, mutable.
+    pub fn component_mut(&mut self, set: &str, name: &str) -> Option<&mut Element> {
+        self.model_element_mut()
+            .child_mut(set)?
+            .child_mut("objects")?
+            .elements_mut()
+            .find(|e| e.attr("name") == Some(name))
+    }
+
+    /// Append a component to a set; refuses a name already in the set.
+    pub fn insert_component(&mut self, set: &str, component: Element) -> Result<()> {
+        let name = component.name_attr().to_string();
+        if name.is_empty() {
+            return Err(Error::invalid(
+                self.path.display().to_string(),
+                format!("cannot insert an unnamed <{}> into {set}", component.name),
+            ));
+        }
+        if self.component(set, &name).is_some() {
+            return Err(Error::invalid(
+                self.path.display().to_string(),
+                format!("{set} already has a component named '{name}'"),
+            ));
+        }
+        self.set_objects_mut(set)
+            .children
+            .push(Node::Element(component));
+        Ok(())
+    }
+
+    /// Replace the component named `name` in `set` (keeping its position);
+    /// returns the old element.
+    pub fn replace_component(
+        &mut self,
+        set: &str,
+        name: &str,
+        component: Element,
+    ) -> Result<Element> {
+        let ctx = self.path.display().to_string();
+        let slot = self
+            .component_mut(set, name)
+            .ok_or_else(|| Error::invalid(ctx, format!("{set} has no component named '{name}'")))?;
+        Ok(std::mem::replace(slot, component))
+    }
+
+    /// Remove the component named `name` from `set`; returns it.
+    pub fn remove_component(&mut self, set: &str, name: &str) -> Result<Element> {
+        let ctx = self.path.display().to_string();
+        let missing = || {
+            Error::invalid(
+                ctx.clone(),
+                format!("{set} has no component named '{name}'"),
+            )
+        };
+        let objects = self
+            .model_element_mut()
+            .child_mut(set)
+            .and_then(|s| s.child_mut("objects"))
+            .ok_or_else(missing)?;
+        let idx = objects
+            .children
+            .iter()
+            .position(|n| matches!(n, Node::Element(e) if e.attr("name") == Some(name)))
+            .ok_or_else(missing)?;
+        match objects.children.remove(idx) {
+            Node::Element(e) => Ok(e),
+            _ => Err(missing()),
+        }
+    }
+
+    /// Text of a property (direct child) of the Model element, trimmed.
+    pub fn model_property(&self, name: &str) -> Option<String> {
+        self.model_element().child_text(name)
+    }
+
+    /// Set a property (direct child) of the Model element.
+    pub fn set_model_property(&mut self, name: &str, text: impl Into<String>) {
+        self.model_element_mut().set_child_text(name, text);
+    }
+
+    /// Typed model snapshot (SI, validated). See [`super::model`].
+    pub fn model(&self) -> Result<super::model::Model> {
+        super::model::Model::from_document(self)
+    }
+}
+
+/// `<XSet name="xset"><objects /><groups /></XSet>`.
+pub fn empty_set(tag: &str) -> Element {
+    Element::new(tag)
+        .with_attr("name", tag.to_lowercase())
+        .with_child(Element::new("objects"))
+        .with_child(Element::new("groups"))
+}
+
+// ---------------------------------------------------------------------
+// Typed property helpers. Getters name the file and the element on error.
+
+/// Parse whitespace-separated numbers of property `prop` of `e`; every value
+/// must be finite. `None` when the property is absent.
+pub fn opt_numbers(e: &Element, prop: &str, file: &Path) -> Result<Option<Vec<f64>>> {
+    let Some(c) = e.child(prop) else {
+        return Ok(None);
+    };
+    parse_numbers(&c.text(), c, file).map(Some)
+}
+
+/// Parse whitespace-separated finite numbers from `text` (found in `at`).
+pub fn parse_numbers(text: &str, at: &Element, file: &Path) -> Result<Vec<f64>> {
+    text.split_whitespace()
+        .map(|tok| {
+            let v: f64 = tok
+                .parse()
+                .map_err(|_| Error::parse(file, loc(at), format!("'{tok}' is not a number")))?;
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(Error::parse(
+                    file,
+                    loc(at),
+                    format!("value '{tok}' is not finite (NaN/inf)"),
+                ))
+            }
+        })
+        .collect()
+}
+
+fn required<'a>(e: &'a Element, prop: &str, file: &Path) -> Result<&'a Element> {
+    e.child(prop)
+        .ok_or_else(|| Error::parse(file, loc(e), format!("missing required property <{prop}>")))
+}
+
+/// Required scalar property.
+pub fn f64_prop(e: &Element, prop: &str, file: &Path) -> Result<f64> {
+    let c = required(e, prop, file)?;
+    scalar_of(c, file)
+}
+
+/// Optional scalar property with a default when absent.
+pub fn f64_or(e: &Element, prop: &str, default: f64, file: &Path) -> Result<f64> {
+    match e.child(prop) {
+        Some(c) => scalar_of(c, file),
+        None => Ok(default),
+    }
+}
+
+fn scalar_of(c: &Element, file: &Path) -> Result<f64> {
+    let v = parse_numbers(&c.text(), c, file)?;
+    match v.as_slice() {
+        [x] => Ok(*x),
+        _ => Err(Error::parse(
+            file,
+            loc(c),
+            format!("expected one number, found {}", v.len()),
+        )),
+    }
+}
+
+/// Required property with exactly `n` numbers.
+pub fn fixed_prop(e: &Element, prop: &str, n: usize, file: &Path) -> Result<Vec<f64>> {
+    let c = required(e, prop, file)?;
+    let v = parse_numbers(&c.text(), c, file)?;
+    if v.len() != n {
+        return Err(Error::parse(
+            file,
+            loc(c),
+            format!("expected {n} numbers, found {}", v.len()),
+        ));
+    }
+    Ok(v)
+}
+
+/// Required Vec3 property.
+pub fn vec3_prop(e: &Element, prop: &str, file: &Path) -> Result<Vector3<f64>> {
+    let v = fixed_prop(e, prop, 3, file)?;
+    Ok(Vector3::new(v[0], v[1], v[2]))
+}
+
+/// Optional Vec3 property with a default when absent.
+pub fn vec3_or(
+    e: &Element,
+    prop: &str,
+    default: Vector3<f64>,
+    file: &Path,
+) -> Result<Vector3<f64>> {
+    if e.child(prop).is_some() {
+        vec3_prop(e, prop, file)
+    } else {
+        Ok(default)
+    }
+}
+
+/// Optional bool property (`true`/`false`, as OpenSim writes) with default.
+pub fn bool_or(e: &Element, prop: &str, default: bool, file: &Path) -> Result<bool> {
+    let Some(c) = e.child(prop) else {
+        return Ok(default);
+    };
+    match c.text().trim() {
+        "true" | "1" => Ok(true),
+        "false" | "0" => Ok(false),
+        other => Err(Error::parse(
+            file,
+            loc(c),
+            format!("'{other}' is not true/false"),
+        )),
+    }
+}
+
+/// Optional string property, trimmed; `None` when absent.
+pub fn str_prop(e: &Element, prop: &str) -> Option<String> {
+    e.child_text(prop)
+}
+
+/// Set a scalar property (shortest round-trip formatting).
+pub fn set_f64(e: &mut Element, prop: &str, v: f64) {
+    e.set_child_text(prop, fmt_f64(v));
+}
+
+/// Set a Vec3 property.
+pub fn set_vec3(e: &mut Element, prop: &str, v: &Vector3<f64>) {
+    e.set_child_text(prop, fmt_numbers(v.as_slice()));
+}
+
+/// Set a list-of-numbers property.
+pub fn set_numbers(e: &mut Element, prop: &str, v: &[f64]) {
+    e.set_child_text(prop, fmt_numbers(v));
+}
+
+/// Set a bool property.
+pub fn set_bool(e: &mut Element, prop: &str, v: bool) {
+    e.set_child_text(prop, if v { "true" } else { "false" });
+}
+
+/// Numbers separated by single spaces.
+pub fn fmt_numbers(v: &[f64]) -> String {
+    v.iter().map(|x| fmt_f64(*x)).collect::<Vec<_>>().join(" ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn set_editing() {
+        let mut d = Document::new_model("m");
+        let b = Element::new("Body")
+            .with_attr("name", "L5")
+            .with_prop("mass", "1.2");
+        d.insert_component("BodySet", b.clone()).unwrap();
+        assert!(
+            d.insert_component("BodySet", b).is_err(),
+            "duplicate accepted"
+        );
+        assert_eq!(d.components("BodySet").len(), 1);
+        let c = d.component_mut("BodySet", "L5").unwrap();
+        set_f64(c, "mass", 2.5);
+        set_vec3(c, "mass_center", &Vector3::new(0.1, 0.0, -0.0));
+        let c = d.component("BodySet", "L5").unwrap();
+        assert_eq!(f64_prop(c, "mass", d.path()).unwrap(), 2.5);
+        assert_eq!(
+            vec3_prop(c, "mass_center", d.path()).unwrap(),
+            Vector3::new(0.1, 0.0, 0.0)
+        );
+        let old = d
+            .replace_component(
+                "BodySet",
+                "L5",
+                Element::new("Body").with_attr("name", "L4"),
+            )
+            .unwrap();
+        assert_eq!(old.name_attr(), "L5");
+        assert!(d.component("BodySet", "L4").is_some());
+        d.remove_component("BodySet", "L4").unwrap();
+        assert!(d.remove_component("BodySet", "L4").is_err());
+        // Re-parse what we write.
+        let text = d.to_xml_string();
+        let d2 = Document::parse(&text, "mem.osim").unwrap();
+        assert_eq!(d2.version(), CURRENT_VERSION);
+    }
+
+    #[test]
+    fn typed_getters_reject_bad_values() {
+        let e = Element::new("Body")
+            .with_attr("name", "b")
+            .with_prop("mass", "nan")
+            .with_prop("mass_center", "1 2")
+            .with_prop("x", "abc");
+        let f = Path::new("f.osim");
+        assert!(f64_prop(&e, "mass", f)
+            .unwrap_err()
+            .to_string()
+            .contains("not finite"));
+        assert!(vec3_prop(&e, "mass_center", f)
+            .unwrap_err()
+            .to_string()
+            .contains("expected 3"));
+        assert!(f64_prop(&e, "x", f)
+            .unwrap_err()
+            .to_string()
+            .contains("not a number"));
+        assert!(f64_prop(&e, "nothing", f)
+            .unwrap_err()
+            .to_string()
+            .contains("missing required"));
+    }
+}

@@ -1,0 +1,488 @@
+//! OpenSim functions of one variable (TransformAxis functions, coupler
+//! functions, moving path point locations) with value and first/second
+//! derivatives, matching OpenSim's definitions:
+//!
+//! - `Constant` c; `LinearFunction` coefficients [slope, intercept];
+//! - `PolynomialFunction` coefficients highest order first;
+//! - `MultiplierFunction` scale * inner function;
+//! - `SimmSpline` and `NaturalCubicSpline`: OpenSim's cubic spline (the
+//!   Forsythe-Malcolm-Moler construction: end third derivatives matched to
+//!   divided differences of the end points); outside the knots the value is
+//!   extrapolated linearly with the end slope, and d2 is 0;
+//! - `PiecewiseLinearFunction`: linear interpolation, linear extrapolation
+//!   with the end segments' slopes.
+//!
+//! Other classes are kept as [`Function::Unsupported`] (evaluating gives NaN;
+//! check [`Function::is_supported`]).
+
+use super::document::{fixed_prop, loc, opt_numbers};
+use super::xml::Element;
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// Tags of the OpenSim function classes (used to find a function element).
+pub const FUNCTION_CLASSES: [&str; 13] = [
+    "Constant",
+    "LinearFunction",
+    "PolynomialFunction",
+    "MultiplierFunction",
+    "SimmSpline",
+    "NaturalCubicSpline",
+    "PiecewiseLinearFunction",
+    "PiecewiseConstantFunction",
+    "GCVSpline",
+    "StepFunction",
+    "Sine",
+    "ExpressionBasedFunction",
+    "FunctionBasedPathSet",
+];
+
+/// Spaces of OpenSim's spline knots closer than this are widened (as OpenSim does).
+const TINY_KNOT_GAP: f64 = 1e-7;
+/// Abscissae this close to an end knot are treated as the end knot.
+const ROUNDOFF: f64 = 2e-13;
+
+/// A cubic spline through knots (OpenSim's SimmSpline / NaturalCubicSpline).
+/// On segment k, f(x) = y_k + t (b_k + t (c_k + t d_k)) with t = x - x_k.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CubicSpline {
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    b: Vec<f64>,
+    c: Vec<f64>,
+    d: Vec<f64>,
+}
+
+impl CubicSpline {
+    /// Build the spline; needs at least 2 knots, x non-decreasing, and
+    /// x, y the same length (checked by the caller for messages).
+    pub fn new(x: Vec<f64>, y: Vec<f64>) -> CubicSpline {
+        let n = x.len();
+        let mut s = CubicSpline {
+            x,
+            y,
+            b: vec![0.0; n],
+            c: vec![0.0; n],
+            d: vec![0.0; n],
+        };
+        s.fit();
+        s
+    }
+
+    fn fit(&mut self) {
+        let n = self.x.len();
+        if n < 2 {
+            return;
+        }
+        let (x, y) = (&self.x, &self.y);
+        let h: Vec<f64> = (0..n - 1)
+            .map(|i| (x[i + 1] - x[i]).max(TINY_KNOT_GAP))
+            .collect();
+        if n == 2 {
+            let slope = (y[1] - y[0]) / h[0];
+            self.b = vec![slope; 2];
+            self.c = vec![0.0; 2];
+            self.d = vec![0.0; 2];
+            return;
+        }
+        // Unknowns s_i (one third of the second derivative at knot i) solve a
+        // symmetric tridiagonal system: diag[i], off-diagonal h[i], rhs[i].
+        let last = n - 1;
+        let mut diag = vec![0.0; n];
+        let mut rhs = vec![0.0; n];
+        let slope: Vec<f64> = (0..last).map(|i| (y[i + 1] - y[i]) / h[i]).collect();
+        for i in 1..last {
+            diag[i] = 2.0 * (h[i - 1] + h[i]);
+            rhs[i] = slope[i] - slope[i - 1];
+        }
+        // End conditions: the third derivative at each end equals that of the
+        // cubic through the four end points (divided differences).
+        diag[0] = -h[0];
+        diag[last] = -h[last - 1];
+        if n > 3 {
+            let gap = |a: usize, b: usize| (x[a] - x[b]).max(TINY_KNOT_GAP);
+            let lo = rhs[2] / gap(3, 1) - rhs[1] / gap(2, 0);
+            let hi = rhs[last - 1] / gap(last, n - 3) - rhs[n - 3] / gap(last - 1, n - 4);
+            rhs[0] = lo * h[0] * h[0] / gap(3, 0);
+            rhs[last] = -hi * h[last - 1] * h[last - 1] / gap(last, n - 4);
+        }
+        // Thomas algorithm (off-diagonal entries are h[i]).
+        for i in 1..n {
+            let m = h[i - 1] / diag[i - 1];
+            diag[i] -= m * h[i - 1];
+            rhs[i] -= m * rhs[i - 1];
+        }
+        let mut s = vec![0.0; n];
+        s[last] = rhs[last] / diag[last];
+        for i in (0..last).rev() {
+            s[i] = (rhs[i] - h[i] * s[i + 1]) / diag[i];
+        }
+        let mut b = vec![0.0; n];
+        let mut c = vec![0.0; n];
+        let mut d = vec![0.0; n];
+        for i in 0..last {
+            b[i] = slope[i] - h[i] * (s[i + 1] + 2.0 * s[i]);
+            d[i] = (s[i + 1] - s[i]) / h[i];
+            c[i] = 3.0 * s[i];
+        }
+        b[last] = slope[last - 1] + h[last - 1] * (s[last - 1] + 2.0 * s[last]);
+        c[last] = 3.0 * s[last];
+        d[last] = d[last - 1];
+        self.b = b;
+        self.c = c;
+        self.d = d;
+    }
+
+    /// Segment index for an abscissa strictly inside (x0, x_{n-1}).
+    fn segment(&self, x: f64) -> usize {
+        // First knot strictly greater than x, minus one.
+        let k = self.x.partition_point(|&xi| xi <= x);
+        k.saturating_sub(1).min(self.x.len().saturating_sub(2))
+    }
+
+    /// Derivative of order 0, 1 or 2.
+    pub fn eval_order(&self, x: f64, order: usize) -> f64 {
+        let n = self.x.len();
+        if n < 2 {
+            return f64::NAN;
+        }
+        let (x0, xn) = (self.x[0], self.x[n - 1]);
+        if x < x0 {
+            return match order {
+                0 => self.y[0] + (x - x0) * self.b[0],
+                1 => self.b[0],
+                _ => 0.0,
+            };
+        }
+        if x > xn {
+            return match order {
+                0 => self.y[n - 1] + (x - xn) * self.b[n - 1],
+                1 => self.b[n - 1],
+                _ => 0.0,
+            };
+        }
+        for &(xe, i) in &[(x0, 0usize), (xn, n - 1)] {
+            if (x - xe).abs() <= ROUNDOFF {
+                return match order {
+                    0 => self.y[i],
+                    1 => self.b[i],
+                    _ => 2.0 * self.c[i],
+                };
+            }
+        }
+        let k = self.segment(x);
+        let t = x - self.x[k];
+        let (b, c, d) = (self.b[k], self.c[k], self.d[k]);
+        match order {
+            0 => self.y[k] + t * (b + t * (c + t * d)),
+            1 => b + t * (2.0 * c + 3.0 * t * d),
+            _ => 2.0 * c + 6.0 * t * d,
+        }
+    }
+}
+
+/// A function of one variable as OpenSim defines it.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Function {
+    Constant(f64),
+    Linear {
+        slope: f64,
+        intercept: f64,
+    },
+    /// Coefficients, highest order first.
+    Polynomial(Vec<f64>),
+    Multiplier {
+        scale: f64,
+        inner: Box<Function>,
+    },
+    /// `SimmSpline` or `NaturalCubicSpline` (same construction in OpenSim).
+    Spline {
+        class: String,
+        spline: CubicSpline,
+    },
+    PiecewiseLinear {
+        x: Vec<f64>,
+        y: Vec<f64>,
+    },
+    /// A class this tool does not evaluate (kept by class name).
+    Unsupported {
+        class: String,
+    },
+}
+
+impl Function {
+    /// The function element inside `parent`: a direct child whose tag is a
+    /// function class, or one inside a `<function>` wrapper (older files).
+    pub fn element_in(parent: &Element) -> Option<&Element> {
+        let direct = parent
+            .elements()
+            .find(|e| FUNCTION_CLASSES.contains(&e.name.as_str()));
+        if direct.is_some() {
+            return direct;
+        }
+        for wrapper in ["function", "coupled_coordinates_function"] {
+            if let Some(w) = parent.child(wrapper) {
+                if let Some(f) = w.elements().next() {
+                    return Some(f);
+                }
+            }
+        }
+        None
+    }
+
+    /// Parse the function held in `parent` (see [`Function::element_in`]).
+    pub fn from_parent(parent: &Element, file: &Path) -> Result<Function> {
+        let e = Function::element_in(parent).ok_or_else(|| {
+            Error::parse(
+                file,
+                loc(parent),
+                "missing the function (e.g. <LinearFunction>, <SimmSpline>)",
+            )
+        })?;
+        Function::from_element(e, file)
+    }
+
+    /// Parse a function element (its tag is the class).
+    pub fn from_element(e: &Element, file: &Path) -> Result<Function> {
+        Ok(match e.name.as_str() {
+            "Constant" => {
+                let v = opt_numbers(e, "value", file)?.unwrap_or_else(|| vec![0.0]);
+                match v.as_slice() {
+                    [c] => Function::Constant(*c),
+                    _ => return Err(Error::parse(file, loc(e), "<value> must hold one number")),
+                }
+            }
+            "LinearFunction" => {
+                let c = fixed_prop(e, "coefficients", 2, file)?;
+                Function::Linear {
+                    slope: c[0],
+                    intercept: c[1],
+                }
+            }
+            "PolynomialFunction" => {
+                let c = opt_numbers(e, "coefficients", file)?.unwrap_or_default();
+                if c.is_empty() {
+                    return Err(Error::parse(
+                        file,
+                        loc(e),
+                        "polynomial without coefficients",
+                    ));
+                }
+                Function::Polynomial(c)
+            }
+            "MultiplierFunction" => {
+                let scale = super::document::f64_or(e, "scale", 1.0, file)?;
+                let inner = Function::from_parent(e, file)?;
+                Function::Multiplier {
+                    scale,
+                    inner: Box::new(inner),
+                }
+            }
+            "SimmSpline" | "NaturalCubicSpline" | "PiecewiseLinearFunction" => {
+                let (x, y) = knots(e, file)?;
+                if e.name == "PiecewiseLinearFunction" {
+                    Function::PiecewiseLinear { x, y }
+                } else {
+                    Function::Spline {
+                        class: e.name.clone(),
+                        spline: CubicSpline::new(x, y),
+                    }
+                }
+            }
+            other => Function::Unsupported {
+                class: other.to_string(),
+            },
+        })
+    }
+
+    /// Whether [`eval`](Self::eval) gives real values for this function.
+    pub fn is_supported(&self) -> bool {
+        match self {
+            Function::Unsupported { .. } => false,
+            Function::Multiplier { inner, .. } => inner.is_supported(),
+            _ => true,
+        }
+    }
+
+    /// Value at `x`.
+    pub fn eval(&self, x: f64) -> f64 {
+        self.derivative(x, 0)
+    }
+
+    /// First derivative d/dx at `x`.
+    pub fn d1(&self, x: f64) -> f64 {
+        self.derivative(x, 1)
+    }
+
+    /// Second derivative d2/dx2 at `x`.
+    pub fn d2(&self, x: f64) -> f64 {
+        self.derivative(x, 2)
+    }
+
+    /// Derivative of order 0, 1 or 2 (higher orders are 0 except polynomials).
+    pub fn derivative(&self, x: f64, order: usize) -> f64 {
+        match self {
+            Function::Constant(c) => {
+                if order == 0 {
+                    *c
+                } else {
+                    0.0
+                }
+            }
+            Function::Linear { slope, intercept } => match order {
+                0 => slope * x + intercept,
+                1 => *slope,
+                _ => 0.0,
+            },
+            Function::Polynomial(c) => {
+                // Differentiate the coefficient list `order` times, then Horner.
+                let deg = c.len() - 1;
+                let mut acc = 0.0;
+                for (i, &ci) in c.iter().enumerate() {
+                    let p = deg - i; // power of this term
+                    if p < order {
+                        break;
+                    }
+                    let factor: f64 = (0..order).map(|k| (p - k) as f64).product();
+                    acc = acc * x + ci * factor;
+                }
+                acc
+            }
+            Function::Multiplier { scale, inner } => scale * inner.derivative(x, order),
+            Function::Spline { spline, .. } => spline.eval_order(x, order),
+            Function::PiecewiseLinear { x: xs, y: ys } => piecewise_linear(xs, ys, x, order),
+            Function::Unsupported { .. } => f64::NAN,
+        }
+    }
+}
+
+fn piecewise_linear(xs: &[f64], ys: &[f64], x: f64, order: usize) -> f64 {
+    let n = xs.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n == 1 {
+        return if order == 0 { ys[0] } else { 0.0 };
+    }
+    // Segment: clamp to the first/last for extrapolation.
+    let k = xs
+        .partition_point(|&xi| xi <= x)
+        .saturating_sub(1)
+        .min(n - 2);
+    let dx = xs[k + 1] - xs[k];
+    let slope = if dx > 0.0 {
+        (ys[k + 1] - ys[k]) / dx
+    } else {
+        0.0
+    };
+    match order {
+        0 => ys[k] + slope * (x - xs[k]),
+        1 => slope,
+        _ => 0.0,
+    }
+}
+
+fn knots(e: &Element, file: &Path) -> Result<(Vec<f64>, Vec<f64>)> {
+    let x = opt_numbers(e, "x", file)?
+        .ok_or_else(|| Error::parse(file, loc(e), "missing required property <x>"))?;
+    let y = opt_numbers(e, "y", file)?
+        .ok_or_else(|| Error::parse(file, loc(e), "missing required property <y>"))?;
+    if x.len() != y.len() {
+        return Err(Error::parse(
+            file,
+            loc(e),
+            format!("<x> has {} values but <y> has {}", x.len(), y.len()),
+        ));
+    }
+    if x.len() < 2 {
+        return Err(Error::parse(
+            file,
+            loc(e),
+            "a spline needs at least 2 points",
+        ));
+    }
+    if x.windows(2).any(|w| w[1] < w[0]) {
+        return Err(Error::parse(
+            file,
+            loc(e),
+            "<x> values must be non-decreasing",
+        ));
+    }
+    Ok((x, y))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fd_check(f: &Function, xs: &[f64]) {
+        for &x in xs {
+            let h = 1e-6;
+            let d1 = (f.eval(x + h) - f.eval(x - h)) / (2.0 * h);
+            let d2 = (f.d1(x + h) - f.d1(x - h)) / (2.0 * h);
+            assert!(
+                (d1 - f.d1(x)).abs() < 1e-6 * (1.0 + d1.abs()),
+                "d1 at {x}: {d1} vs {}",
+                f.d1(x)
+            );
+            assert!(
+                (d2 - f.d2(x)).abs() < 1e-5 * (1.0 + d2.abs()),
+                "d2 at {x}: {d2} vs {}",
+                f.d2(x)
+            );
+        }
+    }
+
+    #[test]
+    fn polynomial_highest_order_first() {
+        let p = Function::Polynomial(vec![1.0, 2.0, 3.0]);
+        assert_eq!(p.eval(2.0), 11.0);
+        assert_eq!(p.d1(2.0), 6.0);
+        assert_eq!(p.d2(2.0), 2.0);
+        fd_check(&p, &[-1.3, 0.0, 0.7]);
+    }
+
+    #[test]
+    fn spline_interpolates_and_derivatives_match_fd() {
+        let s = Function::Spline {
+            class: "SimmSpline".into(),
+            spline: CubicSpline::new(vec![0.0, 1.0, 2.0, 4.0, 5.5], vec![0.0, 1.0, 0.0, 3.0, 2.0]),
+        };
+        for (x, y) in [(0.0, 0.0), (1.0, 1.0), (2.0, 0.0), (4.0, 3.0), (5.5, 2.0)] {
+            assert!((s.eval(x) - y).abs() < 1e-12);
+        }
+        fd_check(&s, &[0.3, 0.9, 1.5, 2.5, 3.9, 5.0]);
+        // A spline through a cubic's samples reproduces the cubic (the end
+        // conditions are exact for cubics).
+        let cubic = |x: f64| 0.5 * x * x * x - x * x + 2.0;
+        let xs = vec![-1.0, -0.2, 0.5, 1.0, 2.2, 3.0];
+        let ys: Vec<f64> = xs.iter().map(|&x| cubic(x)).collect();
+        let sp = CubicSpline::new(xs, ys);
+        for x in [-0.7, 0.1, 0.8, 1.7, 2.9] {
+            assert!((sp.eval_order(x, 0) - cubic(x)).abs() < 1e-12, "at {x}");
+        }
+    }
+
+    #[test]
+    fn multiplier_and_linear() {
+        let m = Function::Multiplier {
+            scale: -2.0,
+            inner: Box::new(Function::Linear {
+                slope: 3.0,
+                intercept: 1.0,
+            }),
+        };
+        assert_eq!(m.eval(1.0), -8.0);
+        assert_eq!(m.d1(1.0), -6.0);
+        assert_eq!(m.d2(1.0), 0.0);
+        let pl = Function::PiecewiseLinear {
+            x: vec![0.0, 1.0, 2.0, 4.0],
+            y: vec![0.0, 1.0, 0.0, 3.0],
+        };
+        // Values OpenSim 4.6 gives for this function (checked by hand: linear
+        // interpolation, end-slope extrapolation).
+        for (x, v) in [(-1.0, -1.0), (0.5, 0.5), (3.0, 1.5), (5.0, 4.5)] {
+            assert!((pl.eval(x) - v).abs() < 1e-15);
+        }
+    }
+}
