@@ -15,10 +15,19 @@ use std::collections::BTreeMap;
 fn convert_function(f: &OFunction, ctx: &str) -> Result<Function> {
     Ok(match f {
         OFunction::Constant(c) => Function::Constant(*c),
-        OFunction::Linear { slope, intercept } => Function::Linear { slope: *slope, intercept: *intercept },
+        OFunction::Linear { slope, intercept } => Function::Linear {
+            slope: *slope,
+            intercept: *intercept,
+        },
         OFunction::Polynomial(c) => Function::Polynomial(c.clone()),
-        OFunction::Multiplier { scale, inner } => Function::Multiplier { scale: *scale, inner: Box::new(convert_function(inner, ctx)?) },
-        OFunction::PiecewiseLinear { x, y } => Function::PiecewiseLinear { x: x.clone(), y: y.clone() },
+        OFunction::Multiplier { scale, inner } => Function::Multiplier {
+            scale: *scale,
+            inner: Box::new(convert_function(inner, ctx)?),
+        },
+        OFunction::PiecewiseLinear { x, y } => Function::PiecewiseLinear {
+            x: x.clone(),
+            y: y.clone(),
+        },
         OFunction::Spline { spline, .. } => {
             // Coefficients of OpenSim's spline from its value and first two
             // derivatives at the knots (the spline is C2).
@@ -33,7 +42,11 @@ fn convert_function(f: &OFunction, ctx: &str) -> Result<Function> {
             let mut d = vec![0.0; n];
             for k in 0..n - 1 {
                 let h = xs[k + 1] - xs[k];
-                d[k] = if h > 0.0 { (c[k + 1] - c[k]) / (3.0 * h) } else { 0.0 };
+                d[k] = if h > 0.0 {
+                    (c[k + 1] - c[k]) / (3.0 * h)
+                } else {
+                    0.0
+                };
             }
             d[n - 1] = if n >= 2 { d[n - 2] } else { 0.0 };
             let mut y = y;
@@ -44,7 +57,10 @@ fn convert_function(f: &OFunction, ctx: &str) -> Result<Function> {
             Function::Cubic { x: xs, y, b, c, d }
         }
         OFunction::Unsupported { class } => {
-            return Err(Error::invalid(ctx, format!("function class {class} is not supported by the solver")));
+            return Err(Error::invalid(
+                ctx,
+                format!("function class {class} is not supported by the solver"),
+            ));
         }
     })
 }
@@ -69,24 +85,38 @@ impl SystemSpec {
             let [ixx, iyy, izz, ixy, ixz, iyz] = b.inertia;
             let inertia = Matrix3::new(ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz);
             body_idx.insert(b.name.as_str(), i);
-            bodies.push(BodySpec { name: b.name.clone(), mass: b.mass, com: b.mass_center, inertia });
+            bodies.push(BodySpec {
+                name: b.name.clone(),
+                mass: b.mass,
+                com: b.mass_center,
+                inertia,
+            });
         }
         let mut coordinates = Vec::new();
         let mut coord_idx: BTreeMap<String, usize> = BTreeMap::new();
         for c in model.coordinates() {
             coord_idx.insert(c.name.clone(), coordinates.len());
-            coordinates.push(CoordinateSpec { name: c.name.clone(), default: c.default_value, range: c.range, clamped: c.clamped, locked: c.locked });
+            coordinates.push(CoordinateSpec {
+                name: c.name.clone(),
+                default: c.default_value,
+                range: c.range,
+                clamped: c.clamped,
+                locked: c.locked,
+            });
         }
         let frames = model.joint_frames()?;
         let mut joints = Vec::with_capacity(model.joints.len());
         for (j, fr) in model.joints.iter().zip(&frames) {
             let ctx = format!("{file}: joint '{}'", j.name);
-            let body = |name: &str| -> Result<Option<usize>> {
-                if name == "ground" {
-                    return Ok(None);
-                }
-                body_idx.get(name).copied().map(Some).ok_or_else(|| Error::invalid(ctx.clone(), format!("body '{name}' not found")))
-            };
+            let body =
+                |name: &str| -> Result<Option<usize>> {
+                    if name == "ground" {
+                        return Ok(None);
+                    }
+                    body_idx.get(name).copied().map(Some).ok_or_else(|| {
+                        Error::invalid(ctx.clone(), format!("body '{name}' not found"))
+                    })
+                };
             let parent = body(&fr.parent_body)?;
             let Some(child) = body(&fr.child_body)? else {
                 return Err(Error::invalid(ctx, "a joint's child frame may not be on ground (reversed joints are not supported)"));
@@ -94,11 +124,18 @@ impl SystemSpec {
             let own: Vec<usize> = j
                 .coordinates
                 .iter()
-                .map(|c| coord_idx.get(&c.name).copied().ok_or_else(|| Error::invalid(ctx.clone(), format!("coordinate '{}' not found", c.name))))
+                .map(|c| {
+                    coord_idx.get(&c.name).copied().ok_or_else(|| {
+                        Error::invalid(ctx.clone(), format!("coordinate '{}' not found", c.name))
+                    })
+                })
                 .collect::<Result<_>>()?;
             let need = |n: usize| -> Result<()> {
                 if own.len() != n {
-                    return Err(Error::invalid(ctx.clone(), format!("{} needs {n} coordinates, has {}", j.class, own.len())));
+                    return Err(Error::invalid(
+                        ctx.clone(),
+                        format!("{} needs {n} coordinates, has {}", j.class, own.len()),
+                    ));
                 }
                 Ok(())
             };
@@ -113,29 +150,52 @@ impl SystemSpec {
                 }
                 (OJointKind::Free, _) => {
                     need(6)?;
-                    JointKind::Free { coords: [own[0], own[1], own[2], own[3], own[4], own[5]] }
+                    JointKind::Free {
+                        coords: [own[0], own[1], own[2], own[3], own[4], own[5]],
+                    }
                 }
                 (OJointKind::Custom { axes }, _) => {
                     if axes.len() != 6 {
-                        return Err(Error::invalid(ctx, format!("SpatialTransform needs 6 transform axes, has {}", axes.len())));
+                        return Err(Error::invalid(
+                            ctx,
+                            format!(
+                                "SpatialTransform needs 6 transform axes, has {}",
+                                axes.len()
+                            ),
+                        ));
                     }
                     let mut out = Vec::with_capacity(6);
                     for ta in axes {
                         let actx = format!("{ctx}: {}", ta.name);
                         let coord = match ta.coordinates.as_slice() {
                             [] => None,
-                            [c] => Some(*coord_idx.get(c).ok_or_else(|| Error::invalid(actx.clone(), format!("coordinate '{c}' not found")))?),
-                            _ => return Err(Error::invalid(actx, "transform axes driven by several coordinates are not supported")),
+                            [c] => Some(*coord_idx.get(c).ok_or_else(|| {
+                                Error::invalid(actx.clone(), format!("coordinate '{c}' not found"))
+                            })?),
+                            _ => return Err(Error::invalid(
+                                actx,
+                                "transform axes driven by several coordinates are not supported",
+                            )),
                         };
                         let function = convert_function(&ta.function, &actx)?;
-                        out.push(TransformAxis { axis: ta.axis, coord, function });
+                        out.push(TransformAxis {
+                            axis: ta.axis,
+                            coord,
+                            function,
+                        });
                     }
-                    let arr: [TransformAxis; 6] = out.try_into().map_err(|_| Error::invalid(ctx.clone(), "needs 6 axes"))?;
-                    JointKind::Custom { axes: Box::new(arr) }
+                    let arr: [TransformAxis; 6] = out
+                        .try_into()
+                        .map_err(|_| Error::invalid(ctx.clone(), "needs 6 axes"))?;
+                    JointKind::Custom {
+                        axes: Box::new(arr),
+                    }
                 }
                 (OJointKind::Other, "UniversalJoint") => {
                     need(2)?;
-                    JointKind::Universal { coords: [own[0], own[1]] }
+                    JointKind::Universal {
+                        coords: [own[0], own[1]],
+                    }
                 }
                 (OJointKind::Other, "SliderJoint") => {
                     need(1)?;
@@ -154,9 +214,21 @@ impl SystemSpec {
                         ]),
                     }
                 }
-                (_, class) => return Err(Error::invalid(ctx, format!("joint class {class} is not supported by the solver"))),
+                (_, class) => {
+                    return Err(Error::invalid(
+                        ctx,
+                        format!("joint class {class} is not supported by the solver"),
+                    ))
+                }
             };
-            joints.push(JointSpec { name: j.name.clone(), parent, child, x_pf: fr.parent_in_body, x_bm: fr.child_in_body, kind });
+            joints.push(JointSpec {
+                name: j.name.clone(),
+                parent,
+                child,
+                x_pf: fr.parent_in_body,
+                x_bm: fr.child_in_body,
+                kind,
+            });
         }
         let mut bushings = Vec::new();
         for f in &model.forces {
@@ -169,7 +241,9 @@ impl SystemSpec {
                         let body = if bn == "ground" {
                             None
                         } else {
-                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| Error::invalid(ctx.clone(), format!("body '{bn}' not found")))?)
+                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
+                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
+                            })?)
                         };
                         Ok(FrameSpec { body, transform: x })
                     };
@@ -194,7 +268,13 @@ impl SystemSpec {
                 _ => {}
             }
         }
-        Ok(SystemSpec { bodies, joints, coordinates, bushings, gravity: model.gravity })
+        Ok(SystemSpec {
+            bodies,
+            joints,
+            coordinates,
+            bushings,
+            gravity: model.gravity,
+        })
     }
 
     /// Read an .osim file and build its solver description.

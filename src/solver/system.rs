@@ -519,6 +519,22 @@ impl System {
     pub fn body_index(&self, name: &str) -> Option<usize> {
         self.bodies.iter().position(|b| b.name == name)
     }
+    /// Joint names in system order (the joint of each body).
+    pub fn joint_names(&self) -> impl Iterator<Item = &str> {
+        self.bodies.iter().map(|b| b.joint.name.as_str())
+    }
+    /// The force law of bushing `i`.
+    pub fn bushing_model(&self, i: usize) -> Option<&BushingModel> {
+        self.bushings.get(i).map(|b| &b.model)
+    }
+    /// System body index of a spec body index.
+    pub fn body_of_spec(&self, spec_body: usize) -> Option<usize> {
+        self.body_map.get(spec_body).copied()
+    }
+    /// Body (system index) moved by free dof `i`.
+    pub fn dof_body(&self, i: usize) -> Option<usize> {
+        self.dof_body.get(i).copied()
+    }
     /// Bushing names in order.
     pub fn bushing_names(&self) -> impl Iterator<Item = &str> {
         self.bushings.iter().map(|b| b.name.as_str())
@@ -748,7 +764,6 @@ pub struct Workspace {
     pub(crate) lu: DenseLu,
     pub(crate) jac_valid: bool,
     pub(crate) r: Vec<f64>,
-    pub(crate) r_trial: Vec<f64>,
     pub(crate) dq: Vec<f64>,
     pub(crate) q_trial: Vec<f64>,
     /// Dynamics: mass matrix (Cholesky in place), velocities and bias.
@@ -771,7 +786,6 @@ impl Workspace {
             lu: DenseLu::new(n),
             jac_valid: false,
             r: vec![0.0; n],
-            r_trial: vec![0.0; n],
             dq: vec![0.0; n],
             q_trial: vec![0.0; n],
             mass: DMatrix::zeros(n, n),
