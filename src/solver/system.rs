@@ -535,6 +535,13 @@ impl System {
     pub fn dof_body(&self, i: usize) -> Option<usize> {
         self.dof_body.get(i).copied()
     }
+    /// True when body `i` hangs on ground through a joint without free dofs.
+    pub fn is_welded_to_ground(&self, i: usize) -> bool {
+        self.bodies
+            .get(i)
+            .map(|b| b.parent.is_none() && b.joint.dof_count == 0)
+            .unwrap_or(false)
+    }
     /// Bushing names in order.
     pub fn bushing_names(&self) -> impl Iterator<Item = &str> {
         self.bushings.iter().map(|b| b.name.as_str())
