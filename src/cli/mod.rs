@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod convert;
 pub mod info;
+pub mod simulate;
 
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
 #[derive(Debug, Parser)]
@@ -21,6 +22,8 @@ pub enum Command {
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
     Convert(convert::Args),
+    /// Static equilibrium (or forward dynamics) of a model under load cases.
+    Simulate(simulate::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -29,6 +32,7 @@ pub fn main() -> i32 {
     let result: anyhow::Result<i32> = match cli.command {
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
+        Command::Simulate(a) => simulate::run(a),
     };
     match result {
         Ok(code) => code,
