@@ -3,6 +3,9 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod check;
+pub mod variability;
+
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
 #[derive(Debug, Parser)]
 #[command(name = "osim-spine", version, about, long_about = None)]
@@ -13,12 +16,23 @@ pub struct Cli {
 
 /// Subcommands.
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Validate landmark sets: protocol completeness, names, units and
+    /// frame, per-vertebra geometry, inter-vertebral plausibility, outliers.
+    /// Exit 0 clean, 1 errors, 2 warnings only (1 with --strict).
+    Check(check::Args),
+    /// Repeated-palpation statistics: IQRs, ICC(2,1), Shapiro-Wilk,
+    /// Friedman/Skillings-Mack with Nemenyi post hoc; JSON + SVG.
+    Variability(variability::Args),
+}
 
 /// Parse the command line and run; returns the process exit code.
 pub fn main() -> i32 {
     let cli = Cli::parse();
-    let result: anyhow::Result<i32> = match cli.command {};
+    let result: anyhow::Result<i32> = match &cli.command {
+        Command::Check(a) => check::run(a),
+        Command::Variability(a) => variability::run(a),
+    };
     match result {
         Ok(code) => code,
         Err(e) => {
