@@ -90,7 +90,7 @@ fn swap(set: &mut LandmarkSet, l: Level, a: Code, b: Code) {
 }
 
 /// Make one corrupted file (CSV text) and say what was done.
-fn corrupt(defect: Defect, seed: u64) -> (String, String) {
+fn corrupt(defect: Defect, seed: u64) -> (String, String, Option<String>) {
     let mut rng = ChaCha8Rng::seed_from_u64(1000 + seed);
     // Palpation-like noise (thesis: median IQR 1.3 mm -> SD ~1 mm).
     let mut set = base(seed, 0.001);
@@ -100,6 +100,7 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String) {
     let l = interior_level(&set, &mut rng);
     let what;
     let mut text;
+    let mut culprit = None;
     match defect {
         Defect::Missing => {
             let lv = set.levels();
@@ -169,6 +170,7 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String) {
             let p = set.get(l, c).unwrap() + dir * 0.010;
             set.insert(l, c, p);
             what = format!("{l}_{c} moved 10 mm along {dir:?}");
+            culprit = Some(format!("{l}_{c}"));
             text = csv_string(&set, units, frame);
         }
         Defect::VertebraShifted => {
@@ -178,6 +180,7 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String) {
                 set.insert(l, c, p);
             }
             what = format!("{l} shifted 20 mm along {dir:?}");
+            culprit = Some(format!("{l}_SEC"));
             text = csv_string(&set, units, frame);
         }
         Defect::LevelsOutOfOrder => {
@@ -186,7 +189,6 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String) {
             let j = (i + rng.random_range(1..3)).min(lv.len() - 2);
             let (a, b) = (lv[i], lv[j]);
             for c in Code::ALL {
-                swap(&mut set, a, c, c); // no-op keeps the borrow simple
                 let pa = set.get(a, c).unwrap();
                 let pb = set.get(b, c).unwrap();
                 set.insert(a, c, pb);
@@ -196,7 +198,7 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String) {
             text = csv_string(&set, units, frame);
         }
     }
-    (text, what)
+    (text, what, culprit)
 }
 
 #[test]
@@ -219,11 +221,16 @@ fn every_corrupted_set_is_flagged_with_its_code() {
     for (k, d) in defects.iter().enumerate() {
         for s in 0..per_class {
             let seed = (k * per_class + s) as u64;
-            let (text, what) = corrupt(*d, seed);
+            let (text, what, culprit) = corrupt(*d, seed);
             let r = check_text(&text, &format!("corrupt-{seed}.csv"));
             n += 1;
             let code = d.expected_code();
-            let hit = r.findings.iter().any(|f| f.code == code && f.severity >= Severity::Warning);
+            // The right code, and for localised defects on the right landmark.
+            let hit = r.findings.iter().any(|f| {
+                f.code == code
+                    && f.severity >= Severity::Warning
+                    && culprit.as_ref().is_none_or(|c| f.landmarks.contains(c))
+            });
             if !hit {
                 failures.push(format!("{d:?} (seed {seed}: {what}) not flagged {code}:\n{}", describe(&r)));
             }
