@@ -3,9 +3,11 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod check;
 pub mod convert;
 pub mod info;
 pub mod simulate;
+pub mod variability;
 
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
 #[derive(Debug, Parser)]
@@ -24,6 +26,13 @@ pub enum Command {
     Convert(convert::Args),
     /// Static equilibrium (or forward dynamics) of a model under load cases.
     Simulate(simulate::Args),
+    /// Validate landmark sets: protocol completeness, names, units and
+    /// frame, per-vertebra geometry, inter-vertebral plausibility, outliers.
+    /// Exit 0 clean, 1 errors, 2 warnings only (1 with --strict).
+    Check(check::Args),
+    /// Repeated-palpation statistics: IQRs, ICC(2,1), Shapiro-Wilk,
+    /// Friedman/Skillings-Mack with Nemenyi post hoc; JSON + SVG.
+    Variability(variability::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -33,6 +42,8 @@ pub fn main() -> i32 {
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Check(a) => check::run(&a),
+        Command::Variability(a) => variability::run(&a),
     };
     match result {
         Ok(code) => code,
