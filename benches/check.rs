@@ -26,7 +26,9 @@ fn bench(c: &mut Criterion) {
         })
     });
     let lines = Default::default();
-    c.bench_function("check_set_17_levels", |b| b.iter(|| check_set(black_box(&set), &lines)));
+    c.bench_function("check_set_17_levels", |b| {
+        b.iter(|| check_set(black_box(&set), &lines))
+    });
 }
 
 criterion_group!(benches, bench);

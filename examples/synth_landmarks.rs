@@ -22,7 +22,12 @@ fn main() -> anyhow::Result<()> {
         .map(|s| s.parse().map_err(|_| anyhow::anyhow!("bad level {s}")))
         .transpose()?
         .unwrap_or(Level::T1);
-    let set = generate(&SynthOptions { top, shape, noise_sd: noise_mm * 1e-3, seed })?;
+    let set = generate(&SynthOptions {
+        top,
+        shape,
+        noise_sd: noise_mm * 1e-3,
+        seed,
+    })?;
     write_csv(&set, &out, Units::Millimetre, Frame::Lps)?;
     println!("wrote {} ({} landmarks)", out.display(), set.len());
     Ok(())

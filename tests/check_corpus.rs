@@ -40,7 +40,12 @@ fn base(seed: u64, noise: f64) -> LandmarkSet {
 fn describe(r: &CheckReport) -> String {
     r.findings
         .iter()
-        .map(|f| format!("  {:?} {} {:?}: {}", f.severity, f.code, f.landmarks, f.message))
+        .map(|f| {
+            format!(
+                "  {:?} {} {:?}: {}",
+                f.severity, f.code, f.landmarks, f.message
+            )
+        })
         .collect::<Vec<_>>()
         .join("\n")
 }
@@ -96,7 +101,11 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String, Option<String>) {
     let mut set = base(seed, 0.001);
     let frames = [Frame::Lps, Frame::Ras, Frame::OpenSim];
     let frame = frames[rng.random_range(0..3)];
-    let units = if rng.random_bool(0.5) { Units::Millimetre } else { Units::Metre };
+    let units = if rng.random_bool(0.5) {
+        Units::Millimetre
+    } else {
+        Units::Metre
+    };
     let l = interior_level(&set, &mut rng);
     let what;
     let mut text;
@@ -107,7 +116,8 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String, Option<String>) {
             let lvl = lv[rng.random_range(0..lv.len())];
             let codes = lvl.required_codes();
             let c = codes[rng.random_range(0..codes.len())];
-            set.points.remove(&osim_spine::landmarks::LandmarkId::new(lvl, c));
+            set.points
+                .remove(&osim_spine::landmarks::LandmarkId::new(lvl, c));
             what = format!("removed {lvl}_{c}");
             text = csv_string(&set, units, frame);
         }
@@ -120,7 +130,12 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String, Option<String>) {
             what = format!("duplicated row `{row}`");
         }
         Defect::SwapLeftRight => {
-            let pairs = [(Code::PTR, Code::PTL), (Code::PBR, Code::PBL), (Code::SR, Code::SL), (Code::IR, Code::IL)];
+            let pairs = [
+                (Code::PTR, Code::PTL),
+                (Code::PBR, Code::PBL),
+                (Code::SR, Code::SL),
+                (Code::IR, Code::IL),
+            ];
             if rng.random_bool(0.5) {
                 for (a, b) in pairs {
                     swap(&mut set, l, a, b);
@@ -136,7 +151,12 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String, Option<String>) {
         Defect::SwapSupInf => {
             swap(&mut set, l, Code::SEC, Code::IEC);
             if rng.random_bool(0.5) {
-                for (a, b) in [(Code::SA, Code::IA), (Code::SP, Code::IP), (Code::SR, Code::IR), (Code::SL, Code::IL)] {
+                for (a, b) in [
+                    (Code::SA, Code::IA),
+                    (Code::SP, Code::IP),
+                    (Code::SR, Code::IR),
+                    (Code::SL, Code::IL),
+                ] {
                     swap(&mut set, l, a, b);
                 }
                 what = format!("{l}: superior and inferior endplates swapped");
@@ -155,18 +175,36 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String, Option<String>) {
             text = csv_string(&set, units, frame);
         }
         Defect::WrongUnits => {
-            let wrong = if units == Units::Millimetre { Units::Metre } else { Units::Millimetre };
-            text = csv_string(&set, units, frame).replacen(&format!("# units: {units}"), &format!("# units: {wrong}"), 1);
+            let wrong = if units == Units::Millimetre {
+                Units::Metre
+            } else {
+                Units::Millimetre
+            };
+            text = csv_string(&set, units, frame).replacen(
+                &format!("# units: {units}"),
+                &format!("# units: {wrong}"),
+                1,
+            );
             what = format!("values in {units}, header says {wrong}");
         }
         Defect::WrongFrame => {
-            let wrong = frames[(frames.iter().position(|f| *f == frame).unwrap() + rng.random_range(1..3)) % 3];
-            text = csv_string(&set, units, frame).replacen(&format!("# frame: {frame}"), &format!("# frame: {wrong}"), 1);
+            let wrong = frames
+                [(frames.iter().position(|f| *f == frame).unwrap() + rng.random_range(1..3)) % 3];
+            text = csv_string(&set, units, frame).replacen(
+                &format!("# frame: {frame}"),
+                &format!("# frame: {wrong}"),
+                1,
+            );
             what = format!("values in {frame}, header says {wrong}");
         }
         Defect::OffBy10mm => {
             let c = Code::ALL[rng.random_range(0..14)];
-            let dir = Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)).normalize();
+            let dir = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            )
+            .normalize();
             let p = set.get(l, c).unwrap() + dir * 0.010;
             set.insert(l, c, p);
             what = format!("{l}_{c} moved 10 mm along {dir:?}");
@@ -174,7 +212,12 @@ fn corrupt(defect: Defect, seed: u64) -> (String, String, Option<String>) {
             text = csv_string(&set, units, frame);
         }
         Defect::VertebraShifted => {
-            let dir = Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)).normalize();
+            let dir = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            )
+            .normalize();
             for c in Code::ALL {
                 let p: Point3<f64> = set.get(l, c).unwrap() + dir * 0.020;
                 set.insert(l, c, p);
@@ -232,14 +275,22 @@ fn every_corrupted_set_is_flagged_with_its_code() {
                     && culprit.as_ref().is_none_or(|c| f.landmarks.contains(c))
             });
             if !hit {
-                failures.push(format!("{d:?} (seed {seed}: {what}) not flagged {code}:\n{}", describe(&r)));
+                failures.push(format!(
+                    "{d:?} (seed {seed}: {what}) not flagged {code}:\n{}",
+                    describe(&r)
+                ));
             }
             // A defect never goes unnoticed as a clean file.
             assert_ne!(r.exit_code(false), 0, "{d:?} seed {seed}: exit 0");
         }
     }
     assert!(n >= 40);
-    assert!(failures.is_empty(), "{} of {n} missed:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} of {n} missed:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }
 
 #[test]
@@ -249,15 +300,28 @@ fn clean_noisy_sets_give_no_errors() {
     let mut by_code = std::collections::BTreeMap::<String, usize>::new();
     for seed in 0..200u64 {
         let set = base(seed, 0.002);
-        let units = if seed % 2 == 0 { Units::Millimetre } else { Units::Metre };
+        let units = if seed % 2 == 0 {
+            Units::Millimetre
+        } else {
+            Units::Metre
+        };
         let mut text = csv_string(&set, units, frames[(seed % 3) as usize]);
         if seed % 5 == 0 {
             // Headerless: units and frame must be detected.
             text = text.lines().skip(2).collect::<Vec<_>>().join("\n");
         }
         let r = check_text(&text, &format!("clean-{seed}.csv"));
-        assert_eq!(r.count(Severity::Error), 0, "seed {seed}:\n{}", describe(&r));
-        for f in r.findings.iter().filter(|f| f.severity == Severity::Warning) {
+        assert_eq!(
+            r.count(Severity::Error),
+            0,
+            "seed {seed}:\n{}",
+            describe(&r)
+        );
+        for f in r
+            .findings
+            .iter()
+            .filter(|f| f.severity == Severity::Warning)
+        {
             warnings += 1;
             *by_code.entry(f.code.clone()).or_default() += 1;
         }

@@ -33,7 +33,12 @@ fn study(sd: f64, bias: f64) -> Vec<PalpationSet> {
                     }
                 }
             }
-            out.push(PalpationSet { operator: op.into(), repetition: rep, source: PathBuf::from("sim"), set });
+            out.push(PalpationSet {
+                operator: op.into(),
+                repetition: rep,
+                source: PathBuf::from("sim"),
+                set,
+            });
         }
     }
     out
@@ -49,8 +54,16 @@ fn iqr_summary_matches_the_noise_that_was_put_in() {
     // normals, numpy `quantile`). The median over 119 landmarks has a
     // standard error of ~0.035 mm.
     for axis in ["X", "Y", "Z"] {
-        let s = r.summary.iter().find(|s| s.group == "all" && s.axis == axis).unwrap();
-        assert!((s.median_mm - 1.269).abs() < 0.12, "{axis}: {}", s.median_mm);
+        let s = r
+            .summary
+            .iter()
+            .find(|s| s.group == "all" && s.axis == axis)
+            .unwrap();
+        assert!(
+            (s.median_mm - 1.269).abs() < 0.12,
+            "{axis}: {}",
+            s.median_mm
+        );
     }
     // Landmarks are far apart relative to 1 mm: ICC(2,1) near 1 everywhere.
     assert!(!r.icc.is_empty());
@@ -58,8 +71,14 @@ fn iqr_summary_matches_the_noise_that_was_put_in() {
         assert!(e.icc2_1 > 0.99, "{e:?}");
     }
     // Inter-operator for repetitions 1..3 (5 operators), 4..10 (2), intra for 5 operators.
-    assert!(r.icc.iter().any(|e| e.kind == "inter" && e.within == "repetition 3" && e.raters == 5));
-    assert!(r.icc.iter().any(|e| e.kind == "intra" && e.within == "operator A" && e.raters == 10));
+    assert!(r
+        .icc
+        .iter()
+        .any(|e| e.kind == "inter" && e.within == "repetition 3" && e.raters == 5));
+    assert!(r
+        .icc
+        .iter()
+        .any(|e| e.kind == "intra" && e.within == "operator A" && e.raters == 10));
     // Gaussian noise: Shapiro-Wilk rejects about 5% of the tests.
     let rate = r.normality_rejected_at_5pct as f64 / r.normality.len() as f64;
     assert!(rate < 0.12, "normality rejection rate {rate}");
@@ -73,7 +92,12 @@ fn friedman_and_nemenyi_find_a_planted_operator_bias() {
     let t = r
         .friedman
         .iter()
-        .find(|f| f.kind == "inter" && f.within == "repetition 1" && f.marker == Code::SEC && f.axis == "Y")
+        .find(|f| {
+            f.kind == "inter"
+                && f.within == "repetition 1"
+                && f.marker == Code::SEC
+                && f.axis == "Y"
+        })
         .unwrap();
     assert!(t.p < 0.01, "{t:?}");
     assert_eq!(t.groups[0], "operator A");
@@ -96,7 +120,10 @@ fn cli_writes_json_and_svg_and_refuses_bad_input() {
     let mut files = Vec::new();
     for (i, p) in study(0.001, 0.0).iter().take(6).enumerate() {
         let mut text = csv_string(&p.set, Units::Millimetre, Frame::Lps);
-        text = format!("# operator: {}\n# repetition: {}\n{text}", p.operator, p.repetition);
+        text = format!(
+            "# operator: {}\n# repetition: {}\n{text}",
+            p.operator, p.repetition
+        );
         let f = d.path().join(format!("p{i}.csv"));
         std::fs::write(&f, text).unwrap();
         files.push(f);
@@ -105,7 +132,10 @@ fn cli_writes_json_and_svg_and_refuses_bad_input() {
     let mut args: Vec<String> = vec!["variability".into()];
     args.extend(files.iter().map(|f| f.display().to_string()));
     args.extend(["--out".into(), out.display().to_string()]);
-    let o = std::process::Command::new(common::bin()).args(&args).output().unwrap();
+    let o = std::process::Command::new(common::bin())
+        .args(&args)
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("variability.json")).unwrap()).unwrap();
@@ -115,13 +145,22 @@ fn cli_writes_json_and_svg_and_refuses_bad_input() {
     assert!(svg.starts_with("<svg") && svg.contains("Euclidean"));
     // Byte-identical on a second run.
     let first = std::fs::read(out.join("variability.json")).unwrap();
-    let o = std::process::Command::new(common::bin()).args(&args).output().unwrap();
+    let o = std::process::Command::new(common::bin())
+        .args(&args)
+        .output()
+        .unwrap();
     assert!(o.status.success());
     assert_eq!(first, std::fs::read(out.join("variability.json")).unwrap());
     // Same operator/repetition twice: refused, nothing written.
     let out2 = d.path().join("out2");
     let o = std::process::Command::new(common::bin())
-        .args(["variability", &files[0].display().to_string(), &files[0].display().to_string(), "--out", &out2.display().to_string()])
+        .args([
+            "variability",
+            &files[0].display().to_string(),
+            &files[0].display().to_string(),
+            "--out",
+            &out2.display().to_string(),
+        ])
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(1));

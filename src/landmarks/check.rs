@@ -269,7 +269,9 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
             Severity::Error,
             format!(
                 "declared units `{}` contradict the anatomy: {}{}",
-                det.declared_units.map(|u| u.to_string()).unwrap_or_default(),
+                det.declared_units
+                    .map(|u| u.to_string())
+                    .unwrap_or_default(),
                 det.units_evidence,
                 det.units
                     .map(|u| format!(" (checked as {u})"))
@@ -280,7 +282,10 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
         out.push(file_level(
             "LM006",
             Severity::Error,
-            format!("units not declared and not detectable: {}", det.units_evidence),
+            format!(
+                "units not declared and not detectable: {}",
+                det.units_evidence
+            ),
         ));
     } else if det.declared_units.is_none() {
         out.push(file_level(
@@ -295,7 +300,9 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
             Severity::Error,
             format!(
                 "declared frame `{}` contradicts the anatomy: {}{}",
-                det.declared_frame.map(|u| u.to_string()).unwrap_or_default(),
+                det.declared_frame
+                    .map(|u| u.to_string())
+                    .unwrap_or_default(),
                 det.frame_evidence,
                 det.frame
                     .map(|u| format!(" (checked as {u})"))
@@ -306,7 +313,10 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
         out.push(file_level(
             "LM007",
             Severity::Error,
-            format!("frame not declared and not detectable: {}", det.frame_evidence),
+            format!(
+                "frame not declared and not detectable: {}",
+                det.frame_evidence
+            ),
         ));
     } else if det.declared_frame.is_none() {
         out.push(file_level(
@@ -333,17 +343,30 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
 
 /// Completeness against the protocol: levels, contiguity, S1, landmarks.
 pub fn check_completeness(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>) -> Vec<Finding> {
-    let mut cx = Ctx { set, lines, out: Vec::new() };
+    let mut cx = Ctx {
+        set,
+        lines,
+        out: Vec::new(),
+    };
     let levels = set.levels();
     let (Some(&first), Some(&last)) = (levels.first(), levels.last()) else {
-        cx.push("LM020", Severity::Error, &[], "no valid landmarks in the file".into());
+        cx.push(
+            "LM020",
+            Severity::Error,
+            &[],
+            "no valid landmarks in the file".into(),
+        );
         return cx.out;
     };
     cx.push(
         "LM023",
         Severity::Info,
         &[],
-        format!("levels {first}..{last}: {} of {} in the run", levels.len(), last.index() - first.index() + 1),
+        format!(
+            "levels {first}..{last}: {} of {} in the run",
+            levels.len(),
+            last.index() - first.index() + 1
+        ),
     );
     if last != Level::S1 {
         cx.push(
@@ -354,7 +377,9 @@ pub fn check_completeness(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>
         );
     }
     for i in first.index()..=last.index() {
-        let Some(l) = Level::from_index(i) else { continue };
+        let Some(l) = Level::from_index(i) else {
+            continue;
+        };
         if !levels.contains(&l) {
             cx.push(
                 "LM021",
@@ -394,7 +419,11 @@ const INF: [Code; 5] = [Code::IEC, Code::IA, Code::IP, Code::IR, Code::IL];
 
 /// Anatomical checks of a resolved set (metres, OpenSim frame).
 pub fn check_set(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>) -> Vec<Finding> {
-    let mut cx = Ctx { set, lines, out: Vec::new() };
+    let mut cx = Ctx {
+        set,
+        lines,
+        out: Vec::new(),
+    };
     let Ok(table) = DimensionTable::embedded() else {
         return cx.out;
     };
@@ -402,26 +431,50 @@ pub fn check_set(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>) -> Vec<
     let (ex, ey, ez) = (Vector3::x(), Vector3::y(), Vector3::z());
     for &l in &levels {
         // ---- orientation
-        let orient = |cx: &mut Ctx, code: &str, a: Code, b: Code, axis: Vector3<f64>, what: &str| {
-            if let (Some(pa), Some(pb)) = (cx.g(l, a), cx.g(l, b)) {
-                let d = mm((pa - pb).dot(&axis));
-                if d < -3.0 {
-                    cx.push(code, Severity::Error, &[id(l, a), id(l, b)], format!("{l}_{a} is {:.1} mm {what} {l}_{b} (swapped?)", -d));
-                } else if d < 0.0 {
-                    cx.push(code, Severity::Warning, &[id(l, a), id(l, b)], format!("{l}_{a} is {:.1} mm {what} {l}_{b}", -d));
+        let orient =
+            |cx: &mut Ctx, code: &str, a: Code, b: Code, axis: Vector3<f64>, what: &str| {
+                if let (Some(pa), Some(pb)) = (cx.g(l, a), cx.g(l, b)) {
+                    let d = mm((pa - pb).dot(&axis));
+                    if d < -3.0 {
+                        cx.push(
+                            code,
+                            Severity::Error,
+                            &[id(l, a), id(l, b)],
+                            format!("{l}_{a} is {:.1} mm {what} {l}_{b} (swapped?)", -d),
+                        );
+                    } else if d < 0.0 {
+                        cx.push(
+                            code,
+                            Severity::Warning,
+                            &[id(l, a), id(l, b)],
+                            format!("{l}_{a} is {:.1} mm {what} {l}_{b}", -d),
+                        );
+                    }
                 }
-            }
-        };
+            };
         orient(&mut cx, "LM030", Code::SEC, Code::IEC, ey, "below");
         orient(&mut cx, "LM031", Code::PTR, Code::PBR, ey, "below");
         orient(&mut cx, "LM031", Code::PTL, Code::PBL, ey, "below");
         orient(&mut cx, "LM037", Code::SA, Code::SP, ex, "posterior of");
         orient(&mut cx, "LM037", Code::IA, Code::IP, ex, "posterior of");
-        for (r, lft) in [(Code::PTR, Code::PTL), (Code::PBR, Code::PBL), (Code::SR, Code::SL), (Code::IR, Code::IL)] {
+        for (r, lft) in [
+            (Code::PTR, Code::PTL),
+            (Code::PBR, Code::PBL),
+            (Code::SR, Code::SL),
+            (Code::IR, Code::IL),
+        ] {
             if let (Some(pr), Some(pl)) = (cx.g(l, r), cx.g(l, lft)) {
                 let d = mm((pr - pl).dot(&ez));
                 if d < -3.0 {
-                    cx.push("LM032", Severity::Error, &[id(l, r), id(l, lft)], format!("{l}_{r} is {:.1} mm to the left of {l}_{lft} (left/right swapped?)", -d));
+                    cx.push(
+                        "LM032",
+                        Severity::Error,
+                        &[id(l, r), id(l, lft)],
+                        format!(
+                            "{l}_{r} is {:.1} mm to the left of {l}_{lft} (left/right swapped?)",
+                            -d
+                        ),
+                    );
                 }
             }
         }
@@ -451,7 +504,13 @@ pub fn check_set(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>) -> Vec<
         // ---- dimension ranges
         let d = table.level(l);
         let dist = |a: Code, b: Code| Some((set.get(l, a)? - set.get(l, b)?).norm());
-        let range = |cx: &mut Ctx, code: &str, what: &str, v: Option<f64>, m: crate::build::anatomy::Measure, widen: f64, ids: &[LandmarkId]| {
+        let range = |cx: &mut Ctx,
+                     code: &str,
+                     what: &str,
+                     v: Option<f64>,
+                     m: crate::build::anatomy::Measure,
+                     widen: f64,
+                     ids: &[LandmarkId]| {
             let Some(v) = v else { return };
             if m.is_missing() {
                 return;
@@ -460,7 +519,10 @@ pub fn check_set(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>) -> Vec<
             // noise of a distance between two landmarks (2.5 mm).
             let sd = ((m.sd * widen).max(0.08 * m.mean).powi(2) + 0.0025f64.powi(2)).sqrt();
             let (lo_w, hi_w) = (m.mean - 4.0 * sd, m.mean + 4.0 * sd);
-            let (lo_e, hi_e) = (m.mean - (0.65 * m.mean).max(6.0 * sd), m.mean + m.mean.max(6.0 * sd));
+            let (lo_e, hi_e) = (
+                m.mean - (0.65 * m.mean).max(6.0 * sd),
+                m.mean + m.mean.max(6.0 * sd),
+            );
             let msg = format!("{l} {what} {:.1} mm; published mean {:.1} mm (warning outside {:.1}..{:.1}, error outside {:.1}..{:.1})", mm(v), mm(m.mean), mm(lo_w), mm(hi_w), mm(lo_e), mm(hi_e));
             if v < lo_e || v > hi_e {
                 cx.push(code, Severity::Error, ids, msg);
@@ -468,13 +530,53 @@ pub fn check_set(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>) -> Vec<
                 cx.push(code, Severity::Warning, ids, msg);
             }
         };
-        range(&mut cx, "LM034", "superior endplate width", dist(Code::SR, Code::SL), d.sup_ep_width, 1.0, &[id(l, Code::SR), id(l, Code::SL)]);
-        range(&mut cx, "LM035", "superior endplate depth", dist(Code::SA, Code::SP), d.sup_ep_depth, 1.0, &[id(l, Code::SA), id(l, Code::SP)]);
+        range(
+            &mut cx,
+            "LM034",
+            "superior endplate width",
+            dist(Code::SR, Code::SL),
+            d.sup_ep_width,
+            1.0,
+            &[id(l, Code::SR), id(l, Code::SL)],
+        );
+        range(
+            &mut cx,
+            "LM035",
+            "superior endplate depth",
+            dist(Code::SA, Code::SP),
+            d.sup_ep_depth,
+            1.0,
+            &[id(l, Code::SA), id(l, Code::SP)],
+        );
         if !l.is_sacrum() {
-            range(&mut cx, "LM034", "inferior endplate width", dist(Code::IR, Code::IL), d.inf_ep_width, 1.0, &[id(l, Code::IR), id(l, Code::IL)]);
-            range(&mut cx, "LM035", "inferior endplate depth", dist(Code::IA, Code::IP), d.inf_ep_depth, 1.0, &[id(l, Code::IA), id(l, Code::IP)]);
+            range(
+                &mut cx,
+                "LM034",
+                "inferior endplate width",
+                dist(Code::IR, Code::IL),
+                d.inf_ep_width,
+                1.0,
+                &[id(l, Code::IR), id(l, Code::IL)],
+            );
+            range(
+                &mut cx,
+                "LM035",
+                "inferior endplate depth",
+                dist(Code::IA, Code::IP),
+                d.inf_ep_depth,
+                1.0,
+                &[id(l, Code::IA), id(l, Code::IP)],
+            );
             let h = crate::landmarks::frames::vertebra_dimensions(set, l).height;
-            range(&mut cx, "LM036", "body height", h, d.body_height(), 1.5, &[id(l, Code::SA), id(l, Code::IA)]);
+            range(
+                &mut cx,
+                "LM036",
+                "body height",
+                h,
+                d.body_height(),
+                1.5,
+                &[id(l, Code::SA), id(l, Code::IA)],
+            );
         }
     }
     check_neighbours(&mut cx, &table, &levels);
@@ -535,27 +637,46 @@ fn check_neighbours(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
     // Disc deviation vectors per pair (for LM043).
     let mut dev: BTreeMap<Level, Vector3<f64>> = BTreeMap::new();
     for &(u, l) in &pairs {
-        let (Some(cu), Some(cl)) = (centre(set, u), centre(set, l)) else { continue };
+        let (Some(cu), Some(cl)) = (centre(set, u), centre(set, l)) else {
+            continue;
+        };
         let du = table.level(u);
         let dl = table.level(l);
         let expected = 0.5 * du.body_height().mean
             + du.disc_height.mean
-            + if l.is_sacrum() { 0.0 } else { 0.5 * dl.body_height().mean };
+            + if l.is_sacrum() {
+                0.0
+            } else {
+                0.5 * dl.body_height().mean
+            };
         let v = cu - cl;
         let ids = [id(u, Code::SEC), id(l, Code::SEC)];
         if v.dot(&ey) <= 0.0 {
             cx.push("LM040", Severity::Error, &ids, format!("{u} is not cranial of {l} ({:.1} mm below it): levels out of order or mislabelled", mm(-v.dot(&ey))));
         }
         let ratio = v.norm() / expected;
-        let msg = format!("{u}-{l} centre distance {:.1} mm, expected about {:.1} mm", mm(v.norm()), mm(expected));
+        let msg = format!(
+            "{u}-{l} centre distance {:.1} mm, expected about {:.1} mm",
+            mm(v.norm()),
+            mm(expected)
+        );
         if !(0.4..=2.2).contains(&ratio) {
             cx.push("LM041", Severity::Error, &ids, msg);
         } else if !(0.6..=1.5).contains(&ratio) {
             cx.push("LM041", Severity::Warning, &ids, msg);
         }
         // Disc between the inferior endplate of u and the superior of l.
-        let (Some(iu), Some(sl)) = (mean_codes(set, u, &INF), mean_codes(set, l, &SUP)) else { continue };
-        let axis = match (level_axis(set, u), if l.is_sacrum() { None } else { level_axis(set, l) }) {
+        let (Some(iu), Some(sl)) = (mean_codes(set, u, &INF), mean_codes(set, l, &SUP)) else {
+            continue;
+        };
+        let axis = match (
+            level_axis(set, u),
+            if l.is_sacrum() {
+                None
+            } else {
+                level_axis(set, l)
+            },
+        ) {
             (Some(a), Some(b)) => (a + b).normalize(),
             (Some(a), None) => a,
             (None, Some(b)) => b,
@@ -564,14 +685,26 @@ fn check_neighbours(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
         let disc = iu - sl;
         let gap = mm(disc.dot(&axis));
         if gap < -4.0 {
-            cx.push("LM042", Severity::Error, &[id(u, Code::IEC), id(l, Code::SEC)], format!("{u} and {l} overlap by {:.1} mm along the spine", -gap));
+            cx.push(
+                "LM042",
+                Severity::Error,
+                &[id(u, Code::IEC), id(l, Code::SEC)],
+                format!("{u} and {l} overlap by {:.1} mm along the spine", -gap),
+            );
         }
         let shear = mm((disc - axis * disc.dot(&axis)).norm());
         if shear > 8.0 {
             cx.push("LM044", Severity::Warning, &[id(u, Code::IEC), id(l, Code::SEC)], format!("{u}-{l}: {shear:.1} mm translation across the disc (listhesis or mislabelled landmarks)"));
         }
         dev.insert(u, disc - axis * du.disc_height.mean);
-        if let (Some(a), Some(b)) = (level_axis(set, u), if l.is_sacrum() { None } else { level_axis(set, l) }) {
+        if let (Some(a), Some(b)) = (
+            level_axis(set, u),
+            if l.is_sacrum() {
+                None
+            } else {
+                level_axis(set, l)
+            },
+        ) {
             let ang = a.angle(&b).to_degrees();
             if ang > 35.0 {
                 cx.push("LM045", Severity::Warning, &[id(u, Code::SEC), id(l, Code::SEC)], format!("{u}-{l}: {ang:.0} deg between the vertebral axes (more than a severe scoliosis shows per level)"));
@@ -580,7 +713,9 @@ fn check_neighbours(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
     }
     // LM043: vertebra v with discs above (u-v, keyed u) and below (v-l, keyed v).
     for &(u, v) in &pairs {
-        let (Some(above), Some(below)) = (dev.get(&u), dev.get(&v)) else { continue };
+        let (Some(above), Some(below)) = (dev.get(&u), dev.get(&v)) else {
+            continue;
+        };
         let cos = above.dot(below) / (above.norm() * below.norm()).max(1e-12);
         let delta = mm(((below - above) * 0.5).norm());
         if cos < -0.5 && delta > 10.0 {
@@ -615,11 +750,15 @@ fn check_outliers(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
         let x = DMatrix::from_fn(n, 4, |i, j| if j < 3 { xs[i][j] } else { 1.0 });
         let y = DMatrix::from_fn(n, 3, |i, j| ys[i][j]);
         let xtx = x.transpose() * &x;
-        let Some(inv) = xtx.try_inverse() else { continue };
+        let Some(inv) = xtx.try_inverse() else {
+            continue;
+        };
         let h = &x * inv * x.transpose();
         let e = &y - &h * &y;
         fits.push(Fit {
-            resid: (0..n).map(|i| Vector3::new(e[(i, 0)], e[(i, 1)], e[(i, 2)])).collect(),
+            resid: (0..n)
+                .map(|i| Vector3::new(e[(i, 0)], e[(i, 1)], e[(i, 2)]))
+                .collect(),
             lev: (0..n).map(|i| h[(i, i)]).collect(),
             ids,
         });
@@ -663,8 +802,15 @@ pub fn format_text(reports: &[CheckReport]) -> String {
                 Severity::Info => "info",
             };
             let loc = f.line.map(|l| format!(":{l}")).unwrap_or_default();
-            let lm = if f.landmarks.is_empty() { String::new() } else { format!(" [{}]", f.landmarks.join(", ")) };
-            s.push_str(&format!("{}{loc}: {sev} {}{lm}: {}\n", r.file, f.code, f.message));
+            let lm = if f.landmarks.is_empty() {
+                String::new()
+            } else {
+                format!(" [{}]", f.landmarks.join(", "))
+            };
+            s.push_str(&format!(
+                "{}{loc}: {sev} {}{lm}: {}\n",
+                r.file, f.code, f.message
+            ));
         }
         if let Some(d) = &r.detection {
             s.push_str(&format!("{}: {}\n", r.file, d.summary()));
@@ -686,7 +832,9 @@ pub fn format_json(reports: &[CheckReport]) -> String {
 }
 
 fn gh_escape_data(s: &str) -> String {
-    s.replace('%', "%25").replace('\r', "%0D").replace('\n', "%0A")
+    s.replace('%', "%25")
+        .replace('\r', "%0D")
+        .replace('\n', "%0A")
 }
 
 fn gh_escape_prop(s: &str) -> String {

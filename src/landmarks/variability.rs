@@ -184,6 +184,9 @@ fn value(p: &nalgebra::Point3<f64>, origin: &Vector3<f64>, axis: usize) -> f64 {
     }
 }
 
+/// (kind, within, labelled palpations in group order).
+type Comparison<'a> = (String, String, Vec<(String, &'a PalpationSet)>);
+
 /// Compute the report.
 pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
     if pals.len() < 2 {
@@ -194,7 +197,10 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
     }
     let mut operators: BTreeMap<String, Vec<u32>> = BTreeMap::new();
     for p in pals {
-        operators.entry(p.operator.clone()).or_default().push(p.repetition);
+        operators
+            .entry(p.operator.clone())
+            .or_default()
+            .push(p.repetition);
     }
     for v in operators.values_mut() {
         v.sort_unstable();
@@ -210,7 +216,10 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
     }
     let origin = sum / cnt.max(1) as f64;
     let ids: Vec<LandmarkId> = {
-        let mut v: Vec<LandmarkId> = pals.iter().flat_map(|p| p.set.points.keys().copied()).collect();
+        let mut v: Vec<LandmarkId> = pals
+            .iter()
+            .flat_map(|p| p.set.points.keys().copied())
+            .collect();
         v.sort();
         v.dedup();
         v
@@ -229,14 +238,28 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             *slot = stats::iqr(&vals).unwrap_or(f64::NAN);
             if vals.len() >= 3 {
                 if let Ok(sw) = stats::shapiro_wilk(&vals) {
-                    normality.push(NormalityEntry { landmark: *id, axis: AXES[a].into(), n: vals.len(), w: sw.w, p: sw.p });
+                    normality.push(NormalityEntry {
+                        landmark: *id,
+                        axis: AXES[a].into(),
+                        n: vals.len(),
+                        w: sw.w,
+                        p: sw.p,
+                    });
                 }
             }
         }
-        landmarks.push(LandmarkIqr { landmark: *id, n: pts.len(), iqr_mm: iqr });
+        landmarks.push(LandmarkIqr {
+            landmark: *id,
+            n: pts.len(),
+            iqr_mm: iqr,
+        });
     }
     let mut summary = Vec::new();
-    for (group, filt) in [("all", None), ("joint", Some(true)), ("scaling", Some(false))] {
+    for (group, filt) in [
+        ("all", None),
+        ("joint", Some(true)),
+        ("scaling", Some(false)),
+    ] {
         for (a, axis) in AXES.iter().enumerate() {
             let v: Vec<f64> = landmarks
                 .iter()
@@ -255,7 +278,7 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
         }
     }
     // ---- comparisons: (kind, within, ordered palpations)
-    let mut comparisons: Vec<(String, String, Vec<(String, &PalpationSet)>)> = Vec::new();
+    let mut comparisons: Vec<Comparison> = Vec::new();
     let reps: Vec<u32> = {
         let mut v: Vec<u32> = pals.iter().map(|p| p.repetition).collect();
         v.sort_unstable();
@@ -300,7 +323,11 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             for (a, axis) in AXES.iter().enumerate() {
                 let rows: Vec<Vec<f64>> = targets
                     .iter()
-                    .map(|t| g.iter().map(|(_, p)| value(&p.set.points[t], &origin, a)).collect())
+                    .map(|t| {
+                        g.iter()
+                            .map(|(_, p)| value(&p.set.points[t], &origin, a))
+                            .collect()
+                    })
                     .collect();
                 if let Ok(Icc { icc2_1, n, k, .. }) = stats::icc(&rows) {
                     icc.push(IccEntry {
@@ -329,9 +356,13 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
                             .map(|(_, p)| p.set.get(*l, code).map(|q| value(&q, &origin, a)))
                             .collect()
                     })
-                    .filter(|row: &Vec<Option<f64>>| row.iter().filter(|v| v.is_some()).count() >= 2)
+                    .filter(|row: &Vec<Option<f64>>| {
+                        row.iter().filter(|v| v.is_some()).count() >= 2
+                    })
                     .collect();
-                let Ok(t) = stats::friedman_blocked(&y) else { continue };
+                let Ok(t) = stats::friedman_blocked(&y) else {
+                    continue;
+                };
                 if !t.p.is_finite() {
                     continue;
                 }
@@ -394,7 +425,14 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
     let (w, h) = (560.0, 380.0);
     let (left, right, top, bottom) = (60.0, 20.0, 40.0, 50.0);
     let series: Vec<Vec<f64>> = (0..4)
-        .map(|a| report.landmarks.iter().map(|l| l.iqr_mm[a]).filter(|v| v.is_finite()).collect())
+        .map(|a| {
+            report
+                .landmarks
+                .iter()
+                .map(|l| l.iqr_mm[a])
+                .filter(|v| v.is_finite())
+                .collect()
+        })
         .collect();
     let ymax = series
         .iter()
@@ -415,7 +453,11 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
         "<line x1=\"{left}\" y1=\"{top}\" x2=\"{left}\" y2=\"{}\" stroke=\"black\"/>\n",
         h - bottom
     ));
-    let step = if ymax > 10.0 { (ymax / 5.0).ceil() } else { 1.0 };
+    let step = if ymax > 10.0 {
+        (ymax / 5.0).ceil()
+    } else {
+        1.0
+    };
     let mut t = 0.0;
     while t <= ymax + 1e-9 {
         s.push_str(&format!(
@@ -447,8 +489,16 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
             continue;
         };
         let iqr = q3 - q1;
-        let lo = v.iter().copied().filter(|x| *x >= q1 - 1.5 * iqr).fold(f64::INFINITY, f64::min);
-        let hi = v.iter().copied().filter(|x| *x <= q3 + 1.5 * iqr).fold(f64::NEG_INFINITY, f64::max);
+        let lo = v
+            .iter()
+            .copied()
+            .filter(|x| *x >= q1 - 1.5 * iqr)
+            .fold(f64::INFINITY, f64::min);
+        let hi = v
+            .iter()
+            .copied()
+            .filter(|x| *x <= q3 + 1.5 * iqr)
+            .fold(f64::NEG_INFINITY, f64::max);
         let bw = slot * 0.5;
         s.push_str(&format!(
             "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{bw:.1}\" height=\"{:.1}\" fill=\"#9ecae1\" stroke=\"black\"/>\n",
