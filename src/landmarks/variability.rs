@@ -184,6 +184,9 @@ fn value(p: &nalgebra::Point3<f64>, origin: &Vector3<f64>, axis: usize) -> f64 {
     }
 }
 
+/// (kind, within, labelled palpations in group order).
+type Comparison<'a> = (String, String, Vec<(String, &'a PalpationSet)>);
+
 /// Compute the report.
 pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
     if pals.len() < 2 {
@@ -275,7 +278,7 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
         }
     }
     // ---- comparisons: (kind, within, ordered palpations)
-    let mut comparisons: Vec<(String, String, Vec<(String, &PalpationSet)>)> = Vec::new();
+    let mut comparisons: Vec<Comparison> = Vec::new();
     let reps: Vec<u32> = {
         let mut v: Vec<u32> = pals.iter().map(|p| p.repetition).collect();
         v.sort_unstable();
