@@ -3,8 +3,10 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod base;
 pub mod convert;
 pub mod info;
+pub mod mean_shape;
 
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
 #[derive(Debug, Parser)]
@@ -21,6 +23,11 @@ pub enum Command {
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
     Convert(convert::Args),
+    /// Build the base model (T1-L5, sacrum, pelvis; 6-DoF IVD joints with bushings,
+    /// wrap spheres, palpated markers) from a generic model.
+    Base(base::Args),
+    /// Mean of meshes in vertex correspondence (generalised Procrustes analysis).
+    MeanShape(mean_shape::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -29,6 +36,8 @@ pub fn main() -> i32 {
     let result: anyhow::Result<i32> = match cli.command {
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
+        Command::Base(a) => base::run(a),
+        Command::MeanShape(a) => mean_shape::run(a),
     };
     match result {
         Ok(code) => code,

@@ -1,0 +1,112 @@
+//! Self-check of the built base model before anything is written:
+//! * every bushing is undeflected at the default pose (its two frames
+//!   coincide in ground, computed by forward kinematics);
+//! * no muscle path segment passes through a vertebra at the default pose
+//!   (segments are tested against the closed vertebra meshes with parry;
+//!   a vertebra is skipped for a segment attached to it; depth > 0.5 mm
+//!   counts);
+//! * every WrapSphere is reachable by its muscles (at least one muscle
+//!   wraps over it; by the crossing rule each of them passes within the
+//!   radius + 5 mm in a test pose); spheres without muscles are listed.
+
+use super::kin::{muscle_path, Kinematics};
+use super::wrap::SphereRow;
+use crate::error::Result;
+use crate::mesh::MeshQuery;
+use crate::osim::model::Model;
+
+/// A muscle segment found inside a vertebra.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ThroughBone {
+    pub muscle: String,
+    pub vertebra: String,
+    /// Length of the segment inside the mesh (mm).
+    pub depth_mm: f64,
+}
+
+/// Self-check figures.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SelfCheck {
+    /// Largest bushing rotational deflection at the default pose (rad).
+    pub bushing_max_rotation: f64,
+    /// Largest bushing translational deflection at the default pose (m).
+    pub bushing_max_translation: f64,
+    /// Muscle segments passing through a vertebra at the default pose.
+    pub muscle_segments_through_vertebrae: Vec<ThroughBone>,
+    /// Spheres no muscle wraps over.
+    pub spheres_without_muscles: Vec<String>,
+    /// Number of spheres with at least one wrapping muscle.
+    pub spheres_reachable: usize,
+    /// Static equilibrium under gravity with the tool's solver (filled when
+    /// the solver is available).
+    pub equilibrium: Option<serde_json::Value>,
+}
+
+/// Run the self-check on the base model; `vertebrae` are (body, mesh
+/// query in the body frame).
+pub fn run(
+    model: &Model,
+    vertebrae: &[(String, &MeshQuery)],
+    spheres: &[SphereRow],
+) -> Result<SelfCheck> {
+    let kin = Kinematics::new(model)?;
+    let q = kin.default_values();
+    let poses = kin.body_poses(&q)?;
+    let mut max_rot: f64 = 0.0;
+    let mut max_tr: f64 = 0.0;
+    for b in model.bushings() {
+        let owner = format!("/forceset/{}", b.name);
+        let (b1, x1) = model.resolve_frame(&owner, &b.socket_frame1)?;
+        let (b2, x2) = model.resolve_frame(&owner, &b.socket_frame2)?;
+        let (Some(p1), Some(p2)) = (poses.get(&b1), poses.get(&b2)) else {
+            continue;
+        };
+        let d = (p1 * x1).inverse() * (p2 * x2);
+        max_rot = max_rot.max(d.rotation.angle());
+        max_tr = max_tr.max(d.translation.vector.norm());
+    }
+    let mut through = Vec::new();
+    let bounds: Vec<(nalgebra::Point3<f64>, f64)> = vertebrae
+        .iter()
+        .map(|(_, q)| match q.mesh().bounds() {
+            Some((lo, hi)) => (nalgebra::center(&lo, &hi), 0.5 * (hi - lo).norm()),
+            None => (nalgebra::Point3::origin(), 0.0),
+        })
+        .collect();
+    for m in model.muscles() {
+        let path = muscle_path(model, m, &poses, &q)?;
+        for w in path.windows(2) {
+            for ((body, mq), (c, r)) in vertebrae.iter().zip(&bounds) {
+                if w[0].body == *body || w[1].body == *body {
+                    continue;
+                }
+                let Some(x) = poses.get(body) else { continue };
+                let inv = x.inverse();
+                let (a, b) = (inv * w[0].ground, inv * w[1].ground);
+                if super::kin::point_segment_distance(c, &a, &b) > *r {
+                    continue;
+                }
+                let depth = mq.segment_length_inside(&a, &b);
+                if depth > 0.0005 {
+                    through.push(ThroughBone {
+                        muscle: m.name.clone(),
+                        vertebra: body.clone(),
+                        depth_mm: depth * 1e3,
+                    });
+                }
+            }
+        }
+    }
+    Ok(SelfCheck {
+        bushing_max_rotation: max_rot,
+        bushing_max_translation: max_tr,
+        muscle_segments_through_vertebrae: through,
+        spheres_without_muscles: spheres
+            .iter()
+            .filter(|s| s.muscles.is_empty())
+            .map(|s| s.name.clone())
+            .collect(),
+        spheres_reachable: spheres.iter().filter(|s| !s.muscles.is_empty()).count(),
+        equilibrium: None,
+    })
+}
