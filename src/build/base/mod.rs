@@ -731,13 +731,36 @@ pub fn build_base(
                 )
             }
         };
-        let s = wrap::fit_nodes(&ctx, &nodes)?;
+        // Plausibility: centre inside the vertebra, radius at most the body depth.
+        let depth = palpate::body_region(&ctx, &v.query, &v.seg)
+            .map(|r| r.x_anterior - r.x_posterior)
+            .unwrap_or(f64::MAX);
+        let plausible = |s: &crate::mesh::Sphere| v.query.contains(&s.centre) && s.radius <= depth;
+        let mut s = wrap::fit_nodes(&ctx, &nodes).ok();
+        let mut nodes = nodes;
+        let mut source_desc = source_desc;
+        if nodes.len() < wrap::MIN_NODES || !s.as_ref().map(plausible).unwrap_or(false) {
+            let body = match opts.body_meshes.get(&v.level) {
+                Some((_, bm)) => wrap::register_body_mesh(&ctx, bm, &v.query)?.0,
+                None => palpate::body_region(&ctx, &v.query, &v.seg)?.submesh(&v.mesh),
+            };
+            let relaxed = wrap::anterior_nodes_relaxed(&ctx, &body)?;
+            if let Ok(s2) = wrap::fit_nodes(&ctx, &relaxed) {
+                if plausible(&s2) || s.is_none() {
+                    s = Some(s2);
+                    nodes = relaxed;
+                    source_desc.push_str(" (relaxed node rule)");
+                }
+            }
+        }
+        let s = s.ok_or_else(|| Error::invalid(&ctx, "no sphere could be fitted to the anterior wall"))?;
         spheres.push(wrap::SphereRow {
             level: v.level.to_string(),
             body: v.body.clone(),
             name: format!("{}_body_sphere", v.level),
             centre: [s.centre.x, s.centre.y, s.centre.z],
             radius_fit: s.radius,
+            radius_no_overlap: s.radius,
             radius: s.radius,
             rms_mm: s.rms * 1e3,
             nodes: nodes.len(),
@@ -782,6 +805,36 @@ pub fn build_base(
             paths,
         });
     }
+    // Spheres must not overlap one another in any test pose: OpenSim wraps
+    // sequentially, and a tangent point inside the next sphere gives wrong
+    // (even shorter than straight) paths. Overlapping pairs are shrunk in
+    // proportion to 98 % of their closest centre distance.
+    let centres_of = |s: &wrap::SphereRow| -> Vec<Point3<f64>> {
+        let c = Point3::new(s.centre[0], s.centre[1], s.centre[2]);
+        pose_bodies
+            .iter()
+            .map(|pb| pb.get(&s.body).map(|x| x * c).unwrap_or(c))
+            .collect()
+    };
+    let all_centres: Vec<Vec<Point3<f64>>> = spheres.iter().map(centres_of).collect();
+    for i in 0..spheres.len() {
+        for j in (i + 1)..spheres.len() {
+            let d = all_centres[i]
+                .iter()
+                .zip(&all_centres[j])
+                .map(|(a, b)| (a - b).norm())
+                .fold(f64::MAX, f64::min);
+            let sum = spheres[i].radius + spheres[j].radius;
+            if sum > 0.98 * d {
+                let f = 0.98 * d / sum;
+                spheres[i].radius *= f;
+                spheres[j].radius *= f;
+            }
+        }
+    }
+    for s in spheres.iter_mut() {
+        s.radius_no_overlap = s.radius;
+    }
     let mut wraps_for: BTreeMap<usize, Vec<(f64, String)>> = BTreeMap::new();
     for s in spheres.iter_mut() {
         let level_index = body_level_index(&s.body).unwrap_or(0);
@@ -793,7 +846,7 @@ pub fn build_base(
         let g = wrap::SphereGeom {
             level_index,
             body: s.body.clone(),
-            radius_fit: s.radius_fit,
+            radius_fit: s.radius,
             centres,
         };
         let a = wrap::assign(&g, &mgeo);
@@ -801,8 +854,18 @@ pub fn build_base(
         s.muscles = a.muscles.iter().map(|&k| mgeo[k].name.clone()).collect();
         s.muscles_refused = a.refused.iter().map(|&k| mgeo[k].name.clone()).collect();
         for &k in &a.muscles {
-            let t = wrap::path_parameter(&mgeo[k].paths[0], &g.centres[0]);
-            wraps_for.entry(k).or_default().push((t, s.name.clone()));
+            // Clearance of the straight path to this sphere over the test poses.
+            let clear = mgeo[k]
+                .paths
+                .iter()
+                .zip(&g.centres)
+                .flat_map(|(p, c)| {
+                    p.windows(2)
+                        .map(move |w| kin::point_segment_distance(c, &w[0], &w[1]))
+                })
+                .fold(f64::MAX, f64::min)
+                - a.radius;
+            wraps_for.entry(k).or_default().push((clear, s.name.clone()));
         }
         // WrapSphere on the body.
         let el = doc
@@ -823,8 +886,23 @@ pub fn build_base(
             )));
     }
     let mut path_wraps_added = 0;
-    for (k, mut list) in wraps_for.iter().map(|(k, l)| (*k, l.clone())) {
+    // One PathWrap per muscle: the sphere its straight path penetrates
+    // deepest (OpenSim 4.6 gives paths shorter than the straight line when
+    // a path wraps over several spheres in sequence).
+    for list in wraps_for.values_mut() {
         list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        list.truncate(1);
+    }
+    for s in spheres.iter_mut() {
+        s.muscles.retain(|m| {
+            mgeo.iter()
+                .position(|g| g.name == *m)
+                .and_then(|k| wraps_for.get(&k))
+                .map(|l| l.iter().any(|(_, n)| *n == s.name))
+                .unwrap_or(false)
+        });
+    }
+    for (k, list) in wraps_for.iter().map(|(k, l)| (*k, l.clone())) {
         let name = &mgeo[k].name;
         let el = doc
             .component_mut("ForceSet", name)

@@ -17,14 +17,21 @@
 //!   and every IVD joint at LB +-10 deg with AR +-5 deg, or FE +-10 deg) a
 //!   segment of its straight path comes within the radius + 5 mm of the
 //!   sphere's centre.
+//! * Spheres may not overlap one another in any test pose (OpenSim wraps
+//!   sequentially; a tangent point inside the next sphere gives wrong,
+//!   even shorter than straight, paths): overlapping pairs are shrunk in
+//!   proportion to 98 % of their closest centre distance.
 //! * Path points inside a sphere (OpenSim then silently skips the wrap):
 //!   over the test poses, the sphere is shrunk to 0.5 mm inside the nearest
 //!   path point of its wrapping muscles; a muscle whose point would force
 //!   the radius below half the fitted radius loses that PathWrap instead
 //!   (reported).
-//! * PathWraps use the `hybrid` method (WrapSphere's analytic solution does
-//!   not depend on it) over the whole path (range -1 -1), and a muscle's
-//!   PathWraps are ordered along its path at the default pose.
+//! * One PathWrap per muscle: among the spheres it crosses, the one its
+//!   straight path penetrates deepest over the test poses (OpenSim 4.6
+//!   computes path lengths shorter than the straight line when a path
+//!   wraps over several spheres in sequence). PathWraps use the `hybrid`
+//!   method (WrapSphere's analytic solution does not depend on it) over
+//!   the whole path (range -1 -1).
 
 use super::kin::{point_segment_distance, Values};
 use crate::error::{Error, Result};
@@ -53,7 +60,9 @@ pub struct SphereRow {
     pub centre: [f64; 3],
     /// Radius of the least-squares fit (m).
     pub radius_fit: f64,
-    /// Radius written (after any shrinking) (m).
+    /// Radius after the no-overlap rule between spheres (m).
+    pub radius_no_overlap: f64,
+    /// Radius written (after any shrinking for path points) (m).
     pub radius: f64,
     /// RMS distance of the selected nodes to the fitted sphere (mm).
     pub rms_mm: f64,
@@ -82,6 +91,37 @@ pub fn anterior_nodes(ctx: &str, body: &TriMesh) -> Result<Vec<Point3<f64>>> {
         .map_err(|e| Error::invalid(ctx, e.to_string()))?;
     Ok(idx.into_iter().map(|i| body.vertices[i]).collect())
 }
+
+/// Relaxed anterior-node rule for coarse meshes (used when the standard
+/// rule keeps fewer than [`MIN_NODES`] nodes or its sphere is implausible):
+/// vertices of the consistently oriented body mesh in the central 60 % of
+/// its height, anterior of its area centroid, with a mostly horizontal
+/// normal (`|n . Y| <= 0.5`): the anterior half of the body's wall.
+pub fn anterior_nodes_relaxed(ctx: &str, body: &TriMesh) -> Result<Vec<Point3<f64>>> {
+    let mut oriented = body.clone();
+    oriented.orient_consistently();
+    let normals = oriented.vertex_normals();
+    let c = body
+        .area_centroid()
+        .ok_or_else(|| Error::invalid(ctx, "the vertebral body has no area"))?;
+    let mut h: Vec<f64> = body.vertices.iter().map(|p| p.y).collect();
+    h.sort_by(f64::total_cmp);
+    let pct = |f: f64| h.get(((h.len().saturating_sub(1)) as f64 * f).round() as usize).copied();
+    let (Some(lo), Some(hi)) = (pct(0.02), pct(0.98)) else {
+        return Err(Error::invalid(ctx, "the vertebral body has no vertices"));
+    };
+    let (b0, b1) = (lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo));
+    Ok(body
+        .vertices
+        .iter()
+        .zip(&normals)
+        .filter(|(p, n)| p.y >= b0 && p.y <= b1 && p.x > c.x && n.y.abs() <= 0.5)
+        .map(|(p, _)| *p)
+        .collect())
+}
+
+/// Fewest nodes the standard rule must give before the relaxed one is tried.
+pub const MIN_NODES: usize = 12;
 
 /// Register a body-only mesh onto the vertebra mesh `target` (similarity
 /// ICP); returns the moved mesh and the RMS residual (m).
@@ -136,6 +176,7 @@ pub struct MuscleGeom {
 pub struct SphereGeom {
     pub level_index: usize,
     pub body: String,
+    /// Radius before the inside-point fix (m).
     pub radius_fit: f64,
     /// Centre in ground per test pose.
     pub centres: Vec<Point3<f64>>,
@@ -195,27 +236,6 @@ pub fn assign(sphere: &SphereGeom, muscles: &[MuscleGeom]) -> Assignment {
         muscles,
         refused,
     }
-}
-
-/// Arc-length parameter of the point of `path` closest to `c`.
-pub fn path_parameter(path: &[Point3<f64>], c: &Point3<f64>) -> f64 {
-    let mut best = (f64::MAX, 0.0);
-    let mut s0 = 0.0;
-    for w in path.windows(2) {
-        let ab = w[1] - w[0];
-        let l = ab.norm();
-        let t = if l > 0.0 {
-            ((c - w[0]).dot(&ab) / (l * l)).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let d = (w[0] + ab * t - c).norm();
-        if d < best.0 {
-            best = (d, s0 + t * l);
-        }
-        s0 += l;
-    }
-    best.1
 }
 
 #[cfg(test)]
