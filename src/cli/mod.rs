@@ -4,9 +4,12 @@
 use clap::{Parser, Subcommand};
 
 pub mod base;
+pub mod check;
 pub mod convert;
 pub mod info;
 pub mod mean_shape;
+pub mod simulate;
+pub mod variability;
 
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
 #[derive(Debug, Parser)]
@@ -28,6 +31,15 @@ pub enum Command {
     Base(base::Args),
     /// Mean of meshes in vertex correspondence (generalised Procrustes analysis).
     MeanShape(mean_shape::Args),
+    /// Static equilibrium (or forward dynamics) of a model under load cases.
+    Simulate(simulate::Args),
+    /// Validate landmark sets: protocol completeness, names, units and
+    /// frame, per-vertebra geometry, inter-vertebral plausibility, outliers.
+    /// Exit 0 clean, 1 errors, 2 warnings only (1 with --strict).
+    Check(check::Args),
+    /// Repeated-palpation statistics: IQRs, ICC(2,1), Shapiro-Wilk,
+    /// Friedman/Skillings-Mack with Nemenyi post hoc; JSON + SVG.
+    Variability(variability::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -38,6 +50,9 @@ pub fn main() -> i32 {
         Command::Convert(a) => convert::run(a),
         Command::Base(a) => base::run(a),
         Command::MeanShape(a) => mean_shape::run(a),
+        Command::Simulate(a) => simulate::run(a),
+        Command::Check(a) => check::run(&a),
+        Command::Variability(a) => variability::run(&a),
     };
     match result {
         Ok(code) => code,

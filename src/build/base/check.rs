@@ -7,7 +7,11 @@
 //!   counts);
 //! * every WrapSphere is reachable by its muscles (at least one muscle
 //!   wraps over it; by the crossing rule each of them passes within the
-//!   radius + 5 mm in a test pose); spheres without muscles are listed.
+//!   radius + 5 mm in a test pose); spheres without muscles are listed;
+//! * the model settles under gravity: static equilibrium with the tool's
+//!   solver ([`crate::solver`]; muscles apply no force there, as in a
+//!   passive model) from the default pose, reporting the largest
+//!   displacement of a vertebral body origin.
 
 use super::kin::{muscle_path, Kinematics};
 use super::wrap::SphereRow;
@@ -37,9 +41,61 @@ pub struct SelfCheck {
     pub spheres_without_muscles: Vec<String>,
     /// Number of spheres with at least one wrapping muscle.
     pub spheres_reachable: usize,
-    /// Static equilibrium under gravity with the tool's solver (filled when
-    /// the solver is available).
-    pub equilibrium: Option<serde_json::Value>,
+    /// Static equilibrium under gravity with the tool's solver.
+    pub equilibrium: Equilibrium,
+}
+
+/// Static equilibrium under gravity.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Equilibrium {
+    pub iterations: usize,
+    /// Largest generalised force residual (N or N m).
+    pub residual_norm: f64,
+    /// Largest displacement of a body origin from the default pose (m).
+    pub max_displacement: f64,
+    /// The body that moved most.
+    pub max_displacement_body: String,
+    /// Every coordinate at equilibrium.
+    pub coordinates: std::collections::BTreeMap<String, f64>,
+}
+
+/// Static equilibrium of `model` under gravity from its default pose.
+pub fn equilibrium(model: &Model) -> Result<Equilibrium> {
+    use crate::solver::{StaticOptions, System, SystemSpec, Workspace};
+    let spec = SystemSpec::from_model(model)?;
+    let sys = System::new(&spec)?;
+    let mut ws = Workspace::new(&sys);
+    let q0 = sys.default_q();
+    let loads = sys.prepare_loads(&[])?;
+    let sol = sys.solve_static(&loads, q0.as_slice(), &mut ws, &StaticOptions::default())?;
+    let p0 = sys.body_poses(q0.as_slice(), &mut ws)?;
+    let p1 = sys.body_poses(sol.q.as_slice(), &mut ws)?;
+    let mut best = (0.0, String::new());
+    for (name, a) in &p0 {
+        if let Some(b) = p1.get(name) {
+            let d = (0..3)
+                .map(|k| (a.origin_in_ground[k] - b.origin_in_ground[k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if d > best.0 {
+                best = (d, name.clone());
+            }
+        }
+    }
+    let full = sys.full_coordinates(sol.q.as_slice());
+    let coordinates = sys
+        .coordinates()
+        .iter()
+        .map(|c| c.name.clone())
+        .zip(full)
+        .collect();
+    Ok(Equilibrium {
+        iterations: sol.iterations,
+        residual_norm: sol.residual_norm,
+        max_displacement: best.0,
+        max_displacement_body: best.1,
+        coordinates,
+    })
 }
 
 /// Run the self-check on the base model; `vertebrae` are (body, mesh
@@ -107,6 +163,6 @@ pub fn run(
             .map(|s| s.name.clone())
             .collect(),
         spheres_reachable: spheres.iter().filter(|s| !s.muscles.is_empty()).count(),
-        equilibrium: None,
+        equilibrium: equilibrium(model)?,
     })
 }

@@ -753,7 +753,9 @@ pub fn build_base(
                 }
             }
         }
-        let s = s.ok_or_else(|| Error::invalid(&ctx, "no sphere could be fitted to the anterior wall"))?;
+        let s = s.ok_or_else(|| {
+            Error::invalid(&ctx, "no sphere could be fitted to the anterior wall")
+        })?;
         spheres.push(wrap::SphereRow {
             level: v.level.to_string(),
             body: v.body.clone(),
@@ -865,7 +867,10 @@ pub fn build_base(
                 })
                 .fold(f64::MAX, f64::min)
                 - a.radius;
-            wraps_for.entry(k).or_default().push((clear, s.name.clone()));
+            wraps_for
+                .entry(k)
+                .or_default()
+                .push((clear, s.name.clone()));
         }
         // WrapSphere on the body.
         let el = doc

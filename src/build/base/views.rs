@@ -11,6 +11,9 @@ use nalgebra::{Isometry3, Point3};
 use plotters::prelude::*;
 use std::collections::BTreeMap;
 
+/// (file name, title, horizontal coordinate of a point).
+type View = (&'static str, &'static str, fn(&Point3<f64>) -> f64);
+
 /// Render the two views: `[(file name, svg)]`.
 pub fn render(
     poses: &BTreeMap<String, Isometry3<f64>>,
@@ -45,7 +48,7 @@ pub fn render(
             ))
         })
         .collect();
-    let views: [(&str, &str, fn(&Point3<f64>) -> f64); 2] = [
+    let views: [View; 2] = [
         (
             "view_frontal.svg",
             "frontal (from anterior; subject's right on the left)",

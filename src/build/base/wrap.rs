@@ -106,7 +106,10 @@ pub fn anterior_nodes_relaxed(ctx: &str, body: &TriMesh) -> Result<Vec<Point3<f6
         .ok_or_else(|| Error::invalid(ctx, "the vertebral body has no area"))?;
     let mut h: Vec<f64> = body.vertices.iter().map(|p| p.y).collect();
     h.sort_by(f64::total_cmp);
-    let pct = |f: f64| h.get(((h.len().saturating_sub(1)) as f64 * f).round() as usize).copied();
+    let pct = |f: f64| {
+        h.get(((h.len().saturating_sub(1)) as f64 * f).round() as usize)
+            .copied()
+    };
     let (Some(lo), Some(hi)) = (pct(0.02), pct(0.98)) else {
         return Err(Error::invalid(ctx, "the vertebral body has no vertices"));
     };
@@ -197,7 +200,7 @@ pub fn assign(sphere: &SphereGeom, muscles: &[MuscleGeom]) -> Assignment {
         if !(m.level_lo < sphere.level_index && sphere.level_index < m.level_hi) {
             continue;
         }
-        if m.bodies.iter().any(|b| *b == sphere.body) {
+        if m.bodies.contains(&sphere.body) {
             continue;
         }
         let mut dseg = f64::MAX;
