@@ -384,3 +384,58 @@ fn palpation_on_dense_whole_vertebrae() {
         }
     }
 }
+
+/// `mean-shape`: the mean of rigidly moved copies of a mesh is that mesh
+/// (up to a rigid motion); meshes not in correspondence are refused.
+#[test]
+fn mean_shape_of_moved_copies_is_the_shape() {
+    let Some(geom) = common::shared("data/geometry-bodyframe") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let base = osim_spine::mesh::read(&geom.join("lumbar3.vtp")).unwrap();
+    let mut paths = Vec::new();
+    for (k, (ax, t)) in [(0.3, 0.01), (-0.7, -0.05), (1.1, 0.2)].iter().enumerate() {
+        let x = Isometry3::new(Vector3::new(*t, 0.0, -t), Vector3::new(0.1, *ax, -0.2));
+        let p = tmp.path().join(format!("m{k}.vtp"));
+        osim_spine::mesh::write(&p, &base.transformed(&x)).unwrap();
+        paths.push(p);
+    }
+    let out = tmp.path().join("mean.vtp");
+    let o = Command::new(common::bin())
+        .arg("mean-shape")
+        .args(paths.iter().map(|p| p.to_str().unwrap()))
+        .args(["--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mean = osim_spine::mesh::read(&out).unwrap();
+    assert_eq!(mean.triangles, base.triangles);
+    let t = osim_spine::mesh::kabsch(&mean.vertices, &base.vertices).unwrap();
+    let rms = (mean
+        .vertices
+        .iter()
+        .zip(&base.vertices)
+        .map(|(a, b)| (t.apply(a) - b).norm_squared())
+        .sum::<f64>()
+        / base.vertices.len() as f64)
+        .sqrt();
+    assert!(rms < 1e-9, "mean differs from the shape by {rms} m RMS");
+    // Not in correspondence.
+    let other = tmp.path().join("other.vtp");
+    std::fs::copy(geom.join("lumbar4.vtp"), &other).unwrap();
+    let l4 = osim_spine::mesh::read(&other).unwrap();
+    if l4.triangles != base.triangles {
+        let o = Command::new(common::bin())
+            .args([
+                "mean-shape",
+                paths[0].to_str().unwrap(),
+                other.to_str().unwrap(),
+            ])
+            .args(["--out", tmp.path().join("bad.vtp").to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        assert!(!tmp.path().join("bad.vtp").exists());
+    }
+}
