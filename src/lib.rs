@@ -13,6 +13,7 @@
 //! | [`personalise`] | intervertebral stiffness tables and forms written into models |
 //! | [`solver`] | rigid-body system (immutable) + workspace, statics, dynamics |
 //! | [`calibrate`] | experiments, stiffness calibration, sensitivity studies |
+//! | [`evaluate`] | model accuracy against patient truth (thesis metrics) |
 //! | [`diagnose`] | sim-to-real gap diagnosis |
 //! | [`report`] | JSON/SVG/Markdown reports |
 //! | [`util`] | atomic output, small shared helpers |
@@ -22,6 +23,7 @@ pub mod calibrate;
 pub mod cli;
 pub mod diagnose;
 pub mod error;
+pub mod evaluate;
 pub mod landmarks;
 pub mod mesh;
 pub mod osim;

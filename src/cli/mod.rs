@@ -6,6 +6,8 @@ use clap::{Parser, Subcommand};
 pub mod base;
 pub mod check;
 pub mod convert;
+pub mod evaluate;
+pub mod generate;
 pub mod info;
 pub mod mean_shape;
 pub mod simulate;
@@ -40,6 +42,13 @@ pub enum Command {
     /// Repeated-palpation statistics: IQRs, ICC(2,1), Shapiro-Wilk,
     /// Friedman/Skillings-Mack with Nemenyi post hoc; JSON + SVG.
     Variability(variability::Args),
+    /// Generate a patient-specific scoliotic model from a landmark set
+    /// (sacral registration, per-vertebra anisotropic scaling and pose,
+    /// joints placed so that every bushing is undeflected at the default pose).
+    Generate(generate::Args),
+    /// Accuracy of model(s) against truth vertebral centres: centre RMSE,
+    /// per-axis errors, curve fits, Cobb angle, apex, lordosis; JSON + SVG.
+    Evaluate(evaluate::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -53,6 +62,8 @@ pub fn main() -> i32 {
         Command::Simulate(a) => simulate::run(a),
         Command::Check(a) => check::run(&a),
         Command::Variability(a) => variability::run(&a),
+        Command::Generate(a) => generate::run(a),
+        Command::Evaluate(a) => evaluate::run(a),
     };
     match result {
         Ok(code) => code,

@@ -1,0 +1,703 @@
+//! Patient-specific scoliotic model generation (`osim-spine generate`):
+//! a base model (from `osim-spine base` or the embedded default) and a
+//! patient's palpated landmark set give a model whose default pose
+//! reproduces the patient's spine with every bushing undeflected.
+//!
+//! Pipeline ([`generate`]; everything in memory, nothing written):
+//! 1. **Common reference** (thesis): the landmark set is registered to the
+//!    model through the sacrum: a rigid least-squares fit of the S1
+//!    landmarks (`S1_SEC`, `S1_SA`, `S1_SP`, `S1_SR`, `S1_SL`, and the
+//!    pedicle tops when both sides have them) onto the base model's sacral
+//!    markers at the default pose. This aligns the S1 endplate centre and
+//!    the endplate plane (sacral slope) of patient and model. The
+//!    transform is reported ([`Registration`]) so that [`crate::evaluate`]
+//!    can bring truth data into the model's frame.
+//! 2. **Per-vertebra scaling and pose** ([`pose`]): anisotropic scale
+//!    factors from the 8 scaling landmarks; pose by the thesis rule (ISB
+//!    frames from the 6 joint landmarks, realigned on the scaling
+//!    landmarks) or by a least-squares fit of all 14 with one-outlier
+//!    rejection ([`Method`]).
+//! 3. **Scaling** of each landmarked vertebra ([`scale`]): meshes, mass and
+//!    inertia, markers, muscle points, wrap objects, joint frames.
+//! 4. **Joint frames**: for each intervertebral joint between two placed
+//!    bodies (upper vertebra U, lower vertebra or sacrum L) the joint frame
+//!    in ground has its origin midway between U's inferior endplate centre
+//!    (`IEC` marker) and L's superior endplate centre (`SEC`), and the mean
+//!    orientation (quaternion midpoint) of the two bodies' ISB frames (for
+//!    the sacrum: Y normal to the S1 endplate, Z right). The joint's parent
+//!    offset frame (in L) and child offset frame (in U) are both written
+//!    from it and its six coordinates default to 0, so the joint transform
+//!    is the identity and every bushing is undeflected at the default
+//!    pose. Levels without landmarks keep the base model's shape and
+//!    alignment relative to the nearest landmarked vertebra below.
+//! 5. **Wrap spheres** refitted ([`wraps`]).
+//! 6. **Self-check** with the base pipeline's checks
+//!    ([`crate::build::base::check`]: bushing deflection, muscle segments
+//!    through vertebrae, reachability, equilibrium with the solver), and
+//!    frontal/sagittal SVG views of the vertebral centres and landmarks.
+//!
+//! Body origins keep the base model's convention (origin at the centre of
+//! the disc below, X anterior, Y cranial, Z right; see
+//! [`crate::build::base`]); only the poses change.
+
+pub mod pose;
+pub mod scale;
+pub mod wraps;
+
+use crate::build::base::kin::Kinematics;
+use crate::build::base::MeshSource;
+use crate::error::{Error, Result};
+use crate::landmarks::frames::frame_from_axes;
+use crate::landmarks::{Code, LandmarkId, LandmarkSet, Level};
+use crate::mesh::{umeyama, MeshQuery};
+use crate::osim::document::{set_f64, set_vec3};
+use crate::osim::model::Model;
+use crate::osim::Document;
+use nalgebra::{Isometry3, Point3, Rotation3, UnitQuaternion, Vector3};
+pub use pose::Method;
+use pose::Points;
+use std::collections::BTreeMap;
+
+/// Options of [`generate`].
+#[derive(Debug, Clone)]
+pub struct GenerateOptions {
+    pub method: Method,
+    /// Run the self-check (needs the meshes for the through-bone test).
+    pub self_check: bool,
+    /// Draw the SVG views.
+    pub views: bool,
+}
+
+impl Default for GenerateOptions {
+    fn default() -> Self {
+        GenerateOptions {
+            method: Method::Lsq,
+            self_check: true,
+            views: true,
+        }
+    }
+}
+
+/// The rigid transform from the landmark set's frame (OpenSim axes, m,
+/// after the file's units and frame were converted) to the model's ground.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Registration {
+    /// Row-major rotation matrix.
+    pub rotation: [[f64; 3]; 3],
+    /// Translation (m).
+    pub translation: [f64; 3],
+    /// Sacral landmarks used.
+    pub landmarks: Vec<String>,
+    /// RMS residual of the sacral fit (mm).
+    pub rms_mm: f64,
+}
+
+impl Registration {
+    fn from_iso(x: &Isometry3<f64>, landmarks: Vec<String>, rms: f64) -> Registration {
+        let r = x.rotation.to_rotation_matrix();
+        let m = r.matrix();
+        Registration {
+            rotation: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
+            translation: [
+                x.translation.vector.x,
+                x.translation.vector.y,
+                x.translation.vector.z,
+            ],
+            landmarks,
+            rms_mm: rms * 1e3,
+        }
+    }
+    /// As an isometry.
+    pub fn isometry(&self) -> Isometry3<f64> {
+        let m = nalgebra::Matrix3::from_fn(|i, j| self.rotation[i][j]);
+        let r = Rotation3::from_matrix(&m);
+        Isometry3::from_parts(
+            Vector3::from(self.translation).into(),
+            UnitQuaternion::from_rotation_matrix(&r),
+        )
+    }
+}
+
+/// One fitted vertebra in the report.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct VertebraRow {
+    pub level: String,
+    pub body: String,
+    /// Scale factors X (depth), Y (height), Z (width).
+    pub scale: [f64; 3],
+    /// Body origin in ground (m).
+    pub origin: [f64; 3],
+    /// Body orientation in ground, body-fixed XYZ angles (deg).
+    pub orientation_deg: [f64; 3],
+    /// RMS and largest landmark-to-marker residual (mm) of the used landmarks.
+    pub rms_mm: f64,
+    pub max_residual_mm: f64,
+    /// Rejected outlier landmark (lsq).
+    pub outlier: Option<String>,
+    /// Its leave-one-out prediction error (mm).
+    pub outlier_error_mm: Option<f64>,
+    /// Largest leave-one-out prediction error and the threshold (mm) (lsq).
+    pub loo_max_mm: Option<f64>,
+    pub loo_threshold_mm: Option<f64>,
+}
+
+/// Everything [`generate`] did and measured (the JSON report).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct GenerateReport {
+    pub base_model: String,
+    pub landmarks: String,
+    /// Units/frame: declared, detected and used.
+    pub detection: Option<String>,
+    pub method: Method,
+    /// Vertebrae placed from landmarks, cranial to caudal.
+    pub levels_from_landmarks: Vec<String>,
+    /// Vertebrae of the base model kept with the base shape and alignment.
+    pub levels_from_base: Vec<String>,
+    pub registration: Registration,
+    pub vertebrae: Vec<VertebraRow>,
+    /// Outliers flagged (`<LEVEL>_<CODE> (error mm)`).
+    pub outliers: Vec<String>,
+    /// RMS of all landmark-to-marker residuals (mm), outliers excluded.
+    pub landmark_rms_mm: f64,
+    pub joints_rewritten: Vec<String>,
+    pub scaling: BTreeMap<String, scale::ScaleCount>,
+    pub spheres: Vec<wraps::SphereOut>,
+    /// Vertebral centres (wrap-sphere centres) in ground at the default pose (m).
+    pub centres: BTreeMap<String, [f64; 3]>,
+    pub self_check: Option<crate::build::base::check::SelfCheck>,
+}
+
+/// A generated model, not yet written.
+#[derive(Debug, Clone)]
+pub struct Generated {
+    pub doc: Document,
+    pub report: GenerateReport,
+    /// (suffix, SVG text): `frontal`, `sagittal`.
+    pub views: Vec<(String, String)>,
+}
+
+/// Base-model markers `<LEVEL>_<CODE>` in their bodies' frames, and the
+/// bodies they are on.
+pub fn base_markers(model: &Model) -> Result<BTreeMap<Level, (String, Points)>> {
+    let mut out: BTreeMap<Level, (String, Points)> = BTreeMap::new();
+    for mk in &model.markers {
+        let Some((id, _)) = LandmarkId::parse_name(&mk.name) else {
+            continue;
+        };
+        let (body, x) = model.marker_frame(mk)?;
+        if body != id.level.body_name() {
+            return Err(Error::invalid(
+                model.file.display().to_string(),
+                format!(
+                    "marker '{}' is on body '{body}', expected '{}'",
+                    mk.name,
+                    id.level.body_name()
+                ),
+            ));
+        }
+        out.entry(id.level)
+            .or_insert_with(|| (body.clone(), Points::new()))
+            .1
+            .insert(id.code, x * Point3::from(mk.location));
+    }
+    Ok(out)
+}
+
+/// Sacral frame from S1 endplate points: Y normal to the endplate (from the
+/// two diameters, `(SR - SL) x (SA - SP)`), Z right.
+fn sacral_rotation(p: &Points) -> Option<Rotation3<f64>> {
+    let a = p.get(&Code::SA)? - p.get(&Code::SP)?;
+    let r = p.get(&Code::SR)? - p.get(&Code::SL)?;
+    frame_from_axes(r.cross(&a), r)
+}
+
+fn isb_rotation(p: &Points) -> Option<Rotation3<f64>> {
+    let right = nalgebra::center(p.get(&Code::PTR)?, p.get(&Code::PBR)?);
+    let left = nalgebra::center(p.get(&Code::PTL)?, p.get(&Code::PBL)?);
+    frame_from_axes(p.get(&Code::SEC)? - p.get(&Code::IEC)?, right - left)
+}
+
+fn xyz_deg(r: &UnitQuaternion<f64>) -> [f64; 3] {
+    let a = crate::build::base::joints::xyz_angles(&r.to_rotation_matrix());
+    [a.x.to_degrees(), a.y.to_degrees(), a.z.to_degrees()]
+}
+
+/// Levels of the set: contiguous, ending at S1 (the check module reports
+/// the details; this is the generator's own guard).
+fn set_levels(set: &LandmarkSet, file: &str) -> Result<Vec<Level>> {
+    let levels = set.levels();
+    if levels.last() != Some(&Level::S1) {
+        return Err(Error::invalid(
+            file,
+            "the landmark set has no S1 landmarks: the run of levels must end at the sacrum",
+        ));
+    }
+    for w in levels.windows(2) {
+        if w[0].caudal() != Some(w[1]) {
+            return Err(Error::invalid(
+                file,
+                format!(
+                    "levels missing between {} and {}: the landmarked levels must be contiguous",
+                    w[0], w[1]
+                ),
+            ));
+        }
+    }
+    Ok(levels)
+}
+
+/// Generate the patient model from `base` and `set` (see the module docs).
+/// `meshes` serve the self-check's through-bone test (skipped without).
+pub fn generate(
+    base: &Document,
+    set: &LandmarkSet,
+    set_name: &str,
+    opts: &GenerateOptions,
+    meshes: Option<&dyn MeshSource>,
+) -> Result<Generated> {
+    let bfile = base.path().display().to_string();
+    let model = base.model()?;
+    let kin = Kinematics::new(&model)?;
+    let q0 = kin.default_values();
+    let poses0 = kin.body_poses(&q0)?;
+    let markers = base_markers(&model)?;
+    let levels = set_levels(set, set_name)?;
+    let vert_levels: Vec<Level> = levels.iter().copied().filter(|l| !l.is_sacrum()).collect();
+
+    // Landmarks per level.
+    let mut patient: BTreeMap<Level, Points> = BTreeMap::new();
+    for (id, p) in &set.points {
+        patient.entry(id.level).or_default().insert(id.code, *p);
+    }
+    for l in &levels {
+        let (_, mpts) = markers.get(l).ok_or_else(|| {
+            Error::invalid(
+                &bfile,
+                format!(
+                    "the landmarks cover {l} but the base model has no {l} markers (body '{}')",
+                    l.body_name()
+                ),
+            )
+        })?;
+        let have = patient.get(l).cloned().unwrap_or_default();
+        let missing: Vec<String> = l
+            .required_codes()
+            .iter()
+            .filter(|c| !have.contains_key(c))
+            .map(|c| format!("{l}_{c}"))
+            .collect();
+        if !missing.is_empty() {
+            return Err(Error::invalid(
+                set_name,
+                format!("missing landmark(s): {}", missing.join(", ")),
+            ));
+        }
+        let mmissing: Vec<String> = l
+            .required_codes()
+            .iter()
+            .filter(|c| !mpts.contains_key(c))
+            .map(|c| format!("{l}_{c}"))
+            .collect();
+        if !mmissing.is_empty() {
+            return Err(Error::invalid(
+                &bfile,
+                format!("the base model lacks the marker(s) {}", mmissing.join(", ")),
+            ));
+        }
+    }
+
+    // ---- 1. registration through the sacrum
+    let x_sacrum = poses0
+        .get("sacrum")
+        .copied()
+        .ok_or_else(|| Error::invalid(&bfile, "the base model has no body 'sacrum'"))?;
+    let (src, dst, used): (Vec<Point3<f64>>, Vec<Point3<f64>>, Vec<String>) = {
+        let pp = &patient[&Level::S1];
+        let mp = &markers[&Level::S1].1;
+        let mut codes: Vec<Code> = Code::SACRUM_REQUIRED.to_vec();
+        if [Code::PTR, Code::PTL]
+            .iter()
+            .all(|c| pp.contains_key(c) && mp.contains_key(c))
+        {
+            codes.extend([Code::PTR, Code::PTL]);
+        }
+        let mut s = Vec::new();
+        let mut d = Vec::new();
+        let mut u = Vec::new();
+        for c in codes {
+            if let (Some(p), Some(m)) = (pp.get(&c), mp.get(&c)) {
+                s.push(*p);
+                d.push(x_sacrum * m);
+                u.push(format!("S1_{c}"));
+            }
+        }
+        (s, d, u)
+    };
+    let reg = umeyama(&src, &dst, false).map_err(|e| {
+        Error::invalid(
+            set_name,
+            format!("sacral landmarks cannot be registered to the model: {e}"),
+        )
+    })?;
+    let x_reg = Isometry3::from_parts(reg.translation.into(), reg.rotation);
+    let reg_rms = (src
+        .iter()
+        .zip(&dst)
+        .map(|(s, d)| (x_reg * s - d).norm_squared())
+        .sum::<f64>()
+        / src.len() as f64)
+        .sqrt();
+    let registration = Registration::from_iso(&x_reg, used, reg_rms);
+    for pts in patient.values_mut() {
+        for p in pts.values_mut() {
+            *p = x_reg * *p;
+        }
+    }
+
+    // ---- 2. fits
+    let mut fits: BTreeMap<Level, pose::VertebraFit> = BTreeMap::new();
+    for l in &vert_levels {
+        let f = pose::fit_vertebra(*l, &patient[l], &markers[l].1, opts.method)?;
+        fits.insert(*l, f);
+    }
+
+    // ---- 3. scaling
+    let mut doc = base.clone();
+    let mut scales: BTreeMap<String, Vector3<f64>> = BTreeMap::new();
+    let mut scaling = BTreeMap::new();
+    for (l, f) in &fits {
+        let body = l.body_name();
+        let c = scale::scale_body(&mut doc, &body, &f.scale)?;
+        scaling.insert(l.to_string(), c);
+        scales.insert(body, f.scale);
+    }
+
+    // ---- 4. joint frames
+    let jframes = model.joint_frames()?;
+    let pose_of = |l: Level| -> Isometry3<f64> {
+        match fits.get(&l) {
+            Some(f) => f.pose,
+            None => x_sacrum,
+        }
+    };
+    let scaled_markers = |l: Level| -> Points {
+        let (_, m) = &markers[&l];
+        match fits.get(&l) {
+            Some(f) => m
+                .iter()
+                .map(|(c, p)| (*c, pose::scale_point(p, &f.scale)))
+                .collect(),
+            None => m.clone(),
+        }
+    };
+    let mut rewritten = Vec::new();
+    let mut prefixes = Vec::new();
+    for jf in &jframes {
+        let (Some(lu), Some(ll)) = (
+            Level::from_body_name(&jf.child_body),
+            Level::from_body_name(&jf.parent_body),
+        ) else {
+            continue;
+        };
+        if lu.caudal() != Some(ll) {
+            continue;
+        }
+        prefixes.push(format!("{lu}_{ll}"));
+        if !fits.contains_key(&lu) {
+            continue;
+        }
+        let (xu, xl) = (pose_of(lu), pose_of(ll));
+        let (mu, ml) = (scaled_markers(lu), scaled_markers(ll));
+        let iec = xu * mu[&Code::IEC];
+        let sec = xl * ml[&Code::SEC];
+        let ru = isb_rotation(&mu)
+            .ok_or_else(|| Error::invalid(&bfile, format!("the {lu} markers give no ISB frame")))?;
+        let rl = if ll.is_sacrum() {
+            sacral_rotation(&ml)
+        } else {
+            isb_rotation(&ml)
+        }
+        .ok_or_else(|| Error::invalid(&bfile, format!("the {ll} markers give no frame")))?;
+        let qu = xu.rotation * UnitQuaternion::from_rotation_matrix(&ru);
+        let ql = xl.rotation * UnitQuaternion::from_rotation_matrix(&rl);
+        let q = ql.slerp(&qu, 0.5);
+        let j = Isometry3::from_parts(nalgebra::center(&iec, &sec).coords.into(), q);
+        let p_in_l = xl.inverse() * j;
+        let c_in_u = xu.inverse() * j;
+        write_joint(
+            &mut doc,
+            &model,
+            &jf.joint,
+            &jf.parent_body,
+            &jf.child_body,
+            &p_in_l,
+            &c_in_u,
+        )?;
+        rewritten.push(jf.joint.clone());
+    }
+    let prefixes: Vec<String> = prefixes;
+
+    // ---- 5. wrap spheres
+    let base_radii: BTreeMap<String, f64> = model
+        .bodies
+        .iter()
+        .flat_map(|b| b.wrap_objects.iter())
+        .filter_map(|w| match w.shape {
+            crate::osim::model::WrapShape::Sphere { radius } => Some((w.name.clone(), radius)),
+            _ => None,
+        })
+        .collect();
+    let spheres = wraps::refit_spheres(&mut doc, &scales, &base_radii, &prefixes)?;
+
+    // ---- 6. report, views, self-check
+    let out_model = doc.model()?;
+    let kin2 = Kinematics::new(&out_model)?;
+    let poses2 = kin2.body_poses(&kin2.default_values())?;
+    let centres = crate::evaluate::model_centres(&out_model, &poses2)?;
+    let mut rows = Vec::new();
+    let mut outliers = Vec::new();
+    let mut all_res = Vec::new();
+    for (l, f) in &fits {
+        let rms = (f.residuals.values().map(|r| r * r).sum::<f64>()
+            / f.residuals.len().max(1) as f64)
+            .sqrt();
+        all_res.extend(f.residuals.values().copied());
+        if let Some((c, e)) = f.outlier {
+            outliers.push(format!("{l}_{c} ({:.1} mm)", e * 1e3));
+        }
+        let x = poses2.get(&l.body_name()).copied().unwrap_or(f.pose);
+        rows.push(VertebraRow {
+            level: l.to_string(),
+            body: l.body_name(),
+            scale: [f.scale.x, f.scale.y, f.scale.z],
+            origin: [
+                x.translation.vector.x,
+                x.translation.vector.y,
+                x.translation.vector.z,
+            ],
+            orientation_deg: xyz_deg(&x.rotation),
+            rms_mm: rms * 1e3,
+            max_residual_mm: f.residuals.values().fold(0.0f64, |a, b| a.max(*b)) * 1e3,
+            outlier: f.outlier.map(|(c, _)| format!("{l}_{c}")),
+            outlier_error_mm: f.outlier.map(|(_, e)| e * 1e3),
+            loo_max_mm: f.loo_max.map(|(_, e, _)| e * 1e3),
+            loo_threshold_mm: f.loo_max.map(|(_, _, t)| t * 1e3),
+        });
+    }
+    let landmark_rms =
+        (all_res.iter().map(|r| r * r).sum::<f64>() / all_res.len().max(1) as f64).sqrt();
+    let levels_from_base: Vec<String> = markers
+        .keys()
+        .filter(|l| !l.is_sacrum() && !fits.contains_key(l))
+        .map(|l| l.to_string())
+        .collect();
+    let self_check = if opts.self_check {
+        let mut owned = Vec::new();
+        if let Some(src) = meshes {
+            for b in &out_model.bodies {
+                if Level::from_body_name(&b.name).map(|l| l.is_sacrum()) != Some(false) {
+                    continue;
+                }
+                let mut missing = Vec::new();
+                if let Some(m) = mesh_of(b, src, &mut missing)? {
+                    let q = MeshQuery::new(&m).map_err(|e| {
+                        Error::invalid(format!("mesh of {}", b.name), e.to_string())
+                    })?;
+                    owned.push((b.name.clone(), q));
+                }
+            }
+        }
+        let refs: Vec<(String, &MeshQuery)> = owned.iter().map(|(n, q)| (n.clone(), q)).collect();
+        let rows: Vec<crate::build::base::wrap::SphereRow> = spheres
+            .iter()
+            .map(|s| crate::build::base::wrap::SphereRow {
+                level: Level::from_body_name(&s.body)
+                    .map(|l| l.to_string())
+                    .unwrap_or_default(),
+                body: s.body.clone(),
+                name: s.name.clone(),
+                centre: s.centre,
+                radius_fit: s.radius_refit,
+                radius_no_overlap: s.radius,
+                radius: s.radius,
+                rms_mm: 0.0,
+                nodes: 0,
+                centre_inside_mesh: true,
+                source: "refitted from the base model".into(),
+                body_mesh_registration_rms_mm: None,
+                muscles: s.muscles.clone(),
+                muscles_refused: s.pathwraps_removed.clone(),
+            })
+            .collect();
+        Some(crate::build::base::check::run(&out_model, &refs, &rows)?)
+    } else {
+        None
+    };
+    let registered: Vec<(String, Point3<f64>)> = patient
+        .iter()
+        .flat_map(|(l, pts)| pts.iter().map(move |(c, p)| (format!("{l}_{c}"), *p)))
+        .collect();
+    let views = if opts.views {
+        let mut model_markers = Vec::new();
+        for mk in &out_model.markers {
+            let (body, x) = out_model.marker_frame(mk)?;
+            if let Some(pb) = poses2.get(&body) {
+                model_markers.push(pb * x * Point3::from(mk.location));
+            }
+        }
+        crate::evaluate::plot::generate_views(&centres, &registered, &model_markers)
+    } else {
+        Vec::new()
+    };
+    let report = GenerateReport {
+        base_model: bfile,
+        landmarks: set_name.to_string(),
+        detection: set.detection.as_ref().map(|d| d.summary()),
+        method: opts.method,
+        levels_from_landmarks: vert_levels.iter().map(|l| l.to_string()).collect(),
+        levels_from_base,
+        registration,
+        vertebrae: rows,
+        outliers,
+        landmark_rms_mm: landmark_rms * 1e3,
+        joints_rewritten: rewritten,
+        scaling,
+        spheres,
+        centres: centres
+            .iter()
+            .map(|(l, p)| (l.to_string(), [p.x, p.y, p.z]))
+            .collect(),
+        self_check,
+    };
+    Ok(Generated { doc, report, views })
+}
+
+/// The merged, scaled meshes of a body (None when it has none).
+fn mesh_of(
+    b: &crate::osim::model::Body,
+    source: &dyn MeshSource,
+    missing: &mut Vec<String>,
+) -> Result<Option<crate::mesh::TriMesh>> {
+    let mut parts = Vec::new();
+    for g in &b.geometry {
+        if let crate::osim::model::Geometry::Mesh {
+            mesh_file,
+            scale_factors,
+            ..
+        } = g
+        {
+            match source.load(mesh_file)? {
+                Some(m) => parts.push(m.scaled(scale_factors)),
+                None => missing.push(mesh_file.clone()),
+            }
+        }
+    }
+    if parts.is_empty() {
+        return Ok(None);
+    }
+    let refs: Vec<&crate::mesh::TriMesh> = parts.iter().collect();
+    Ok(Some(crate::mesh::TriMesh::merge(&refs)?))
+}
+
+/// Write a joint's two offset frames (in the parent and child bodies) and
+/// zero its coordinates' defaults; bushings that own frames on the same two
+/// bodies get the same frames.
+fn write_joint(
+    doc: &mut Document,
+    model: &Model,
+    joint: &str,
+    parent_body: &str,
+    child_body: &str,
+    p_in_parent: &Isometry3<f64>,
+    c_in_child: &Isometry3<f64>,
+) -> Result<()> {
+    let file = model.file.display().to_string();
+    let j = model
+        .joint(joint)
+        .ok_or_else(|| Error::invalid(&file, format!("no joint '{joint}'")))?;
+    let owned = |socket: &str| -> Option<String> {
+        let bare = socket.trim();
+        j.frames
+            .iter()
+            .find(|f| f.name == bare || f.path.ends_with(&format!("/{bare}")))
+            .map(|f| f.name.clone())
+    };
+    let (Some(pf), Some(cf)) = (owned(&j.socket_parent_frame), owned(&j.socket_child_frame)) else {
+        return Err(Error::invalid(
+            &file,
+            format!(
+                "joint '{joint}' does not own both of its offset frames (a base model from \
+                 `osim-spine base` does): cannot place it"
+            ),
+        ));
+    };
+    let set_frame = |e: &mut crate::osim::xml::Element, body: &str, x: &Isometry3<f64>| {
+        e.set_child_text("socket_parent", format!("/bodyset/{body}"));
+        set_vec3(e, "translation", &x.translation.vector);
+        set_vec3(
+            e,
+            "orientation",
+            &crate::build::base::joints::xyz_angles(&x.rotation.to_rotation_matrix()),
+        );
+    };
+    let el = doc
+        .component_mut("JointSet", joint)
+        .ok_or_else(|| Error::invalid(&file, format!("joint element '{joint}' not found")))?;
+    if let Some(frames) = el.child_mut("frames") {
+        for f in frames.elements_mut() {
+            if f.name_attr() == pf {
+                set_frame(f, parent_body, p_in_parent);
+            } else if f.name_attr() == cf {
+                set_frame(f, child_body, c_in_child);
+            }
+        }
+    }
+    if let Some(cs) = el.child_mut("coordinates") {
+        for c in cs.elements_mut() {
+            set_f64(c, "default_value", 0.0);
+        }
+    }
+    // Bushings owning frames on these two bodies.
+    for b in model.bushings() {
+        if b.frames.len() != 2 {
+            continue;
+        }
+        let owner = format!("/forceset/{}", b.name);
+        let (Ok((b1, _)), Ok((b2, _))) = (
+            model.resolve_frame(&owner, &b.socket_frame1),
+            model.resolve_frame(&owner, &b.socket_frame2),
+        ) else {
+            continue;
+        };
+        if !(b1 == parent_body && b2 == child_body) {
+            continue;
+        }
+        let n1 = b
+            .socket_frame1
+            .trim()
+            .rsplit('/')
+            .next()
+            .unwrap_or("")
+            .to_string();
+        let n2 = b
+            .socket_frame2
+            .trim()
+            .rsplit('/')
+            .next()
+            .unwrap_or("")
+            .to_string();
+        if let Some(frames) = doc
+            .component_mut("ForceSet", &b.name)
+            .and_then(|e| e.child_mut("frames"))
+        {
+            for f in frames.elements_mut() {
+                if f.name_attr() == n1 {
+                    set_frame(f, parent_body, p_in_parent);
+                } else if f.name_attr() == n2 {
+                    set_frame(f, child_body, c_in_child);
+                }
+            }
+        }
+    }
+    Ok(())
+}

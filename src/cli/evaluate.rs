@@ -1,0 +1,152 @@
+//! `osim-spine evaluate --model MODEL.osim... --truth CENTRES.csv|MESH_DIR
+//! --out DIR`: model accuracy metrics of the source thesis (see
+//! [`crate::evaluate`]). Writes `DIR/evaluation.json` and the figures
+//! `DIR/centres_{frontal,sagittal}.svg` (Fig. 5.6) and
+//! `DIR/curves_{frontal,sagittal}.svg` (Fig. 5.7), atomically, after
+//! everything is computed.
+
+use crate::error::Error;
+use crate::evaluate::{centres_from_meshes, evaluate, load_model, read_centres_csv, Align, Truth};
+use crate::landmarks::{Frame, Level, Units};
+use std::path::PathBuf;
+
+/// Arguments of `evaluate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Model(s) to evaluate (several: one per palpation -> median and IQR).
+    #[arg(long, value_name = "MODEL.osim", required = true)]
+    pub model: Vec<PathBuf>,
+    /// Truth: a centres CSV (`level,x,y,z`, `# units:`, `# frame:`) or a
+    /// folder of vertebral-body meshes `<LEVEL>*.stl|obj|vtp|ply`.
+    #[arg(long, value_name = "CENTRES.csv|MESH_DIR")]
+    pub truth: PathBuf,
+    /// Truth landmark set, for the truth's Cobb angle, apex and lordosis.
+    #[arg(long, value_name = "FILE")]
+    pub truth_landmarks: Option<PathBuf>,
+    /// Units of truth meshes (mm or m).
+    #[arg(long, value_name = "mm|m")]
+    pub truth_units: Option<String>,
+    /// Frame of truth meshes (LPS, RAS, opensim).
+    #[arg(long, value_name = "FRAME")]
+    pub truth_frame: Option<String>,
+    /// Superimposition of the truth on each model after the sacral
+    /// registration: rigid (shape error), l5 (thesis), sacrum (none).
+    #[arg(long, value_enum, default_value = "rigid")]
+    pub align: Align,
+    /// End vertebrae of the main curve, `UPPER,LOWER` (default: automatic).
+    #[arg(long, value_name = "UPPER,LOWER")]
+    pub cobb_ends: Option<String>,
+    /// Output folder.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+/// Run `evaluate`; returns the exit code.
+pub fn run(args: Args) -> anyhow::Result<i32> {
+    let ends = match &args.cobb_ends {
+        None => None,
+        Some(s) => {
+            let bad = || {
+                Error::invalid(
+                    "--cobb-ends",
+                    format!("'{s}' is not UPPER,LOWER (e.g. T12,L4)"),
+                )
+            };
+            let (a, b) = s.split_once(',').ok_or_else(bad)?;
+            let (u, l): (Level, Level) =
+                (a.parse().map_err(|_| bad())?, b.parse().map_err(|_| bad())?);
+            if u > l || l.is_sacrum() {
+                return Err(bad().into());
+            }
+            Some((u, l))
+        }
+    };
+    let centres = if args.truth.is_dir() {
+        let units = args
+            .truth_units
+            .as_deref()
+            .and_then(Units::parse_label)
+            .ok_or_else(|| {
+                Error::invalid("--truth-units", "truth meshes need --truth-units mm|m")
+            })?;
+        let frame = args
+            .truth_frame
+            .as_deref()
+            .and_then(Frame::parse_label)
+            .ok_or_else(|| {
+                Error::invalid(
+                    "--truth-frame",
+                    "truth meshes need --truth-frame LPS|RAS|opensim",
+                )
+            })?;
+        centres_from_meshes(&args.truth, units, frame)?
+    } else {
+        read_centres_csv(&args.truth)?
+    };
+    let landmarks = match &args.truth_landmarks {
+        Some(p) => Some(crate::landmarks::io::load(p)?),
+        None => None,
+    };
+    let truth = Truth {
+        source: args.truth.display().to_string(),
+        centres,
+        landmarks,
+    };
+    let mut models = Vec::new();
+    for m in &args.model {
+        models.push(load_model(m)?);
+    }
+    let (report, figures) = evaluate(&models, &truth, args.align, ends)?;
+    let mut files: Vec<(PathBuf, Vec<u8>)> = vec![(
+        args.out.join("evaluation.json"),
+        serde_json::to_string_pretty(&report)?.into_bytes(),
+    )];
+    for (name, svg) in figures {
+        files.push((args.out.join(name), svg.into_bytes()));
+    }
+    for (p, b) in &files {
+        crate::util::write_atomic(p, b)?;
+    }
+    for m in &report.models {
+        let cobb = m
+            .cobb
+            .as_ref()
+            .map(|c| format!("{:.1} deg ({}-{})", c.angle_deg, c.upper, c.lower))
+            .unwrap_or_else(|| "-".into());
+        let tcobb = m
+            .truth_cobb
+            .as_ref()
+            .map(|c| format!(" (truth {:.1} deg, {}-{})", c.angle_deg, c.upper, c.lower))
+            .unwrap_or_default();
+        println!(
+            "{}: centre RMSE {:.2} mm ({} align{}); Cobb {cobb}{tcobb}; apex {}; lordosis {}",
+            m.model,
+            m.centre_rmse_mm,
+            serde_json::to_value(m.align)?.as_str().unwrap_or(""),
+            m.centre_rmse_sacral_frame_mm
+                .map(|v| format!(", {v:.2} mm in the sacral frame"))
+                .unwrap_or_default(),
+            m.apex.as_deref().unwrap_or("-"),
+            m.lordosis_deg
+                .map(|v| format!("{v:.1} deg"))
+                .unwrap_or_else(|| "-".into()),
+        );
+    }
+    if report.models.len() > 1 {
+        let s = &report.summary;
+        if let Some(r) = &s.centre_rmse_mm {
+            println!(
+                "{} models: median centre RMSE {:.2} mm (IQR {:.2})",
+                s.models, r.median, r.iqr
+            );
+        }
+        if let Some(c) = &s.cobb_deg {
+            println!(
+                "Cobb angle mean {:.1} deg (SD {:.1}, min {:.1}, max {:.1})",
+                c.mean, c.sd, c.min, c.max
+            );
+        }
+    }
+    println!("wrote {} files to {}", files.len(), args.out.display());
+    Ok(0)
+}

@@ -1,0 +1,240 @@
+//! `osim-spine generate [--base DIR] --landmarks FILE --out MODEL.osim`:
+//! a patient-specific scoliotic model from a landmark set (see
+//! [`crate::build::generate`]). The landmark file is checked first
+//! ([`crate::landmarks::check`]): any error finding refuses the file.
+//! Everything is computed in memory; then `MODEL.osim`, its meshes in
+//! `Geometry/` beside it, `<stem>_report.json` and the SVG views
+//! `<stem>_frontal.svg` / `<stem>_sagittal.svg` are written, each
+//! atomically. Nothing is written on error.
+
+use crate::build::base::DirMeshSource;
+use crate::build::generate::{generate, GenerateOptions, Method};
+use crate::error::Error;
+use crate::landmarks::check::{check_raw, Severity};
+use crate::osim::geometry::{check_relative, resolve, MeshLookup};
+use crate::osim::model::Geometry;
+use crate::osim::Document;
+use std::path::{Path, PathBuf};
+
+/// Check codes that refuse a landmark file (the set cannot be read
+/// unambiguously or is anatomically inverted: parse errors, units/frame
+/// contradictions or undetectable, duplicates, missing landmarks or levels,
+/// left/right or anterior/posterior swaps, levels out of order). Other
+/// error findings of `osim-spine check` (plausibility ranges, endplate
+/// centre outside its outline, overlaps) are printed as warnings: severe
+/// deformities and coarse meshes can trip them legitimately.
+pub const BLOCKING: [&str; 13] = [
+    "LM001", "LM002", "LM003", "LM006", "LM007", "LM012", "LM020", "LM021", "LM022", "LM030",
+    "LM032", "LM037", "LM040",
+];
+
+/// Arguments of `generate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Base model: a folder holding one .osim (and its meshes), or an .osim file.
+    #[arg(long, value_name = "DIR", default_value = "base_model")]
+    pub base: PathBuf,
+    /// Patient landmark set (.csv, .trc, .json; see ../shared/formats/landmarks.md).
+    #[arg(long, value_name = "FILE")]
+    pub landmarks: PathBuf,
+    /// Output model (.osim); meshes go to Geometry/ beside it.
+    #[arg(long, value_name = "MODEL.osim")]
+    pub out: PathBuf,
+    /// Vertebra pose fit: lsq (all 14 landmarks, one-outlier rejection) or
+    /// thesis (ISB frames from the 6 joint landmarks).
+    #[arg(long, default_value = "lsq")]
+    pub method: String,
+    /// Skip the self-check (bushings, muscles through bone, equilibrium).
+    #[arg(long)]
+    pub no_self_check: bool,
+}
+
+/// The base model file of `--base`.
+pub fn base_file(base: &Path) -> crate::Result<PathBuf> {
+    if base.is_file() {
+        return Ok(base.to_path_buf());
+    }
+    let rd = std::fs::read_dir(base).map_err(|e| Error::io(base, e))?;
+    let mut osims: Vec<PathBuf> = rd
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().map(|e| e == "osim").unwrap_or(false))
+        .collect();
+    osims.sort();
+    match osims.len() {
+        1 => Ok(osims.remove(0)),
+        0 => Err(Error::invalid(
+            base.display().to_string(),
+            "no .osim model in the base folder",
+        )),
+        _ => {
+            let pick = base.join("base.osim");
+            if pick.is_file() {
+                Ok(pick)
+            } else {
+                Err(Error::invalid(
+                    base.display().to_string(),
+                    format!(
+                        "{} .osim files and no base.osim: give the file",
+                        osims.len()
+                    ),
+                ))
+            }
+        }
+    }
+}
+
+/// Run `generate`; returns the exit code.
+pub fn run(args: Args) -> anyhow::Result<i32> {
+    let method: Method = args.method.parse()?;
+    if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
+        return Err(Error::invalid("--out", "the output model must be a .osim file").into());
+    }
+    // Landmarks: check, then load strictly.
+    let raw = crate::landmarks::read_path(&args.landmarks)?;
+    let rep = check_raw(&raw);
+    let blocking = |f: &crate::landmarks::check::Finding| {
+        f.severity == Severity::Error && BLOCKING.contains(&f.code.as_str())
+    };
+    let errors: Vec<String> = rep
+        .findings
+        .iter()
+        .filter(|f| blocking(f))
+        .map(|f| {
+            let at = f.line.map(|l| format!(" (line {l})")).unwrap_or_default();
+            format!("{} {}{at}", f.code, f.message)
+        })
+        .collect();
+    if !errors.is_empty() {
+        return Err(Error::invalid(
+            args.landmarks.display().to_string(),
+            format!(
+                "the landmark set fails its checks (see `osim-spine check`):\n  {}",
+                errors.join("\n  ")
+            ),
+        )
+        .into());
+    }
+    for f in rep
+        .findings
+        .iter()
+        .filter(|f| f.severity != Severity::Info && !blocking(f))
+    {
+        eprintln!("warning: {} {}", f.code, f.message);
+    }
+    let set = raw.to_set()?;
+    if let Some(d) = &set.detection {
+        println!("landmarks: {}", d.summary());
+    }
+    let base_path = base_file(&args.base)?;
+    let base = Document::read(&base_path)?;
+    let source = DirMeshSource {
+        model_path: base_path.clone(),
+        extra: vec![],
+    };
+    let opts = GenerateOptions {
+        method,
+        self_check: !args.no_self_check,
+        views: true,
+    };
+    let g = generate(
+        &base,
+        &set,
+        &args.landmarks.display().to_string(),
+        &opts,
+        Some(&source),
+    )?;
+    // Everything computed: gather the bytes, then write.
+    let dir = match args.out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let stem = args
+        .out
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "model".into());
+    let mut files: Vec<(PathBuf, Vec<u8>)> =
+        vec![(args.out.clone(), g.doc.to_xml_string().into_bytes())];
+    let model = g.doc.model()?;
+    let mut seen = std::collections::BTreeSet::new();
+    for b in &model.bodies {
+        for geo in &b.geometry {
+            let Geometry::Mesh { mesh_file, .. } = geo else {
+                continue;
+            };
+            if mesh_file.is_empty() || !seen.insert(mesh_file.clone()) {
+                continue;
+            }
+            let rel = check_relative(mesh_file).map_err(|why| {
+                Error::invalid(
+                    base_path.display().to_string(),
+                    format!("mesh_file '{mesh_file}' {why}"),
+                )
+            })?;
+            match resolve(&base_path, mesh_file, &[]) {
+                MeshLookup::Found(p) => {
+                    let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
+                    files.push((dir.join("Geometry").join(rel), bytes));
+                }
+                MeshLookup::Missing => {
+                    return Err(Error::invalid(
+                        base_path.display().to_string(),
+                        format!(
+                            "mesh file '{mesh_file}' of body {} not found beside the base model",
+                            b.name
+                        ),
+                    )
+                    .into())
+                }
+                MeshLookup::Escapes(why) => {
+                    return Err(Error::invalid(base_path.display().to_string(), why).into())
+                }
+            }
+        }
+    }
+    files.push((
+        dir.join(format!("{stem}_report.json")),
+        serde_json::to_string_pretty(&g.report)?.into_bytes(),
+    ));
+    for (suffix, svg) in &g.views {
+        files.push((
+            dir.join(format!("{stem}_{suffix}.svg")),
+            svg.clone().into_bytes(),
+        ));
+    }
+    for (p, bytes) in &files {
+        crate::util::write_atomic(p, bytes)?;
+    }
+    let r = &g.report;
+    println!(
+        "generated {} ({} method): {} vertebrae from landmarks ({}), {} kept from the base model",
+        args.out.display(),
+        r.method,
+        r.levels_from_landmarks.len(),
+        r.levels_from_landmarks.join(" "),
+        r.levels_from_base.len()
+    );
+    println!(
+        "sacral registration: {} landmarks, RMS {:.2} mm; landmark-to-model RMS {:.2} mm",
+        r.registration.landmarks.len(),
+        r.registration.rms_mm,
+        r.landmark_rms_mm
+    );
+    if r.outliers.is_empty() {
+        println!("outlier landmarks: none");
+    } else {
+        println!("outlier landmarks (rejected): {}", r.outliers.join(", "));
+    }
+    if let Some(sc) = &r.self_check {
+        println!(
+            "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity: largest displacement {:.1} mm ({})",
+            sc.bushing_max_rotation,
+            sc.bushing_max_translation,
+            sc.muscle_segments_through_vertebrae.len(),
+            sc.equilibrium.max_displacement * 1e3,
+            sc.equilibrium.max_displacement_body
+        );
+    }
+    println!("wrote {} files to {}", files.len(), dir.display());
+    Ok(0)
+}

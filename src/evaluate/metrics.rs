@@ -1,0 +1,260 @@
+//! Spine-shape metrics (pure functions, ground frame of the model: X
+//! anterior, Y superior, Z right; frontal plane Y-Z, sagittal plane X-Y).
+//!
+//! * Endplate normals: superior `(SR - SL) x (SA - SP)`, inferior
+//!   `(IR - IL) x (IA - IP)` (unit, pointing cranially).
+//! * Frontal tilt of an endplate: `atan2(n.z, n.y)` (positive when the
+//!   normal leans to the right). **Cobb angle** of the main curve:
+//!   `tilt(inferior endplate of the lower end vertebra) - tilt(superior
+//!   endplate of the upper end vertebra)`; the end vertebrae, when not
+//!   given, are the pair (upper at or above lower) with the largest
+//!   absolute difference. Positive: the curve is convex to the right.
+//! * Sagittal tilt: `atan2(n.x, n.y)` (positive when the normal leans
+//!   anteriorly). **Lumbar lordosis** = `tilt(L1 superior) - tilt(S1
+//!   superior)` (the sacral slope enters through S1), negative for a
+//!   lordotic spine as in the thesis (Table 5.2: -34 deg supine).
+//! * **Apex** of the main curve: the vertebra between the end vertebrae
+//!   whose centre lies farthest, in the frontal plane, from the straight
+//!   line through the end vertebrae's centres.
+//! * **Curves**: 4th-order polynomials `v(h)` (v = X sagittal or Z
+//!   frontal, h = Y) fitted by least squares to the truth centres and to
+//!   the model centres; curve RMSE = RMS of `p_model(h) - p_truth(h)` over
+//!   the truth heights, `R2 = 1 - sum (p_model - p_truth)^2 / sum (v_truth
+//!   - mean)^2`. Identical spines give 0 and 1. The order drops to
+//!   `n - 2` when fewer than 6 centres are available (reported).
+
+use crate::landmarks::{Code, LandmarkSet, Level};
+use nalgebra::{DMatrix, DVector, Point3, Vector3};
+use std::collections::BTreeMap;
+
+/// Superior and inferior endplate unit normals of a level (cranial).
+pub fn endplate_normals(
+    set: &LandmarkSet,
+    level: Level,
+) -> (Option<Vector3<f64>>, Option<Vector3<f64>>) {
+    let g = |c| set.get(level, c);
+    let n = |a: Option<Point3<f64>>, p, r: Option<Point3<f64>>, l| -> Option<Vector3<f64>> {
+        let (a, p, r, l): (Point3<f64>, Point3<f64>, Point3<f64>, Point3<f64>) = (a?, p?, r?, l?);
+        (r - l).cross(&(a - p)).try_normalize(1e-12)
+    };
+    (
+        n(g(Code::SA), g(Code::SP), g(Code::SR), g(Code::SL)),
+        n(g(Code::IA), g(Code::IP), g(Code::IR), g(Code::IL)),
+    )
+}
+
+/// Frontal tilt (rad) of a normal.
+pub fn frontal_tilt(n: &Vector3<f64>) -> f64 {
+    n.z.atan2(n.y)
+}
+
+/// Sagittal tilt (rad) of a normal.
+pub fn sagittal_tilt(n: &Vector3<f64>) -> f64 {
+    n.x.atan2(n.y)
+}
+
+/// Cobb angle of the main curve.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Cobb {
+    /// Signed angle (deg), positive convex to the right.
+    pub angle_deg: f64,
+    pub upper: String,
+    pub lower: String,
+    /// Whether the end vertebrae were found automatically.
+    pub automatic: bool,
+}
+
+/// Cobb angle from the endplates of the vertebrae in `set` (S1 excluded);
+/// `ends` fixes the end vertebrae (upper, lower).
+pub fn cobb(set: &LandmarkSet, ends: Option<(Level, Level)>) -> Option<Cobb> {
+    let levels: Vec<Level> = set
+        .levels()
+        .into_iter()
+        .filter(|l| !l.is_sacrum())
+        .collect();
+    let tilts: BTreeMap<Level, (Option<f64>, Option<f64>)> = levels
+        .iter()
+        .map(|l| {
+            let (s, i) = endplate_normals(set, *l);
+            (
+                *l,
+                (s.map(|n| frontal_tilt(&n)), i.map(|n| frontal_tilt(&n))),
+            )
+        })
+        .collect();
+    let angle = |u: Level, w: Level| -> Option<f64> { Some(tilts.get(&w)?.1? - tilts.get(&u)?.0?) };
+    let (u, w, a, auto) = match ends {
+        Some((u, w)) => (u, w, angle(u, w)?, false),
+        None => {
+            let mut best: Option<(Level, Level, f64)> = None;
+            for (i, u) in levels.iter().enumerate() {
+                for w in &levels[i..] {
+                    if let Some(a) = angle(*u, *w) {
+                        if best.map(|b| a.abs() > b.2.abs()).unwrap_or(true) {
+                            best = Some((*u, *w, a));
+                        }
+                    }
+                }
+            }
+            let (u, w, a) = best?;
+            (u, w, a, true)
+        }
+    };
+    Some(Cobb {
+        angle_deg: a.to_degrees(),
+        upper: u.to_string(),
+        lower: w.to_string(),
+        automatic: auto,
+    })
+}
+
+/// Lumbar lordosis (deg): sagittal tilt of L1's superior endplate minus
+/// that of S1 (negative for lordosis).
+pub fn lordosis(set: &LandmarkSet) -> Option<f64> {
+    let l1 = endplate_normals(set, Level::L1).0?;
+    let s1 = endplate_normals(set, Level::S1).0?;
+    Some((sagittal_tilt(&l1) - sagittal_tilt(&s1)).to_degrees())
+}
+
+/// Sacral slope (deg): sagittal tilt of the S1 endplate.
+pub fn sacral_slope(set: &LandmarkSet) -> Option<f64> {
+    Some(sagittal_tilt(&endplate_normals(set, Level::S1).0?).to_degrees())
+}
+
+/// Apex: the level in `upper..=lower` farthest (frontal plane) from the
+/// line through the end levels' centres.
+pub fn apex(centres: &BTreeMap<Level, Point3<f64>>, upper: Level, lower: Level) -> Option<Level> {
+    let (a, b) = (centres.get(&upper)?, centres.get(&lower)?);
+    let (a2, b2) = ((a.y, a.z), (b.y, b.z));
+    let d = (b2.0 - a2.0, b2.1 - a2.1);
+    let len = (d.0 * d.0 + d.1 * d.1).sqrt();
+    let mut best: Option<(Level, f64)> = None;
+    for (l, p) in centres.range(upper..=lower) {
+        let dist = if len > 1e-12 {
+            ((p.y - a2.0) * d.1 - (p.z - a2.1) * d.0).abs() / len
+        } else {
+            ((p.y - a2.0).powi(2) + (p.z - a2.1).powi(2)).sqrt()
+        };
+        if best.map(|x| dist > x.1).unwrap_or(true) {
+            best = Some((*l, dist));
+        }
+    }
+    best.map(|b| b.0)
+}
+
+/// Least-squares polynomial (coefficients in powers of `(x - x0) / xs`,
+/// returned with `x0`, `xs`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Poly {
+    pub coef: Vec<f64>,
+    pub x0: f64,
+    pub xs: f64,
+}
+
+impl Poly {
+    pub fn eval(&self, x: f64) -> f64 {
+        let t = (x - self.x0) / self.xs;
+        self.coef.iter().rev().fold(0.0, |a, c| a * t + c)
+    }
+}
+
+/// Fit a polynomial of `order` to (x, y) (needs more than `order` points
+/// with distinct x).
+pub fn polyfit(x: &[f64], y: &[f64], order: usize) -> Option<Poly> {
+    let n = x.len();
+    if n != y.len() || n <= order {
+        return None;
+    }
+    let x0 = x.iter().sum::<f64>() / n as f64;
+    let xs = x.iter().map(|v| (v - x0).abs()).fold(0.0, f64::max);
+    if xs <= 0.0 || !xs.is_finite() {
+        return None;
+    }
+    let a = DMatrix::from_fn(n, order + 1, |i, j| ((x[i] - x0) / xs).powi(j as i32));
+    let b = DVector::from_column_slice(y);
+    let svd = a.svd(true, true);
+    let sol = svd.solve(&b, 1e-12).ok()?;
+    Some(Poly {
+        coef: sol.iter().copied().collect(),
+        x0,
+        xs,
+    })
+}
+
+/// Comparison of the model's curve with the truth's in one plane.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct CurveFit {
+    pub order: usize,
+    pub rmse_mm: f64,
+    pub r2: f64,
+    /// RMS residual of each polynomial fit to its own centres (mm).
+    pub truth_fit_rms_mm: f64,
+    pub model_fit_rms_mm: f64,
+}
+
+/// Curve comparison (module rule) of truth and model samples `(h, v)`.
+pub fn curve_compare(truth: &[(f64, f64)], model: &[(f64, f64)]) -> Option<CurveFit> {
+    let n = truth.len().min(model.len());
+    let order = 4.min(n.checked_sub(2)?);
+    if order == 0 {
+        return None;
+    }
+    let split = |s: &[(f64, f64)]| -> (Vec<f64>, Vec<f64>) { s.iter().copied().unzip() };
+    let (ht, vt) = split(truth);
+    let (hm, vm) = split(model);
+    let pt = polyfit(&ht, &vt, order)?;
+    let pm = polyfit(&hm, &vm, order)?;
+    let own = |p: &Poly, h: &[f64], v: &[f64]| {
+        (h.iter()
+            .zip(v)
+            .map(|(a, b)| (p.eval(*a) - b).powi(2))
+            .sum::<f64>()
+            / h.len() as f64)
+            .sqrt()
+    };
+    let mean = vt.iter().sum::<f64>() / vt.len() as f64;
+    let ss_tot: f64 = vt.iter().map(|v| (v - mean).powi(2)).sum();
+    let ss_res: f64 = ht.iter().map(|h| (pm.eval(*h) - pt.eval(*h)).powi(2)).sum();
+    Some(CurveFit {
+        order,
+        rmse_mm: (ss_res / ht.len() as f64).sqrt() * 1e3,
+        r2: if ss_tot > 0.0 {
+            1.0 - ss_res / ss_tot
+        } else {
+            f64::NAN
+        },
+        truth_fit_rms_mm: own(&pt, &ht, &vt) * 1e3,
+        model_fit_rms_mm: own(&pm, &hm, &vm) * 1e3,
+    })
+}
+
+/// Quantile by linear interpolation (type 7) of unsorted data.
+pub fn quantile(x: &[f64], p: f64) -> Option<f64> {
+    crate::landmarks::stats::quantile(x, p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn polyfit_recovers_a_quartic() {
+        let f = |x: f64| 0.3 - 2.0 * x + 0.5 * x * x - 0.1 * x.powi(3) + 0.02 * x.powi(4);
+        let x: Vec<f64> = (0..9).map(|i| i as f64 * 0.37 - 1.0).collect();
+        let y: Vec<f64> = x.iter().map(|v| f(*v)).collect();
+        let p = polyfit(&x, &y, 4).unwrap();
+        for v in [-1.0, 0.0, 0.7, 2.0] {
+            assert!((p.eval(v) - f(v)).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn identical_curves_compare_perfectly() {
+        let s: Vec<(f64, f64)> = (0..8)
+            .map(|i| (i as f64 * 0.03, (i as f64).sin() * 0.01))
+            .collect();
+        let c = curve_compare(&s, &s).unwrap();
+        assert_eq!(c.order, 4);
+        assert!(c.rmse_mm < 1e-9 && (c.r2 - 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,842 @@
+//! Model accuracy against a patient's truth (`osim-spine evaluate`), the
+//! metrics of the source thesis (chapter 5, Tables 5.6-5.8, Figures
+//! 5.6-5.7).
+//!
+//! **Vertebral centre** (one definition everywhere): the centre of the
+//! vertebra's vertebral-body wrap sphere (`<LEVEL>_body_sphere`, else the
+//! body's first WrapSphere), placed in ground at the model's default pose;
+//! this is what the thesis used for the model, and its truth was the same
+//! sphere fit on the CT vertebral bodies. A vertebra without a sphere falls
+//! back to the midpoint of its `SEC`/`IEC` markers (reported). The truth is
+//! either a centres CSV (`level,x,y,z` with mandatory `# units:` and
+//! `# frame:` headers, like landmark files) or a folder of vertebral-body
+//! meshes (`<LEVEL>*.stl|obj|vtp|ply`, units and frame given on the
+//! command line) whose centres are sphere fits to their anterior walls
+//! ([`crate::mesh::anterior_body_nodes`] + [`crate::mesh::fit_sphere`]).
+//!
+//! **Common frame**: the truth is brought into the model's ground with the
+//! generator's sacral registration (read from `<model stem>_report.json`
+//! beside the model); then, per [`Align`], optionally superimposed:
+//! `rigid` (default: least-squares rigid fit of the truth centres onto the
+//! model centres, so that the errors describe the shape and not the
+//! placement of the whole spine on the sacrum, which three noisy sacral
+//! landmarks determine only to a few degrees), `l5` (thesis: translation
+//! making the L5 centres coincide) or `sacrum` (the registration alone).
+//! The RMSE in the sacral frame is always reported too when the
+//! registration is known.
+//!
+//! Metrics ([`metrics`]): 3-D RMSE of the centres, per-level signed and
+//! absolute errors per axis (AP = X, IS = Y, RL = Z), curve RMSE and R2 in
+//! the sagittal and frontal planes, Cobb angle, end vertebrae and apex of
+//! the main curve, lumbar lordosis and sacral slope; for several models the
+//! median and IQR of each (Table 5.6), per-level medians and IQRs of the
+//! absolute errors (Table 5.7), and mean, SD, min and max of the Cobb angle
+//! and lordosis (Table 5.8).
+
+pub mod metrics;
+pub mod plot;
+
+use crate::build::base::kin::Kinematics;
+use crate::build::generate::Registration;
+use crate::error::{Error, Result};
+use crate::landmarks::{Code, Frame, LandmarkId, LandmarkSet, Level, Units};
+use crate::osim::model::{Model, WrapShape};
+use crate::osim::Document;
+use nalgebra::{Isometry3, Point3};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Vertebral centres of a model in ground at `poses` (module rule).
+pub fn model_centres(
+    model: &Model,
+    poses: &BTreeMap<String, Isometry3<f64>>,
+) -> Result<BTreeMap<Level, Point3<f64>>> {
+    let mut out = BTreeMap::new();
+    let markers = model_landmarks(model, poses)?;
+    for b in &model.bodies {
+        let Some(l) = Level::from_body_name(&b.name) else {
+            continue;
+        };
+        if l.is_sacrum() {
+            continue;
+        }
+        let Some(x) = poses.get(&b.name) else {
+            continue;
+        };
+        let want = format!("{l}_body_sphere");
+        let sphere = b
+            .wrap_objects
+            .iter()
+            .filter(|w| matches!(w.shape, WrapShape::Sphere { .. }))
+            .find(|w| w.name == want)
+            .or_else(|| {
+                b.wrap_objects
+                    .iter()
+                    .find(|w| matches!(w.shape, WrapShape::Sphere { .. }))
+            });
+        let c = match sphere {
+            Some(w) => Some(x * Point3::from(w.translation)),
+            None => match (markers.get(l, Code::SEC), markers.get(l, Code::IEC)) {
+                (Some(a), Some(b)) => Some(nalgebra::center(&a, &b)),
+                _ => None,
+            },
+        };
+        if let Some(c) = c {
+            out.insert(l, c);
+        }
+    }
+    Ok(out)
+}
+
+/// The model's `<LEVEL>_<CODE>` markers in ground at `poses`, as a set.
+pub fn model_landmarks(
+    model: &Model,
+    poses: &BTreeMap<String, Isometry3<f64>>,
+) -> Result<LandmarkSet> {
+    let mut set = LandmarkSet::new();
+    for mk in &model.markers {
+        let Some((id, _)) = LandmarkId::parse_name(&mk.name) else {
+            continue;
+        };
+        let (body, x) = model.marker_frame(mk)?;
+        if let Some(pb) = poses.get(&body) {
+            set.points.insert(id, pb * x * Point3::from(mk.location));
+        }
+    }
+    Ok(set)
+}
+
+/// A model to evaluate, at its default pose.
+#[derive(Debug, Clone)]
+pub struct ModelShape {
+    pub name: String,
+    pub centres: BTreeMap<Level, Point3<f64>>,
+    pub landmarks: LandmarkSet,
+    pub registration: Option<Registration>,
+}
+
+/// The report written by `generate` beside `model` (`<stem>_report.json`).
+pub fn report_path(model: &Path) -> PathBuf {
+    let stem = model
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    model.with_file_name(format!("{stem}_report.json"))
+}
+
+/// Load a model's centres and markers at its default pose, and the
+/// registration from its generate report when present.
+pub fn load_model(path: &Path) -> Result<ModelShape> {
+    let doc = Document::read(path)?;
+    let model = doc.model()?;
+    let kin = Kinematics::new(&model)?;
+    let poses = kin.body_poses(&kin.default_values())?;
+    let centres = model_centres(&model, &poses)?;
+    if centres.is_empty() {
+        return Err(Error::invalid(
+            path.display().to_string(),
+            "no vertebra bodies (thoracic1..12, lumbar1..5) with a wrap sphere or SEC/IEC markers",
+        ));
+    }
+    let landmarks = model_landmarks(&model, &poses)?;
+    let rp = report_path(path);
+    let registration = if rp.exists() {
+        let text = std::fs::read_to_string(&rp).map_err(|e| Error::io(&rp, e))?;
+        let v: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| Error::parse(&rp, "file", format!("not JSON: {e}")))?;
+        match v.get("registration") {
+            Some(r) => Some(serde_json::from_value(r.clone()).map_err(|e| {
+                Error::parse(&rp, "registration", format!("unexpected content: {e}"))
+            })?),
+            None => None,
+        }
+    } else {
+        None
+    };
+    Ok(ModelShape {
+        name: path.display().to_string(),
+        centres,
+        landmarks,
+        registration,
+    })
+}
+
+/// Truth data in OpenSim axes and metres (the patient's frame; see
+/// [`Align`] for how it meets the model).
+#[derive(Debug, Clone, Default)]
+pub struct Truth {
+    pub source: String,
+    pub centres: BTreeMap<Level, Point3<f64>>,
+    /// Palpated/true landmarks for the truth's Cobb angle and lordosis.
+    pub landmarks: Option<LandmarkSet>,
+}
+
+/// Read a centres CSV (`level,x,y,z`; `# units:` and `# frame:` required).
+pub fn read_centres_csv(path: &Path) -> Result<BTreeMap<Level, Point3<f64>>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse_centres_csv(&text, path)
+}
+
+/// Parse centres CSV text (see [`read_centres_csv`]).
+pub fn parse_centres_csv(text: &str, path: &Path) -> Result<BTreeMap<Level, Point3<f64>>> {
+    let mut units = None;
+    let mut frame = None;
+    let mut header = false;
+    let mut out = BTreeMap::new();
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    for (i, line) in text.lines().enumerate() {
+        let ln = i + 1;
+        let t = line.trim();
+        if t.is_empty() {
+            continue;
+        }
+        if let Some(c) = t.strip_prefix('#') {
+            if let Some((k, v)) = c.split_once(':') {
+                match k.trim().to_ascii_lowercase().as_str() {
+                    "units" => {
+                        units = Some(Units::parse_label(v).ok_or_else(|| {
+                            Error::parse(
+                                path,
+                                format!("line {ln}"),
+                                format!("unknown units `{}` (mm or m)", v.trim()),
+                            )
+                        })?)
+                    }
+                    "frame" => {
+                        frame = Some(Frame::parse_label(v).ok_or_else(|| {
+                            Error::parse(
+                                path,
+                                format!("line {ln}"),
+                                format!("unknown frame `{}` (LPS, RAS or opensim)", v.trim()),
+                            )
+                        })?)
+                    }
+                    _ => {}
+                }
+            }
+            continue;
+        }
+        let f: Vec<&str> = t.split(',').map(|s| s.trim()).collect();
+        if !header {
+            if f.len() != 4 || !f[0].eq_ignore_ascii_case("level") {
+                return Err(Error::parse(
+                    path,
+                    format!("line {ln}"),
+                    format!("expected the header `level,x,y,z`, found `{t}`"),
+                ));
+            }
+            header = true;
+            continue;
+        }
+        if f.len() != 4 {
+            return Err(Error::parse(
+                path,
+                format!("line {ln}"),
+                format!("expected 4 fields, found {}", f.len()),
+            ));
+        }
+        let level: Level = f[0].parse().map_err(|_| {
+            Error::parse(
+                path,
+                format!("line {ln}"),
+                format!("`{}` is not a level (T1..T12, L1..L5)", f[0]),
+            )
+        })?;
+        let mut v = [0.0; 3];
+        for k in 0..3 {
+            v[k] = f[k + 1]
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| {
+                    Error::parse(
+                        path,
+                        format!("line {ln}"),
+                        format!(
+                            "column {}: expected a finite number, found `{}`",
+                            k + 2,
+                            f[k + 1]
+                        ),
+                    )
+                })?;
+        }
+        if out.insert(level, v).is_some() {
+            return Err(Error::parse(
+                path,
+                format!("line {ln}"),
+                format!("duplicate level {level}"),
+            ));
+        }
+    }
+    let units = units.ok_or_else(|| {
+        Error::parse(
+            path,
+            "header",
+            "missing `# units: mm|m` (centre files must declare their units)",
+        )
+    })?;
+    let frame = frame.ok_or_else(|| {
+        Error::parse(
+            path,
+            "header",
+            "missing `# frame: LPS|RAS|opensim` (centre files must declare their frame)",
+        )
+    })?;
+    if out.is_empty() {
+        return Err(Error::parse(path, "file", "no centres"));
+    }
+    let r = frame.to_opensim();
+    Ok(out
+        .into_iter()
+        .map(|(l, v)| {
+            (
+                l,
+                Point3::from(r * nalgebra::Vector3::from(v) * units.to_metres()),
+            )
+        })
+        .collect())
+}
+
+/// Write centres as CSV in the given units and frame (fixtures, tests).
+pub fn centres_csv(centres: &BTreeMap<Level, Point3<f64>>, units: Units, frame: Frame) -> String {
+    let back = frame.to_opensim().transpose();
+    let s = 1.0 / units.to_metres();
+    let mut out = format!("# units: {units}\n# frame: {frame}\nlevel,x,y,z\n");
+    for (l, p) in centres {
+        let v = back * p.coords * s;
+        out.push_str(&format!(
+            "{l},{},{},{}\n",
+            crate::util::fmt_f64(v.x),
+            crate::util::fmt_f64(v.y),
+            crate::util::fmt_f64(v.z)
+        ));
+    }
+    out
+}
+
+/// Truth centres from vertebral-body meshes in `dir` (`<LEVEL>*.{stl,obj,
+/// vtp,ply}`, one per level) in the given units and frame: sphere fits to
+/// their anterior walls (the thesis's CT rule).
+pub fn centres_from_meshes(
+    dir: &Path,
+    units: Units,
+    frame: Frame,
+) -> Result<BTreeMap<Level, Point3<f64>>> {
+    let rd = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
+    let mut files: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    files.sort();
+    let r = frame.to_opensim();
+    let s = units.to_metres();
+    let mut out = BTreeMap::new();
+    for f in files {
+        let ext = f
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase());
+        if !matches!(ext.as_deref(), Some("stl" | "obj" | "vtp" | "ply")) {
+            continue;
+        }
+        let stem = f
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or("")
+            .to_ascii_uppercase();
+        let token: String = stem
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric())
+            .collect();
+        let Ok(level) = token.parse::<Level>() else {
+            continue;
+        };
+        if level.is_sacrum() {
+            continue;
+        }
+        let mesh = crate::mesh::read(&f)?;
+        let moved = crate::mesh::TriMesh {
+            vertices: mesh
+                .vertices
+                .iter()
+                .map(|p| Point3::from(r * p.coords * s))
+                .collect(),
+            triangles: mesh.triangles.clone(),
+        };
+        let ctx = f.display().to_string();
+        let frame = crate::mesh::AnatomicalFrame::opensim_body();
+        let idx = crate::mesh::anterior_body_nodes(&moved, &frame)
+            .map_err(|e| Error::invalid(&ctx, e.to_string()))?;
+        let nodes: Vec<Point3<f64>> = idx
+            .iter()
+            .filter_map(|i| moved.vertices.get(*i).copied())
+            .collect();
+        let sp = crate::mesh::fit_sphere(&nodes)
+            .map_err(|e| Error::invalid(&ctx, format!("sphere fit: {e}")))?;
+        if out.insert(level, sp.centre).is_some() {
+            return Err(Error::invalid(&ctx, format!("a second mesh for {level}")));
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::invalid(
+            dir.display().to_string(),
+            "no vertebral-body meshes named <LEVEL>*.stl|obj|vtp|ply",
+        ));
+    }
+    Ok(out)
+}
+
+/// How the truth is superimposed on the model after the registration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Align {
+    /// Least-squares rigid fit of the truth centres onto the model's.
+    Rigid,
+    /// Translation making the L5 centres coincide (thesis).
+    L5,
+    /// The generator's sacral registration only.
+    Sacrum,
+}
+
+/// Per-level errors (model - truth, mm).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LevelError {
+    pub level: String,
+    pub ap_mm: f64,
+    pub is_mm: f64,
+    pub rl_mm: f64,
+    pub distance_mm: f64,
+}
+
+/// Metrics of one model.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ModelMetrics {
+    pub model: String,
+    pub align: Align,
+    pub registration_known: bool,
+    pub levels: Vec<LevelError>,
+    pub centre_rmse_mm: f64,
+    /// RMSE with the sacral registration alone (when known).
+    pub centre_rmse_sacral_frame_mm: Option<f64>,
+    pub sagittal: Option<metrics::CurveFit>,
+    pub frontal: Option<metrics::CurveFit>,
+    pub cobb: Option<metrics::Cobb>,
+    pub truth_cobb: Option<metrics::Cobb>,
+    pub cobb_error_deg: Option<f64>,
+    pub apex: Option<String>,
+    pub truth_apex: Option<String>,
+    pub lordosis_deg: Option<f64>,
+    pub truth_lordosis_deg: Option<f64>,
+    pub sacral_slope_deg: Option<f64>,
+}
+
+/// The transform taking the truth (its own frame, OpenSim axes, m) into
+/// the model's ground: the generator's registration, then [`Align`].
+pub fn truth_transform(m: &ModelShape, truth: &Truth, align: Align) -> Isometry3<f64> {
+    let x_reg = m
+        .registration
+        .as_ref()
+        .map(|r| r.isometry())
+        .unwrap_or_else(Isometry3::identity);
+    let common: Vec<Level> = truth
+        .centres
+        .keys()
+        .filter(|l| m.centres.contains_key(l))
+        .copied()
+        .collect();
+    let x_align = match align {
+        Align::Sacrum => Isometry3::identity(),
+        Align::L5 => {
+            let l = if common.contains(&Level::L5) {
+                Some(Level::L5)
+            } else {
+                common.last().copied()
+            };
+            match l.and_then(|l| Some((m.centres.get(&l)?, truth.centres.get(&l)?))) {
+                Some((a, b)) => {
+                    let b = x_reg * b;
+                    Isometry3::translation(a.x - b.x, a.y - b.y, a.z - b.z)
+                }
+                None => Isometry3::identity(),
+            }
+        }
+        Align::Rigid => {
+            let src: Vec<Point3<f64>> = common.iter().map(|l| x_reg * truth.centres[l]).collect();
+            let dst: Vec<Point3<f64>> = common.iter().map(|l| m.centres[l]).collect();
+            if common.len() >= 3 {
+                crate::mesh::umeyama(&src, &dst, false)
+                    .map(|s| Isometry3::from_parts(s.translation.into(), s.rotation))
+                    .unwrap_or_else(|_| Isometry3::identity())
+            } else {
+                Isometry3::identity()
+            }
+        }
+    };
+    x_align * x_reg
+}
+
+/// Evaluate one model against the truth. `cobb_ends` fixes the end
+/// vertebrae of the model's (and truth's) Cobb angle.
+pub fn evaluate_model(
+    m: &ModelShape,
+    truth: &Truth,
+    align: Align,
+    cobb_ends: Option<(Level, Level)>,
+) -> Result<ModelMetrics> {
+    let x_reg = m
+        .registration
+        .as_ref()
+        .map(|r| r.isometry())
+        .unwrap_or_else(Isometry3::identity);
+    let common: Vec<Level> = truth
+        .centres
+        .keys()
+        .filter(|l| m.centres.contains_key(l))
+        .copied()
+        .collect();
+    if common.is_empty() {
+        return Err(Error::invalid(
+            &m.name,
+            format!("no level in common with the truth ({})", truth.source),
+        ));
+    }
+    let reg_c: BTreeMap<Level, Point3<f64>> =
+        truth.centres.iter().map(|(l, p)| (*l, x_reg * p)).collect();
+    let rmse = |tc: &BTreeMap<Level, Point3<f64>>| {
+        (common
+            .iter()
+            .map(|l| (m.centres[l] - tc[l]).norm_squared())
+            .sum::<f64>()
+            / common.len() as f64)
+            .sqrt()
+    };
+    let sacral = m.registration.as_ref().map(|_| rmse(&reg_c) * 1e3);
+    let x_t = truth_transform(m, truth, align);
+    let tc: BTreeMap<Level, Point3<f64>> =
+        truth.centres.iter().map(|(l, p)| (*l, x_t * p)).collect();
+    let levels: Vec<LevelError> = common
+        .iter()
+        .map(|l| {
+            let d = m.centres[l] - tc[l];
+            LevelError {
+                level: l.to_string(),
+                ap_mm: d.x * 1e3,
+                is_mm: d.y * 1e3,
+                rl_mm: d.z * 1e3,
+                distance_mm: d.norm() * 1e3,
+            }
+        })
+        .collect();
+    let samples = |c: &BTreeMap<Level, Point3<f64>>,
+                   f: fn(&Point3<f64>) -> f64|
+     -> Vec<(f64, f64)> { common.iter().map(|l| (c[l].y, f(&c[l]))).collect() };
+    let sagittal = metrics::curve_compare(&samples(&tc, |p| p.x), &samples(&m.centres, |p| p.x));
+    let frontal = metrics::curve_compare(&samples(&tc, |p| p.z), &samples(&m.centres, |p| p.z));
+    let cobb = metrics::cobb(&m.landmarks, cobb_ends);
+    let tl = truth.landmarks.as_ref().map(|s| {
+        s.transformed(
+            x_t.rotation.to_rotation_matrix().matrix(),
+            &x_t.translation.vector,
+        )
+    });
+    let truth_cobb = tl.as_ref().and_then(|s| metrics::cobb(s, cobb_ends));
+    let lvl = |s: &str| s.parse::<Level>().ok();
+    let apex = cobb
+        .as_ref()
+        .and_then(|c| metrics::apex(&m.centres, lvl(&c.upper)?, lvl(&c.lower)?));
+    let truth_apex = truth_cobb
+        .as_ref()
+        .or(cobb.as_ref())
+        .and_then(|c| metrics::apex(&tc, lvl(&c.upper)?, lvl(&c.lower)?));
+    Ok(ModelMetrics {
+        model: m.name.clone(),
+        align,
+        registration_known: m.registration.is_some(),
+        centre_rmse_mm: rmse(&tc) * 1e3,
+        centre_rmse_sacral_frame_mm: sacral,
+        levels,
+        sagittal,
+        frontal,
+        cobb_error_deg: match (&cobb, &truth_cobb) {
+            (Some(a), Some(b)) => Some(a.angle_deg - b.angle_deg),
+            _ => None,
+        },
+        cobb,
+        truth_cobb,
+        apex: apex.map(|l| l.to_string()),
+        truth_apex: truth_apex.map(|l| l.to_string()),
+        lordosis_deg: metrics::lordosis(&m.landmarks),
+        truth_lordosis_deg: tl.as_ref().and_then(metrics::lordosis),
+        sacral_slope_deg: metrics::sacral_slope(&m.landmarks),
+    })
+}
+
+/// Median and IQR.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct MedIqr {
+    pub median: f64,
+    pub iqr: f64,
+    pub n: usize,
+}
+
+/// Mean, SD (n - 1), min, max.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct MeanSd {
+    pub mean: f64,
+    pub sd: f64,
+    pub min: f64,
+    pub max: f64,
+    pub n: usize,
+}
+
+fn med_iqr(v: &[f64]) -> Option<MedIqr> {
+    let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    Some(MedIqr {
+        median: metrics::quantile(&v, 0.5)?,
+        iqr: metrics::quantile(&v, 0.75)? - metrics::quantile(&v, 0.25)?,
+        n: v.len(),
+    })
+}
+
+fn mean_sd(v: &[f64]) -> Option<MeanSd> {
+    let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let sd = if v.len() > 1 {
+        (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    Some(MeanSd {
+        mean,
+        sd,
+        min: v.iter().copied().fold(f64::MAX, f64::min),
+        max: v.iter().copied().fold(f64::MIN, f64::max),
+        n: v.len(),
+    })
+}
+
+/// Per-level absolute errors across models (Table 5.7).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LevelSummary {
+    pub level: String,
+    pub ap_abs_mm: MedIqr,
+    pub is_abs_mm: MedIqr,
+    pub rl_abs_mm: MedIqr,
+}
+
+/// Summary over several models (Tables 5.6-5.8).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Summary {
+    pub models: usize,
+    pub centre_rmse_mm: Option<MedIqr>,
+    pub sagittal_curve_rmse_mm: Option<MedIqr>,
+    pub frontal_curve_rmse_mm: Option<MedIqr>,
+    pub sagittal_r2: Option<MedIqr>,
+    pub frontal_r2: Option<MedIqr>,
+    pub levels: Vec<LevelSummary>,
+    pub cobb_deg: Option<MeanSd>,
+    pub lordosis_deg: Option<MeanSd>,
+    /// Apex level -> number of models.
+    pub apex_counts: BTreeMap<String, usize>,
+}
+
+/// Summarise several models' metrics.
+pub fn summarise(all: &[ModelMetrics]) -> Summary {
+    let col = |f: &dyn Fn(&ModelMetrics) -> Option<f64>| -> Vec<f64> {
+        all.iter().filter_map(f).collect()
+    };
+    let mut per: BTreeMap<Level, [Vec<f64>; 3]> = BTreeMap::new();
+    for m in all {
+        for e in &m.levels {
+            if let Ok(l) = e.level.parse::<Level>() {
+                let s = per.entry(l).or_default();
+                s[0].push(e.ap_mm.abs());
+                s[1].push(e.is_mm.abs());
+                s[2].push(e.rl_mm.abs());
+            }
+        }
+    }
+    let mut apex_counts = BTreeMap::new();
+    for m in all {
+        if let Some(a) = &m.apex {
+            *apex_counts.entry(a.clone()).or_insert(0) += 1;
+        }
+    }
+    Summary {
+        models: all.len(),
+        centre_rmse_mm: med_iqr(&col(&|m| Some(m.centre_rmse_mm))),
+        sagittal_curve_rmse_mm: med_iqr(&col(&|m| m.sagittal.as_ref().map(|c| c.rmse_mm))),
+        frontal_curve_rmse_mm: med_iqr(&col(&|m| m.frontal.as_ref().map(|c| c.rmse_mm))),
+        sagittal_r2: med_iqr(&col(&|m| m.sagittal.as_ref().map(|c| c.r2))),
+        frontal_r2: med_iqr(&col(&|m| m.frontal.as_ref().map(|c| c.r2))),
+        levels: per
+            .iter()
+            .filter_map(|(l, v)| {
+                Some(LevelSummary {
+                    level: l.to_string(),
+                    ap_abs_mm: med_iqr(&v[0])?,
+                    is_abs_mm: med_iqr(&v[1])?,
+                    rl_abs_mm: med_iqr(&v[2])?,
+                })
+            })
+            .collect(),
+        cobb_deg: mean_sd(&col(&|m| m.cobb.as_ref().map(|c| c.angle_deg))),
+        lordosis_deg: mean_sd(&col(&|m| m.lordosis_deg)),
+        apex_counts,
+    }
+}
+
+/// The full evaluation report.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct EvaluateReport {
+    pub truth: String,
+    pub vertebral_centre: &'static str,
+    pub models: Vec<ModelMetrics>,
+    pub summary: Summary,
+}
+
+/// Definition string written into reports.
+pub const CENTRE_DEFINITION: &str =
+    "centre of the vertebral-body wrap sphere (sphere fit to the anterior wall), default pose";
+
+/// Evaluate models against the truth; returns the report and the figures
+/// `[(file name, svg)]`.
+pub fn evaluate(
+    models: &[ModelShape],
+    truth: &Truth,
+    align: Align,
+    cobb_ends: Option<(Level, Level)>,
+) -> Result<(EvaluateReport, Vec<(String, String)>)> {
+    let mut all = Vec::new();
+    for m in models {
+        all.push(evaluate_model(m, truth, align, cobb_ends)?);
+    }
+    let summary = summarise(&all);
+    let figures = figures(models, truth, align)?;
+    Ok((
+        EvaluateReport {
+            truth: truth.source.clone(),
+            vertebral_centre: CENTRE_DEFINITION,
+            models: all,
+            summary,
+        },
+        figures,
+    ))
+}
+
+fn figures(models: &[ModelShape], truth: &Truth, align: Align) -> Result<Vec<(String, String)>> {
+    use plot::Series;
+    use plotters::style::RGBColor;
+    // Truth in the first model's frame (figures are drawn in that frame).
+    let Some(m0) = models.first() else {
+        return Ok(Vec::new());
+    };
+    let mut series = Vec::new();
+    let mut curves = Vec::new();
+    for (k, m) in models.iter().enumerate() {
+        let col = RGBColor(70 + (k * 37 % 120) as u8, 110, 220 - (k * 23 % 100) as u8);
+        let pts: Vec<Point3<f64>> = m.centres.values().copied().collect();
+        series.push(Series {
+            label: if k == 0 {
+                "model centres".into()
+            } else {
+                String::new()
+            },
+            colour: col,
+            points: pts.clone(),
+            radius: 3,
+            line: false,
+        });
+        curves.push(Series {
+            label: if k == 0 {
+                "model 4th-order fit".into()
+            } else {
+                String::new()
+            },
+            colour: col,
+            points: poly_curve(&m.centres),
+            radius: 0,
+            line: true,
+        });
+    }
+    let x_t = truth_transform(m0, truth, align);
+    let tc: BTreeMap<Level, Point3<f64>> =
+        truth.centres.iter().map(|(l, p)| (*l, x_t * p)).collect();
+    let red = RGBColor(220, 40, 40);
+    let mut fig56 = series.clone_series();
+    fig56.push(Series {
+        label: "truth centres".into(),
+        colour: red,
+        points: tc.values().copied().collect(),
+        radius: 4,
+        line: false,
+    });
+    let mut fig57 = curves;
+    fig57.push(Series {
+        label: "truth centres".into(),
+        colour: red,
+        points: tc.values().copied().collect(),
+        radius: 4,
+        line: false,
+    });
+    fig57.push(Series {
+        label: "truth 4th-order fit".into(),
+        colour: red,
+        points: poly_curve(&tc),
+        radius: 0,
+        line: true,
+    });
+    let mut out = Vec::new();
+    for (name, s) in plot::views("vertebral centres (Fig. 5.6)", &fig56) {
+        out.push((format!("centres_{name}.svg"), s));
+    }
+    for (name, s) in plot::views("4th-order curve fits (Fig. 5.7)", &fig57) {
+        out.push((format!("curves_{name}.svg"), s));
+    }
+    Ok(out)
+}
+
+trait CloneSeries {
+    fn clone_series(&self) -> Vec<plot::Series>;
+}
+
+impl CloneSeries for Vec<plot::Series> {
+    fn clone_series(&self) -> Vec<plot::Series> {
+        self.iter()
+            .map(|s| plot::Series {
+                label: s.label.clone(),
+                colour: s.colour,
+                points: s.points.clone(),
+                radius: s.radius,
+                line: s.line,
+            })
+            .collect()
+    }
+}
+
+/// Points along the 4th-order fits X(Y) and Z(Y) of a set of centres.
+fn poly_curve(c: &BTreeMap<Level, Point3<f64>>) -> Vec<Point3<f64>> {
+    let h: Vec<f64> = c.values().map(|p| p.y).collect();
+    let x: Vec<f64> = c.values().map(|p| p.x).collect();
+    let z: Vec<f64> = c.values().map(|p| p.z).collect();
+    let order = 4.min(h.len().saturating_sub(2));
+    if order == 0 {
+        return Vec::new();
+    }
+    let (Some(px), Some(pz)) = (
+        metrics::polyfit(&h, &x, order),
+        metrics::polyfit(&h, &z, order),
+    ) else {
+        return Vec::new();
+    };
+    let (lo, hi) = h
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
+    (0..=60)
+        .map(|i| {
+            let y = lo + (hi - lo) * i as f64 / 60.0;
+            Point3::new(px.eval(y), y, pz.eval(y))
+        })
+        .collect()
+}
