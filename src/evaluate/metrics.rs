@@ -1,16 +1,21 @@
 //! Spine-shape metrics (pure functions, ground frame of the model: X
 //! anterior, Y superior, Z right; frontal plane Y-Z, sagittal plane X-Y).
 //!
-//! * Endplate normals: superior `(SR - SL) x (SA - SP)`, inferior
-//!   `(IR - IL) x (IA - IP)` (unit, pointing cranially).
-//! * Frontal tilt of an endplate: `atan2(n.z, n.y)` (positive when the
-//!   normal leans to the right). **Cobb angle** of the main curve:
+//! * Endplate lines as a radiograph shows them: the lateral diameter
+//!   `r = SR - SL` (inferior: `IR - IL`) in the frontal plane and the
+//!   sagittal diameter `a = SA - SP` (`IA - IP`) in the sagittal plane.
+//!   (Tilts of the endplate *normal* projected on a plane are unstable for
+//!   endplates steeply inclined in the other plane, e.g. the upper
+//!   thoracic ones.)
+//! * Frontal tilt of an endplate: `atan2(-r.y, r.z)` (positive when the
+//!   right end is lower, i.e. the endplate faces to the right). **Cobb
+//!   angle** of the main curve:
 //!   `tilt(inferior endplate of the lower end vertebra) - tilt(superior
 //!   endplate of the upper end vertebra)`; the end vertebrae, when not
 //!   given, are the pair (upper at or above lower) with the largest
 //!   absolute difference. Positive: the curve is convex to the right.
-//! * Sagittal tilt: `atan2(n.x, n.y)` (positive when the normal leans
-//!   anteriorly). **Lumbar lordosis** = `tilt(L1 superior) - tilt(S1
+//! * Sagittal tilt: `atan2(-a.y, a.x)` (positive when the anterior end is
+//!   lower, i.e. the endplate faces anteriorly). **Lumbar lordosis** = `tilt(L1 superior) - tilt(S1
 //!   superior)` (the sacral slope enters through S1), negative for a
 //!   lordotic spine as in the thesis (Table 5.2: -34 deg supine).
 //! * **Apex** of the main curve: the vertebra between the end vertebrae
@@ -27,30 +32,28 @@ use crate::landmarks::{Code, LandmarkSet, Level};
 use nalgebra::{DMatrix, DVector, Point3, Vector3};
 use std::collections::BTreeMap;
 
-/// Superior and inferior endplate unit normals of a level (cranial).
-pub fn endplate_normals(
-    set: &LandmarkSet,
-    level: Level,
-) -> (Option<Vector3<f64>>, Option<Vector3<f64>>) {
+/// Frontal and sagittal tilts (rad) of an endplate from its lateral
+/// (`r`, right minus left) and sagittal (`a`, anterior minus posterior)
+/// diameters.
+pub fn tilts(r: &Vector3<f64>, a: &Vector3<f64>) -> (f64, f64) {
+    ((-r.y).atan2(r.z), (-a.y).atan2(a.x))
+}
+
+/// Frontal and sagittal tilts (rad) of the superior and inferior endplates
+/// of a level (`None` when landmarks are missing).
+pub fn endplate_tilts(set: &LandmarkSet, level: Level) -> (Option<(f64, f64)>, Option<(f64, f64)>) {
     let g = |c| set.get(level, c);
-    let n = |a: Option<Point3<f64>>, p, r: Option<Point3<f64>>, l| -> Option<Vector3<f64>> {
-        let (a, p, r, l): (Point3<f64>, Point3<f64>, Point3<f64>, Point3<f64>) = (a?, p?, r?, l?);
-        (r - l).cross(&(a - p)).try_normalize(1e-12)
+    let t = |a: Option<Point3<f64>>,
+             p: Option<Point3<f64>>,
+             r: Option<Point3<f64>>,
+             l: Option<Point3<f64>>| {
+        let (a, p, r, l) = (a?, p?, r?, l?);
+        Some(tilts(&(r - l), &(a - p)))
     };
     (
-        n(g(Code::SA), g(Code::SP), g(Code::SR), g(Code::SL)),
-        n(g(Code::IA), g(Code::IP), g(Code::IR), g(Code::IL)),
+        t(g(Code::SA), g(Code::SP), g(Code::SR), g(Code::SL)),
+        t(g(Code::IA), g(Code::IP), g(Code::IR), g(Code::IL)),
     )
-}
-
-/// Frontal tilt (rad) of a normal.
-pub fn frontal_tilt(n: &Vector3<f64>) -> f64 {
-    n.z.atan2(n.y)
-}
-
-/// Sagittal tilt (rad) of a normal.
-pub fn sagittal_tilt(n: &Vector3<f64>) -> f64 {
-    n.x.atan2(n.y)
 }
 
 /// Cobb angle of the main curve.
@@ -72,17 +75,15 @@ pub fn cobb(set: &LandmarkSet, ends: Option<(Level, Level)>) -> Option<Cobb> {
         .into_iter()
         .filter(|l| !l.is_sacrum())
         .collect();
-    let tilts: BTreeMap<Level, (Option<f64>, Option<f64>)> = levels
+    let frontal: BTreeMap<Level, (Option<f64>, Option<f64>)> = levels
         .iter()
         .map(|l| {
-            let (s, i) = endplate_normals(set, *l);
-            (
-                *l,
-                (s.map(|n| frontal_tilt(&n)), i.map(|n| frontal_tilt(&n))),
-            )
+            let (s, i) = endplate_tilts(set, *l);
+            (*l, (s.map(|t| t.0), i.map(|t| t.0)))
         })
         .collect();
-    let angle = |u: Level, w: Level| -> Option<f64> { Some(tilts.get(&w)?.1? - tilts.get(&u)?.0?) };
+    let angle =
+        |u: Level, w: Level| -> Option<f64> { Some(frontal.get(&w)?.1? - frontal.get(&u)?.0?) };
     let (u, w, a, auto) = match ends {
         Some((u, w)) => (u, w, angle(u, w)?, false),
         None => {
@@ -111,14 +112,14 @@ pub fn cobb(set: &LandmarkSet, ends: Option<(Level, Level)>) -> Option<Cobb> {
 /// Lumbar lordosis (deg): sagittal tilt of L1's superior endplate minus
 /// that of S1 (negative for lordosis).
 pub fn lordosis(set: &LandmarkSet) -> Option<f64> {
-    let l1 = endplate_normals(set, Level::L1).0?;
-    let s1 = endplate_normals(set, Level::S1).0?;
-    Some((sagittal_tilt(&l1) - sagittal_tilt(&s1)).to_degrees())
+    let l1 = endplate_tilts(set, Level::L1).0?.1;
+    let s1 = endplate_tilts(set, Level::S1).0?.1;
+    Some((l1 - s1).to_degrees())
 }
 
 /// Sacral slope (deg): sagittal tilt of the S1 endplate.
 pub fn sacral_slope(set: &LandmarkSet) -> Option<f64> {
-    Some(sagittal_tilt(&endplate_normals(set, Level::S1).0?).to_degrees())
+    Some(endplate_tilts(set, Level::S1).0?.1.to_degrees())
 }
 
 /// Apex: the level in `upper..=lower` farthest (frontal plane) from the

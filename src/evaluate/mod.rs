@@ -124,21 +124,34 @@ pub fn report_path(model: &Path) -> PathBuf {
     model.with_file_name(format!("{stem}_report.json"))
 }
 
+impl ModelShape {
+    /// Centres and markers of an in-memory model at its default pose.
+    pub fn from_document(doc: &Document, registration: Option<Registration>) -> Result<ModelShape> {
+        let model = doc.model()?;
+        let kin = Kinematics::new(&model)?;
+        let poses = kin.body_poses(&kin.default_values())?;
+        let centres = model_centres(&model, &poses)?;
+        let name = doc.path().display().to_string();
+        if centres.is_empty() {
+            return Err(Error::invalid(
+                name,
+                "no vertebra bodies (thoracic1..12, lumbar1..5) with a wrap sphere or SEC/IEC markers",
+            ));
+        }
+        let landmarks = model_landmarks(&model, &poses)?;
+        Ok(ModelShape {
+            name,
+            centres,
+            landmarks,
+            registration,
+        })
+    }
+}
+
 /// Load a model's centres and markers at its default pose, and the
 /// registration from its generate report when present.
 pub fn load_model(path: &Path) -> Result<ModelShape> {
     let doc = Document::read(path)?;
-    let model = doc.model()?;
-    let kin = Kinematics::new(&model)?;
-    let poses = kin.body_poses(&kin.default_values())?;
-    let centres = model_centres(&model, &poses)?;
-    if centres.is_empty() {
-        return Err(Error::invalid(
-            path.display().to_string(),
-            "no vertebra bodies (thoracic1..12, lumbar1..5) with a wrap sphere or SEC/IEC markers",
-        ));
-    }
-    let landmarks = model_landmarks(&model, &poses)?;
     let rp = report_path(path);
     let registration = if rp.exists() {
         let text = std::fs::read_to_string(&rp).map_err(|e| Error::io(&rp, e))?;
@@ -153,12 +166,7 @@ pub fn load_model(path: &Path) -> Result<ModelShape> {
     } else {
         None
     };
-    Ok(ModelShape {
-        name: path.display().to_string(),
-        centres,
-        landmarks,
-        registration,
-    })
+    ModelShape::from_document(&doc, registration)
 }
 
 /// Truth data in OpenSim axes and metres (the patient's frame; see

@@ -136,7 +136,7 @@ pub struct VertebraRow {
     pub outlier: Option<String>,
     /// Its leave-one-out prediction error (mm).
     pub outlier_error_mm: Option<f64>,
-    /// Largest leave-one-out prediction error and the threshold (mm) (lsq).
+    /// Leave-one-out candidate's prediction error and threshold (mm) (lsq).
     pub loo_max_mm: Option<f64>,
     pub loo_threshold_mm: Option<f64>,
 }

@@ -14,10 +14,11 @@
 //! * [`Method::Lsq`]: rigid least-squares (Kabsch) fit of the 14 scaled
 //!   model markers onto the 14 landmarks. One outlier per vertebra is
 //!   rejected by a leave-one-out test: each landmark is predicted from a
-//!   fit (and scaling) without it; the landmark with the largest prediction
-//!   error is rejected when that error exceeds both
+//!   fit (and scaling) without it; its threshold is the larger of
 //!   [`OUTLIER_MIN_MM`] and [`OUTLIER_SIGMAS`] times the per-axis noise
-//!   estimated from the other 13 residuals.
+//!   estimated from the other 13 residuals of that fit; the landmark with
+//!   the largest error-to-threshold ratio is rejected when the ratio
+//!   exceeds 1.
 
 use crate::error::{Error, Result};
 use crate::landmarks::{Code, Level};
@@ -28,7 +29,7 @@ use std::collections::BTreeMap;
 /// Smallest prediction error (mm) that can flag a landmark as an outlier.
 pub const OUTLIER_MIN_MM: f64 = 6.0;
 /// Prediction error over the per-axis noise estimate that flags an outlier.
-pub const OUTLIER_SIGMAS: f64 = 4.0;
+pub const OUTLIER_SIGMAS: f64 = 3.5;
 /// Accepted range of a scale factor (beyond it the landmarks are wrong).
 pub const SCALE_RANGE: [f64; 2] = [0.5, 2.0];
 
@@ -156,8 +157,8 @@ pub struct VertebraFit {
     pub residuals: BTreeMap<Code, f64>,
     /// Rejected outlier: code and its leave-one-out prediction error (m).
     pub outlier: Option<(Code, f64)>,
-    /// Largest leave-one-out prediction error and its noise threshold (m),
-    /// for the report (lsq only).
+    /// The leave-one-out candidate: code, prediction error and threshold
+    /// (m), for the report (lsq only).
     pub loo_max: Option<(Code, f64, f64)>,
 }
 
@@ -307,8 +308,12 @@ pub fn fit_vertebra(
             })
         }
         Method::Lsq => {
-            // Leave-one-out prediction errors.
-            let mut worst: Option<(Code, f64, f64)> = None; // (code, error, sigma)
+            // Leave-one-out prediction errors; the candidate is the
+            // landmark whose error is largest relative to its threshold
+            // (a displaced landmark inflates the noise estimate of every
+            // other candidate's fit, not its own).
+            let threshold = |sigma: f64| (OUTLIER_MIN_MM * 1e-3).max(OUTLIER_SIGMAS * sigma);
+            let mut worst: Option<(Code, f64, f64)> = None; // (code, error, threshold)
             if patient.len() >= 6 {
                 for c in patient.keys() {
                     let s = match scale_factors(level, patient, model, Some(*c)) {
@@ -327,16 +332,13 @@ pub fn fit_vertebra(
                     let n = others.len() as f64;
                     let ss: f64 = others.values().map(|r| r * r).sum();
                     let dof = (3.0 * n - 6.0).max(1.0);
-                    let sigma = (ss / dof).sqrt();
-                    if worst.map(|w| e > w.1).unwrap_or(true) {
-                        worst = Some((*c, e, sigma));
+                    let t = threshold((ss / dof).sqrt());
+                    if worst.map(|w| e / t > w.1 / w.2).unwrap_or(true) {
+                        worst = Some((*c, e, t));
                     }
                 }
             }
-            let threshold = |sigma: f64| (OUTLIER_MIN_MM * 1e-3).max(OUTLIER_SIGMAS * sigma);
-            let outlier = worst
-                .filter(|(_, e, sigma)| *e > threshold(*sigma))
-                .map(|(c, e, _)| (c, e));
+            let outlier = worst.filter(|(_, e, t)| e > t).map(|(c, e, _)| (c, e));
             let skip = outlier.map(|o| o.0);
             let scale = scale_factors(level, patient, model, skip)?;
             let scaled = scaled_points(model, &scale);
@@ -346,7 +348,7 @@ pub fn fit_vertebra(
                 residuals: residuals(&pose, patient, &scaled, skip),
                 pose,
                 outlier,
-                loo_max: worst.map(|(c, e, s)| (c, e, threshold(s))),
+                loo_max: worst,
             })
         }
     }
