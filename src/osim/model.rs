@@ -231,6 +231,9 @@ pub struct OtherBushing {
     pub frames: Vec<OffsetFrame>,
     /// Every other property (tag, trimmed text) in file order.
     pub properties: Vec<(String, String)>,
+    /// Properties holding a function (e.g. `m_x_theta_x_function` of a
+    /// FunctionBasedBushingForce): (tag, parsed function), in file order.
+    pub functions: Vec<(String, Function)>,
 }
 
 /// Kind of a path point.
@@ -1248,6 +1251,11 @@ fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -
                     })
                     .map(|c| (c.name.clone(), c.text().trim().to_string()))
                     .collect(),
+                functions: fe
+                    .elements()
+                    .filter(|c| Function::element_in(c).is_some())
+                    .map(|c| Ok((c.name.clone(), Function::from_parent(c, f)?)))
+                    .collect::<Result<_>>()?,
                 name,
                 class,
             })
