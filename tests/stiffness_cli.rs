@@ -196,3 +196,79 @@ fn bad_tables_are_rejected_naming_the_row_and_nothing_is_written() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(out.exists());
 }
+
+#[test]
+fn templates_apply_and_give_the_thesis_numbers() {
+    let Some(chain) = common::shared("oracle/chain17.osim") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let t = common::repo_root().join("templates");
+    // Table 4.3 (base x ratio): the chain's sacrum_L5 is L5_S1, L1_T12 is T12_L1
+    let out = dir.path().join("t43.osim");
+    let o = run(&[
+        "stiffness",
+        s(&chain),
+        "--table",
+        s(&t.join("stiffness-table4.3-ratios.toml")),
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = list(&out, "csv");
+    let row = |name: &str| -> Vec<f64> {
+        let l = csv
+            .lines()
+            .find(|l| l.starts_with(&format!("{name},")))
+            .unwrap();
+        l.split(',').skip(1).map(|x| x.parse().unwrap()).collect()
+    };
+    for (name, want) in [
+        ("sacrum_L5", [68.8, 183.4, 51.0]),
+        ("L1_T12", [36.4, 136.8, 16.3]),
+        ("L4_L3", [12.4, 291.1, 49.5]),
+    ] {
+        let v = row(name);
+        for k in 0..3 {
+            assert!((v[k] - want[k]).abs() < 1e-9, "{name}: {v:?}");
+        }
+        assert_eq!(v[3..6], [149000.0, 1890000.0, 135000.0]);
+    }
+    // levels above T12 keep Table 5.1 values
+    assert_eq!(row("T5_T4")[..3], [68.8, 291.0, 51.0]);
+    // Table 5.1 in TOML and CSV give the same model; forms example applies
+    let a = dir.path().join("a.osim");
+    let b = dir.path().join("b.osim");
+    for (tpl, out) in [
+        ("stiffness-table5.1-uniform.toml", &a),
+        ("stiffness-table5.1-uniform.csv", &b),
+    ] {
+        let o = run(&[
+            "stiffness",
+            s(&chain),
+            "--table",
+            s(&t.join(tpl)),
+            "--out",
+            s(out),
+        ]);
+        assert!(
+            o.status.success(),
+            "{tpl}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    let Some(spec) = common::shared("diagnose-dev/dev-01/specimen.osim") else {
+        return;
+    };
+    let c = dir.path().join("c.osim");
+    let o = run(&[
+        "stiffness",
+        s(&spec),
+        "--table",
+        s(&t.join("stiffness-forms-example.toml")),
+        "--out",
+        s(&c),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
