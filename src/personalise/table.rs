@@ -88,6 +88,8 @@ pub enum CurveSpec {
 }
 
 /// The complete law of one level, SI units, as written into / read from a model.
+/// (The coupled variant is larger than the others; laws are few, so it is not boxed.)
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum LevelLaw {
     Linear {
