@@ -482,7 +482,7 @@ impl Model {
             model.ground.wrap_objects = parse_wraps(g, "ground", &cx)?;
         }
         let mut offset_frames: Vec<(OffsetFrame, &Element)> = Vec::new();
-        collect_offset_frames(m, "", &cx, &mut offset_frames)?;
+        collect_offset_frames(m, &mut Vec::new(), &cx, &mut offset_frames)?;
 
         for b in objects(m, "BodySet") {
             let name = b.name_attr().to_string();
@@ -816,6 +816,13 @@ impl Model {
         // Force sockets.
         let force_els: Vec<&Element> = objects(m, "ForceSet").collect();
         let coords: BTreeSet<&str> = self.coordinates().map(|c| c.name.as_str()).collect();
+        let wraps: BTreeSet<&str> = self
+            .bodies
+            .iter()
+            .flat_map(|b| b.wrap_objects.iter())
+            .chain(self.ground.wrap_objects.iter())
+            .map(|w| w.name.as_str())
+            .collect();
         for (f, el) in self.forces.iter().zip(force_els.iter()) {
             let owner = format!("/{forceset}/{}", f.name());
             let check = |prop: &str, s: &str| -> Result<()> {
@@ -867,13 +874,6 @@ impl Model {
                             }
                         }
                     }
-                    let wraps: BTreeSet<&str> = self
-                        .bodies
-                        .iter()
-                        .flat_map(|b| b.wrap_objects.iter())
-                        .chain(self.ground.wrap_objects.iter())
-                        .map(|w| w.name.as_str())
-                        .collect();
                     for w in &mu.wraps {
                         if !wraps.contains(w.wrap_object.as_str()) {
                             return Err(cx.err(
@@ -943,11 +943,18 @@ fn required_text(e: &Element, prop: &str, cx: &Ctx) -> Result<String> {
 /// Every PhysicalOffsetFrame in the model with its absolute path.
 fn collect_offset_frames<'a>(
     e: &'a Element,
-    path: &str,
+    path: &mut Vec<String>,
     cx: &Ctx,
     out: &mut Vec<(OffsetFrame, &'a Element)>,
 ) -> Result<()> {
     for c in e.elements() {
+        // Leaves (text-only properties) hold no components.
+        if c.children
+            .iter()
+            .all(|n| !matches!(n, super::xml::Node::Element(_)))
+        {
+            continue;
+        }
         // Path segment: sets use their name (default: lower-case class),
         // components their name; lists/properties add nothing.
         let seg = if c.name.ends_with("Set") && c.child("objects").is_some() {
@@ -955,10 +962,10 @@ fn collect_offset_frames<'a>(
         } else {
             c.attr("name").filter(|n| !n.is_empty()).map(str::to_string)
         };
-        let child_path = match &seg {
-            Some(s) => format!("{path}/{s}"),
-            None => path.to_string(),
-        };
+        let pushed = seg.is_some();
+        if let Some(s) = seg {
+            path.push(s);
+        }
         if c.name == "PhysicalOffsetFrame" {
             let name = c.name_attr().to_string();
             if name.is_empty() {
@@ -967,7 +974,7 @@ fn collect_offset_frames<'a>(
             out.push((
                 OffsetFrame {
                     name,
-                    path: child_path.clone(),
+                    path: format!("/{}", path.join("/")),
                     socket_parent: required_text(c, "socket_parent", cx)?,
                     translation: vec3_or(c, "translation", Vector3::zeros(), cx.file)?,
                     orientation: vec3_or(c, "orientation", Vector3::zeros(), cx.file)?,
@@ -976,7 +983,10 @@ fn collect_offset_frames<'a>(
                 c,
             ));
         }
-        collect_offset_frames(c, &child_path, cx, out)?;
+        collect_offset_frames(c, path, cx, out)?;
+        if pushed {
+            path.pop();
+        }
     }
     Ok(())
 }
