@@ -244,9 +244,9 @@ pub enum PathPointKind {
     },
     /// Location given by functions of coordinates (x, y, z; each optional).
     Moving {
-        x: Option<(Function, String)>,
-        y: Option<(Function, String)>,
-        z: Option<(Function, String)>,
+        x: Option<Box<(Function, String)>>,
+        y: Option<Box<(Function, String)>>,
+        z: Option<Box<(Function, String)>>,
     },
 }
 
@@ -286,7 +286,7 @@ pub struct Muscle {
 pub enum Force {
     Bushing(BushingForce),
     OtherBushing(OtherBushing),
-    Muscle(Muscle),
+    Muscle(Box<Muscle>),
     Other { class: String, name: String },
 }
 
@@ -714,7 +714,7 @@ impl Model {
     /// Muscles in file order.
     pub fn muscles(&self) -> impl Iterator<Item = &Muscle> {
         self.forces.iter().filter_map(|f| match f {
-            Force::Muscle(m) => Some(m),
+            Force::Muscle(m) => Some(m.as_ref()),
             _ => None,
         })
     }
@@ -861,7 +861,7 @@ impl Model {
                             PathPointKind::Conditional { coordinate, .. } => vec![coordinate],
                             PathPointKind::Moving { x, y, z } => [x, y, z]
                                 .iter()
-                                .filter_map(|o| o.as_ref().map(|(_, c)| c))
+                                .filter_map(|o| o.as_ref().map(|b| &b.1))
                                 .collect(),
                         };
                         for c in cs {
@@ -1271,7 +1271,7 @@ fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -
                 Some(p) => Some(f64_prop(fe, &p.name, f)?),
                 None => None,
             };
-            Force::Muscle(Muscle {
+            Force::Muscle(Box::new(Muscle {
                 max_isometric_force: f64_prop(fe, "max_isometric_force", f)?,
                 optimal_fiber_length: f64_prop(fe, "optimal_fiber_length", f)?,
                 tendon_slack_length: f64_prop(fe, "tendon_slack_length", f)?,
@@ -1280,7 +1280,7 @@ fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -
                 wraps: parse_path_wraps(path, cx)?,
                 name,
                 class,
-            })
+            }))
         }
         _ => Force::Other { class, name },
     })
@@ -1313,9 +1313,9 @@ fn parse_path_points(path: &Element, cx: &Ctx) -> Result<Vec<PathPoint>> {
                     }
                 };
                 PathPointKind::Moving {
-                    x: axis("x_location", "socket_x_coordinate")?,
-                    y: axis("y_location", "socket_y_coordinate")?,
-                    z: axis("z_location", "socket_z_coordinate")?,
+                    x: axis("x_location", "socket_x_coordinate")?.map(Box::new),
+                    y: axis("y_location", "socket_y_coordinate")?.map(Box::new),
+                    z: axis("z_location", "socket_z_coordinate")?.map(Box::new),
                 }
             }
             other => return Err(cx.err(p, format!("unknown path point class '{other}'"))),
