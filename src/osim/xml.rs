@@ -60,6 +60,9 @@ pub struct XmlTree {
     pub root: Element,
     /// Comments / processing instructions after the root element.
     pub epilog: Vec<Node>,
+    /// Length of the parsed text (0 when built in code): a capacity hint
+    /// for the writer.
+    pub source_len: usize,
 }
 
 impl Element {
@@ -569,6 +572,7 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
         prolog,
         root,
         epilog,
+        source_len: text.len(),
     })
 }
 
@@ -743,7 +747,7 @@ impl XmlTree {
     /// Serialise deterministically: declaration, prolog, root indented with
     /// tabs, epilog; a final newline.
     pub fn to_xml_string(&self) -> String {
-        let mut out = String::with_capacity(1 << 16);
+        let mut out = String::with_capacity((self.source_len + self.source_len / 8).max(1 << 16));
         if let Some(d) = &self.declaration {
             out.push_str("<?xml ");
             out.push_str(d);
