@@ -14,11 +14,11 @@
 //!
 //! Meshes: the sacrum is one swept shell (flat S1 endplate of the tabulated
 //! width/depth, alae, tapering curved body to the apex); each hemipelvis is
-//! an iliac blade swept along the crest (PSIS to ASIS) and a separate
-//! anterior shell (acetabular region, superior pubic ramus to the
-//! symphysis).
+//! an iliac blade swept along the crest (PSIS to ASIS) and two separate
+//! straight shells (a pillar from below the ASIS to the acetabular region,
+//! the superior pubic ramus to the symphysis).
 
-use super::shapes::{sweep, Station};
+use super::shapes::{straight, sweep, Station};
 use super::tables::{PelvisShape, SacrumShape};
 use crate::error::Result;
 use crate::mesh::TriMesh;
@@ -196,22 +196,27 @@ pub fn generate(
         let blade_bottom_asis = -0.3 * blade;
         let a0 = Point3::new(0.0, blade_bottom_asis - r_ram - 0.004 * k, sz * 0.47 * w);
         let acet = Point3::new(h.x + 0.01 * k, h.y + 0.01 * k, sz * (h.z.abs() - 0.02 * k));
-        let ram: Vec<Station> = [
-            (a0, r_ram),
-            (acet, 2.0 * r_ram),
-            (p3(&pel.pelvic_brim, sz) - Vector3::y() * (0.004 * k), r_ram),
-            (p3(&pel.pubic_symphysis, sz), r_ram),
-        ]
-        .iter()
-        .map(|(p, r)| Station {
-            centre: *p,
-            up: Vector3::x(),
-            half_w: *r,
-            half_h: *r,
-            tangent: None,
-        })
-        .collect();
-        shells.push(sweep(&ram, pel.around.max(8), "procedural pelvis (ramus)")?);
+        // pillar from below the ASIS to the acetabulum, then a straight
+        // superior pubic ramus to the symphysis, starting beyond the
+        // pillar's end cap (straight tubes, apart: no intersections)
+        let r_acet = 1.4 * r_ram;
+        shells.push(sweep(
+            &straight(a0, acet, Vector3::x(), (r_ram, r_ram), (r_acet, r_acet), 3),
+            pel.around.max(8),
+            "procedural pelvis (pillar)",
+        )?);
+        // stop short of the midline so the two rami stay apart
+        let mut sym = p3(&pel.pubic_symphysis, sz);
+        sym.z = sz * sym.z.abs().max(r_ram + 0.002 * k);
+        let dir = (sym - acet)
+            .try_normalize(1e-9)
+            .unwrap_or_else(|| Vector3::z() * -sz);
+        let r0 = acet + dir * (r_acet + r_ram + 0.002 * k);
+        shells.push(sweep(
+            &straight(r0, sym, Vector3::x(), (r_ram, r_ram), (r_ram, r_ram), 3),
+            pel.around.max(8),
+            "procedural pelvis (ramus)",
+        )?);
         pl.insert(format!("hip_{side}"), h);
         pl.insert(format!("asis_{side}"), asis);
         pl.insert(format!("psis_{side}"), p3(&pel.psis, sz));

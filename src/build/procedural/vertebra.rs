@@ -189,7 +189,7 @@ pub fn generate(
     let mut posterior = Vec::new();
     let mut lm: BTreeMap<String, Point3<f64>> = BTreeMap::new();
     for (side, sz) in [("r", 1.0), ("l", -1.0)] {
-        let a = Point3::new(x_wall.min(x_pe + 1e-3), y_p, sz * zp);
+        let a = Point3::new(x_wall.max(x_pe + 1e-3), y_p, sz * zp);
         let b = Point3::new(x_pe, y_p, sz * zp);
         posterior.push(sweep(
             &straight(
