@@ -3,6 +3,10 @@
 //! against the vertebral bodies at the default pose, and the architecture
 //! rule (tendon slack and optimal fibre length from the default-pose
 //! musculotendon length).
+//!
+//! Clearance rule: no path segment may cross any vertebra mesh (body or
+//! posterior elements) at the default pose; crossings get via points (see
+//! [`clear_vertebrae`]).
 
 use super::skeleton::Skeleton;
 use super::tables::{Family, Templates};
@@ -31,39 +35,38 @@ pub struct MuscleSpec {
     pub length_default: f64,
     /// Normalised fibre length at the default pose (rigid tendon).
     pub norm_fiber_length_default: f64,
-    /// Via points added by the body-clearance rule.
+    /// Via points added by the vertebra-clearance rule.
     pub clearance_via_points: usize,
 }
 
-/// Vertebral bodies in ground at the default pose, for clearance checks.
-pub struct BodyObstacles {
+/// The vertebrae (T1..L5, all shells) in ground at the default pose, for
+/// the path clearance rule.
+pub struct Obstacles {
     items: Vec<(String, Isometry3<f64>, MeshQuery)>,
 }
 
-impl BodyObstacles {
-    /// The vertebral body shells of T1..L5 placed at the default pose.
-    pub fn new(sk: &Skeleton) -> Result<BodyObstacles> {
+impl Obstacles {
+    /// Every vertebra mesh placed at the default pose.
+    pub fn new(sk: &Skeleton) -> Result<Obstacles> {
         let mut items = Vec::new();
         for v in &sk.vertebrae {
             let name = v.level.body_name();
             let pose = *sk.pose(&name)?;
-            let q = MeshQuery::new(&v.body.transformed(&pose))?;
+            let q = MeshQuery::new(&v.mesh()?.transformed(&pose))?;
             items.push((name, pose, q));
         }
-        Ok(BodyObstacles { items })
+        Ok(Obstacles { items })
     }
 
-    /// First (body name, pose, query) whose body the segment crosses.
-    pub fn first_hit(
+    /// First (body name, pose, query) whose mesh the segment crosses.
+    fn first_hit(
         &self,
         a: &Point3<f64>,
         b: &Point3<f64>,
     ) -> Option<(&str, &Isometry3<f64>, &MeshQuery)> {
         self.items
             .iter()
-            .find(|(_, _, q)| {
-                q.segment_length_inside(a, b) > 0.0 || !q.segment_hits(a, b).is_empty()
-            })
+            .find(|(_, _, q)| q.segment_intersects(a, b))
             .map(|(n, p, q)| (n.as_str(), p, q))
     }
 }
@@ -149,13 +152,26 @@ fn path_length(sk: &Skeleton, pts: &[PathPointSpec]) -> Result<f64> {
     Ok(g.windows(2).map(|w| (w[1] - w[0]).norm()).sum())
 }
 
-/// Insert via points where a path segment crosses a vertebral body at the
-/// default pose: the crossing's mid-point is pushed radially (in the
-/// vertebra's horizontal plane) out of the body, 3 mm beyond its surface,
-/// and fixed to that vertebra. Returns the number added.
-fn clear_bodies(
+/// A point inside the mesh on the segment `a`-`b`: the middle of the
+/// first stretch of the segment that lies inside.
+fn inside_point(q: &MeshQuery, a: &Point3<f64>, b: &Point3<f64>) -> Option<Point3<f64>> {
+    let mut ts: Vec<f64> = vec![0.0];
+    ts.extend(q.segment_hits(a, b).iter().map(|h| h.t));
+    ts.push(1.0);
+    ts.windows(2)
+        .map(|w| a + (b - a) * (0.5 * (w[0] + w[1])))
+        .find(|m| q.contains(m))
+}
+
+/// Insert via points where a path segment crosses a vertebra at the
+/// default pose (rule): from a point inside the crossing, the shortest way
+/// out among the vertebra's lateral (towards the point's side), radial,
+/// posterior, anterior, cranial and caudal directions; the via point is
+/// placed 3 mm beyond that exit and fixed to the vertebra. Repeated until
+/// the path is clear. Returns the number of via points added.
+fn clear_vertebrae(
     sk: &Skeleton,
-    obst: &BodyObstacles,
+    obst: &Obstacles,
     name: &str,
     pts: &mut Vec<PathPointSpec>,
 ) -> Result<usize> {
@@ -165,7 +181,7 @@ fn clear_bodies(
         if added > 20 {
             return Err(Error::numerical(
                 format!("procedural muscle {name}"),
-                "could not route the path around the vertebral bodies",
+                "could not route the path around the vertebrae",
             ));
         }
         let g: Vec<Point3<f64>> = pts
@@ -177,32 +193,54 @@ fn clear_bodies(
             let Some((body, pose, q)) = obst.first_hit(&a, &b) else {
                 continue;
             };
-            let mut ts: Vec<f64> = q.segment_hits(&a, &b).iter().map(|h| h.t).collect();
-            if q.contains(&a) {
-                ts.insert(0, 0.0);
-            }
-            if q.contains(&b) {
-                ts.push(1.0);
-            }
-            let (t0, t1) = match (ts.first(), ts.last()) {
-                (Some(t0), Some(t1)) => (*t0, *t1),
-                _ => continue,
+            let stuck = || {
+                Error::numerical(
+                    format!("procedural muscle {name}"),
+                    format!("path point {} or {} lies inside {body}", i + 1, i + 2),
+                )
             };
-            let mid = a + (b - a) * (0.5 * (t0 + t1));
-            let local = pose.inverse() * mid;
+            if q.contains(&a) || q.contains(&b) {
+                return Err(stuck());
+            }
+            // a segment that only touches the surface is treated at its
+            // first contact point
+            let touching = q.segment_hits(&a, &b).first().map(|h| h.point);
+            let Some(m) = inside_point(q, &a, &b).or(touching) else {
+                return Err(stuck());
+            };
+            let local = pose.inverse() * m;
+            let side = if local.z >= 0.0 { 1.0 } else { -1.0 };
             let radial = Vector3::new(local.x, 0.0, local.z)
                 .try_normalize(1e-9)
-                .unwrap_or_else(Vector3::z);
-            let axis_pt = pose * Point3::new(0.0, local.y, 0.0);
-            let dir = pose.rotation * radial;
-            let hits = q.ray_hits(&axis_pt, &dir, 1.0);
-            let Some(out) = hits.last() else {
-                return Err(Error::numerical(
-                    format!("procedural muscle {name}"),
-                    format!("path crosses {body} and no way around was found"),
-                ));
+                .unwrap_or_else(|| Vector3::z() * side);
+            let dirs = [
+                Vector3::z() * side,
+                radial,
+                -Vector3::x(),
+                Vector3::x(),
+                Vector3::y(),
+                -Vector3::y(),
+            ];
+            let mut best: Option<(f64, Point3<f64>)> = None;
+            for d in dirs {
+                let dg = pose.rotation * d;
+                let exit = q
+                    .ray_hits(&m, &dg, 1.0)
+                    .iter()
+                    .map(|h| h.t)
+                    .find(|t| *t > 1e-9)
+                    .unwrap_or(0.0);
+                let cand = m + dg * (exit + margin);
+                if q.contains(&cand) {
+                    continue;
+                }
+                if best.as_ref().is_none_or(|(t, _)| exit < *t) {
+                    best = Some((exit, cand));
+                }
+            }
+            let Some((_, via)) = best else {
+                return Err(stuck());
             };
-            let via = out.point + dir * margin;
             let via_local = pose.inverse() * via;
             pts.insert(
                 i + 1,
@@ -221,7 +259,7 @@ fn clear_bodies(
 
 /// Generate every fascicle of every family, both sides.
 pub fn generate(sk: &Skeleton, t: &Templates) -> Result<Vec<MuscleSpec>> {
-    let obst = BodyObstacles::new(sk)?;
+    let obst = Obstacles::new(sk)?;
     let m = &t.muscles;
     let mut out = Vec::new();
     for f in &m.family {
@@ -242,7 +280,7 @@ pub fn generate(sk: &Skeleton, t: &Templates) -> Result<Vec<MuscleSpec>> {
                             location: p.coords.into(),
                         });
                     }
-                    let added = clear_bodies(sk, &obst, &name, &mut pts)?;
+                    let added = clear_vertebrae(sk, &obst, &name, &mut pts)?;
                     let l_mt = path_length(sk, &pts)?;
                     let l_ts = f.tendon_fraction * l_mt;
                     let l_opt = (l_mt - l_ts) / m.norm_fiber_length_default;
@@ -262,4 +300,51 @@ pub fn generate(sk: &Skeleton, t: &Templates) -> Result<Vec<MuscleSpec>> {
         }
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::build::procedural::{skeleton, ProceduralOptions};
+
+    #[test]
+    fn a_path_through_a_vertebral_body_is_routed_around_it() {
+        let t = Templates::embedded().unwrap();
+        let sk = skeleton::build(&ProceduralOptions::default(), &t).unwrap();
+        let obst = Obstacles::new(&sk).unwrap();
+        // right side of L3's body straight to the left side: through the body
+        let (b, r) = sk.landmark("L3", "body_lateral", "r").unwrap();
+        let (_, l) = sk.landmark("L3", "body_lateral", "l").unwrap();
+        let mut pts = vec![
+            PathPointSpec {
+                body: b.clone(),
+                location: r.coords.into(),
+            },
+            PathPointSpec {
+                body: b.clone(),
+                location: l.coords.into(),
+            },
+        ];
+        let pose = *sk.pose(&b).unwrap();
+        let g = |p: &PathPointSpec| pose * Point3::from(p.location);
+        assert!(obst.first_hit(&g(&pts[0]), &g(&pts[1])).is_some());
+        let added = clear_vertebrae(&sk, &obst, "test", &mut pts).unwrap();
+        assert!(added >= 1);
+        for w in pts.windows(2) {
+            let (a, c) = (
+                sk.pose(&w[0].body).unwrap() * Point3::from(w[0].location),
+                sk.pose(&w[1].body).unwrap() * Point3::from(w[1].location),
+            );
+            assert!(obst.first_hit(&a, &c).is_none(), "still crossing");
+        }
+        // a start point inside a vertebra is refused, not silently moved
+        let mut bad = vec![
+            PathPointSpec {
+                body: b.clone(),
+                location: [0.0, 0.02, 0.0],
+            },
+            pts[0].clone(),
+        ];
+        assert!(clear_vertebrae(&sk, &obst, "test", &mut bad).is_err());
+    }
 }
