@@ -45,7 +45,9 @@ fn icc_is_one_for_perfect_agreement_and_rejects_ragged_tables() {
 /// 162,166,170,182,195,236))` uses the same Royston algorithm.)
 #[test]
 fn shapiro_wilk_reproduces_the_1965_example() {
-    let x = [148.0, 154.0, 158.0, 160.0, 161.0, 162.0, 166.0, 170.0, 182.0, 195.0, 236.0];
+    let x = [
+        148.0, 154.0, 158.0, 160.0, 161.0, 162.0, 166.0, 170.0, 182.0, 195.0, 236.0,
+    ];
     let r = shapiro_wilk(&x).unwrap();
     assert!((r.w - 0.79).abs() < 0.005, "W = {}", r.w);
     assert!(r.p < 0.01 && r.p > 0.001, "p = {}", r.p);
@@ -174,12 +176,24 @@ fn skillings_mack_equals_friedman_on_complete_untied_blocks() {
     let nd = Normal::new(0.0, 1.0).unwrap();
     for k in [3usize, 5, 10] {
         let y: Vec<Vec<f64>> = (0..8)
-            .map(|_| (0..k).map(|j| nd.sample(&mut rng) + 0.2 * j as f64).collect())
+            .map(|_| {
+                (0..k)
+                    .map(|j| nd.sample(&mut rng) + 0.2 * j as f64)
+                    .collect()
+            })
             .collect();
         let f = friedman(&y).unwrap();
-        let yo: Vec<Vec<Option<f64>>> = y.iter().map(|r| r.iter().map(|v| Some(*v)).collect()).collect();
+        let yo: Vec<Vec<Option<f64>>> = y
+            .iter()
+            .map(|r| r.iter().map(|v| Some(*v)).collect())
+            .collect();
         let sm = skillings_mack(&yo).unwrap();
-        assert!((f.statistic - sm.statistic).abs() < 1e-9, "k={k}: {} vs {}", f.statistic, sm.statistic);
+        assert!(
+            (f.statistic - sm.statistic).abs() < 1e-9,
+            "k={k}: {} vs {}",
+            f.statistic,
+            sm.statistic
+        );
         assert_eq!(friedman_blocked(&yo).unwrap().method, "friedman");
     }
 }
@@ -199,7 +213,11 @@ fn skillings_mack_has_nominal_size_with_missing_cells() {
                 (0..5)
                     .map(|_| {
                         let v = nd.sample(&mut rng) + b as f64;
-                        if u.sample(&mut rng) < 0.15 { None } else { Some(v) }
+                        if u.sample(&mut rng) < 0.15 {
+                            None
+                        } else {
+                            Some(v)
+                        }
                     })
                     .collect()
             })
@@ -218,7 +236,13 @@ fn skillings_mack_detects_a_real_group_effect() {
     let y: Vec<Vec<Option<f64>>> = (0..10)
         .map(|b| {
             (0..4)
-                .map(|j| if (b + j) % 5 == 0 { None } else { Some(j as f64 + 0.01 * b as f64) })
+                .map(|j| {
+                    if (b + j) % 5 == 0 {
+                        None
+                    } else {
+                        Some(j as f64 + 0.01 * b as f64)
+                    }
+                })
                 .collect()
         })
         .collect();

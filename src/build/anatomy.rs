@@ -124,9 +124,7 @@ impl DimensionTable {
                 h.iter()
                     .position(|c| c == name)
                     .and_then(|k| fields.get(k).copied())
-                    .ok_or_else(|| {
-                        Error::parse(path, "header", format!("missing column `{name}`"))
-                    })
+                    .ok_or_else(|| Error::parse(path, "header", format!("missing column `{name}`")))
             };
             let num = |name: &str| -> Result<f64> {
                 let s = get(name)?;
@@ -223,7 +221,11 @@ mod tests {
         assert_eq!(t.rows().len(), 18);
         // Published trend: endplates widen and bodies grow caudally T1 -> L4.
         for w in t.rows()[..16].windows(2) {
-            assert!(w[1].sup_ep_width.mean >= w[0].sup_ep_width.mean, "{:?}", w[1].level);
+            assert!(
+                w[1].sup_ep_width.mean >= w[0].sup_ep_width.mean,
+                "{:?}",
+                w[1].level
+            );
             assert!(w[1].sup_ep_depth.mean >= w[0].sup_ep_depth.mean - 1e-3);
         }
         let l3 = t.level(Level::L3);

@@ -1,1 +1,3 @@
 //! Experiments (`../shared/formats/experiment.md`) and stiffness calibration.
+
+pub mod experiment;

@@ -36,6 +36,15 @@ pub fn convert_model(input: &Path, output: &Path) -> crate::Result<Document> {
     Ok(doc)
 }
 
+fn convert_checked(args: &Args) -> anyhow::Result<(Document, super::info::Summary)> {
+    let doc = Document::read(&args.input)?;
+    let model = doc.model()?;
+    let s = super::info::summarize(&doc, &model, &args.geometry)?;
+    super::info::refuse_escaping_meshes(&s)?;
+    doc.write(&args.output)?;
+    Ok((doc, s))
+}
+
 /// Run `convert`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let (ein, eout) = (ext(&args.input), ext(&args.output));
@@ -57,18 +66,16 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
             args.output.display()
         );
     }
-    let doc = convert_model(&args.input, &args.output)?;
-    let model = doc.model()?;
-    let s = super::info::summarize(&doc, &model, &args.geometry)?;
+    let (doc, s) = convert_checked(&args)?;
     eprintln!(
         "wrote {} (version {} -> {}; {} bodies, {} joints, {} forces, {} markers)",
         args.output.display(),
         doc.original_version(),
         doc.version(),
-        model.bodies.len(),
-        model.joints.len(),
-        model.forces.len(),
-        model.markers.len()
+        s.bodies.len(),
+        s.joints.len(),
+        s.forces_by_class.values().sum::<usize>(),
+        s.markers
     );
     if !s.meshes_missing.is_empty() {
         eprintln!(

@@ -180,10 +180,23 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     let doc = Document::read(&args.model)?;
     let model = doc.model()?;
     let s = summarize(&doc, &model, &args.geometry)?;
+    refuse_escaping_meshes(&s)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
     } else {
         print!("{}", render(&s));
     }
     Ok(0)
+}
+
+/// Error when a mesh_file is absolute or climbs out with `..` (reported, never followed).
+pub fn refuse_escaping_meshes(s: &Summary) -> anyhow::Result<()> {
+    if let Some(first) = s.meshes_refused.first() {
+        anyhow::bail!(
+            "{}: <Mesh> of body {first}; refusing to follow it ({} such mesh file(s))",
+            s.file,
+            s.meshes_refused.len()
+        );
+    }
+    Ok(())
 }

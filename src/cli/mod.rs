@@ -3,8 +3,11 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod check;
 pub mod convert;
 pub mod info;
+pub mod simulate;
+pub mod variability;
 
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
 #[derive(Debug, Parser)]
@@ -21,6 +24,15 @@ pub enum Command {
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
     Convert(convert::Args),
+    /// Static equilibrium (or forward dynamics) of a model under load cases.
+    Simulate(simulate::Args),
+    /// Validate landmark sets: protocol completeness, names, units and
+    /// frame, per-vertebra geometry, inter-vertebral plausibility, outliers.
+    /// Exit 0 clean, 1 errors, 2 warnings only (1 with --strict).
+    Check(check::Args),
+    /// Repeated-palpation statistics: IQRs, ICC(2,1), Shapiro-Wilk,
+    /// Friedman/Skillings-Mack with Nemenyi post hoc; JSON + SVG.
+    Variability(variability::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -29,6 +41,9 @@ pub fn main() -> i32 {
     let result: anyhow::Result<i32> = match cli.command {
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
+        Command::Simulate(a) => simulate::run(a),
+        Command::Check(a) => check::run(&a),
+        Command::Variability(a) => variability::run(&a),
     };
     match result {
         Ok(code) => code,

@@ -221,7 +221,10 @@ pub fn detect(raw: &RawLandmarks) -> Detection {
         }
     };
     for &l in &levels {
-        let add = |acc: &mut Vector3<f64>, n: &mut usize, a: Option<Vector3<f64>>, b: Option<Vector3<f64>>| {
+        let add = |acc: &mut Vector3<f64>,
+                   n: &mut usize,
+                   a: Option<Vector3<f64>>,
+                   b: Option<Vector3<f64>>| {
             if let (Some(a), Some(b)) = (a, b) {
                 if let Some(u) = unit(a - b) {
                     *acc += u;
@@ -303,7 +306,10 @@ pub fn detect(raw: &RawLandmarks) -> Detection {
         match best {
             Some((f, m)) => (
                 Some(f),
-                format!("{ev}: {f} (worst axis within {:.0} deg)", m.clamp(-1.0, 1.0).acos().to_degrees()),
+                format!(
+                    "{ev}: {f} (worst axis within {:.0} deg)",
+                    m.clamp(-1.0, 1.0).acos().to_degrees()
+                ),
                 contradicted,
             ),
             None => (

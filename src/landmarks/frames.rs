@@ -43,11 +43,16 @@ impl VertebraFrame {
 
 /// A right-handed frame from a cranial direction and an approximate right
 /// direction (`None` when degenerate: zero or parallel vectors).
-pub fn frame_from_axes(cranial: Vector3<f64>, right_approx: Vector3<f64>) -> Option<Rotation3<f64>> {
+pub fn frame_from_axes(
+    cranial: Vector3<f64>,
+    right_approx: Vector3<f64>,
+) -> Option<Rotation3<f64>> {
     let y = cranial.try_normalize(1e-12)?;
     let z = (right_approx - y * y.dot(&right_approx)).try_normalize(1e-9)?;
     let x = y.cross(&z);
-    Some(Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z])))
+    Some(Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[
+        x, y, z,
+    ])))
 }
 
 /// ISB-style frame of `level`, or `None` when SEC, IEC or the pedicles are

@@ -194,7 +194,7 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
     let mut file_operator: Option<String> = None;
     let mut file_repetition: Option<u32> = None;
     let mut columns: Option<(bool, usize)> = None; // (has operator columns, n fields)
-    // Palpations in order of first appearance.
+                                                   // Palpations in order of first appearance.
     let mut groups: Vec<((String, u32), Vec<RawPoint>)> = Vec::new();
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     for (i, raw_line) in text.lines().enumerate() {
@@ -256,7 +256,10 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
             return Err(Error::parse(
                 path,
                 format!("line {line_no}"),
-                format!("expected {n} comma-separated fields, found {}", fields.len()),
+                format!(
+                    "expected {n} comma-separated fields, found {}",
+                    fields.len()
+                ),
             ));
         }
         let (key, rest) = if with_op {
@@ -264,7 +267,10 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
                 Error::parse(
                     path,
                     format!("line {line_no}"),
-                    format!("column `repetition`: expected a positive integer, found `{}`", fields[1]),
+                    format!(
+                        "column `repetition`: expected a positive integer, found `{}`",
+                        fields[1]
+                    ),
                 )
             })?;
             if fields[0].is_empty() {
@@ -359,10 +365,18 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
     let units_idx = keys.iter().position(|k| k.eq_ignore_ascii_case("Units"));
     let units = match units_idx.and_then(|k| vals.get(k)) {
         Some(u) => Some(Units::parse_label(u).ok_or_else(|| {
-            Error::parse(path, "line 3", format!("TRC Units `{u}`: expected `mm` or `m`"))
+            Error::parse(
+                path,
+                "line 3",
+                format!("TRC Units `{u}`: expected `mm` or `m`"),
+            )
         })?),
         None => {
-            return Err(Error::parse(path, "line 2", "TRC: no `Units` column in the header"));
+            return Err(Error::parse(
+                path,
+                "line 2",
+                "TRC: no `Units` column in the header",
+            ));
         }
     };
     let names_line = at(3)?;
@@ -436,10 +450,7 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
         if counts[m] == 0 {
             continue;
         }
-        let spread = (0..3)
-            .map(|k| maxs[m][k] - mins[m][k])
-            .fold(0.0, f64::max)
-            * scale_mm;
+        let spread = (0..3).map(|k| maxs[m][k] - mins[m][k]).fold(0.0, f64::max) * scale_mm;
         max_spread = max_spread.max(spread);
         if spread > 5.0 {
             return Err(Error::parse(
@@ -533,12 +544,13 @@ pub fn parse_json(text: &str, path: &Path) -> Result<Vec<Palpation>> {
             e.to_string(),
         )
     })?;
-    let units = match &f.units {
-        Some(u) => Some(Units::parse_label(u).ok_or_else(|| {
-            Error::parse(path, "units", format!("`{u}`: expected `mm` or `m`"))
-        })?),
-        None => None,
-    };
+    let units =
+        match &f.units {
+            Some(u) => Some(Units::parse_label(u).ok_or_else(|| {
+                Error::parse(path, "units", format!("`{u}`: expected `mm` or `m`"))
+            })?),
+            None => None,
+        };
     let frame = match &f.frame {
         Some(u) => Some(Frame::parse_label(u).ok_or_else(|| {
             Error::parse(
@@ -612,9 +624,9 @@ impl RawLandmarks {
                 if !id.level.allowed(id.code) {
                     continue;
                 }
-                set.points.entry(id).or_insert_with(|| {
-                    Point3::from(rot * Vector3::from(p.xyz) * scale)
-                });
+                set.points
+                    .entry(id)
+                    .or_insert_with(|| Point3::from(rot * Vector3::from(p.xyz) * scale));
             }
         }
         set.detection = Some(det.clone());
@@ -645,11 +657,16 @@ impl RawLandmarks {
                 return Err(Error::parse(
                     &self.path,
                     loc,
-                    format!("`{}` is not a sacral landmark (S1 has SEC, SA, SP, SR, SL, PTR, PTL)", p.name),
+                    format!(
+                        "`{}` is not a sacral landmark (S1 has SEC, SA, SP, SR, SL, PTR, PTL)",
+                        p.name
+                    ),
                 ));
             }
             if let Some(prev) = seen.insert(id, p.line) {
-                let prev = prev.map(|l| format!(" (first at line {l})")).unwrap_or_default();
+                let prev = prev
+                    .map(|l| format!(" (first at line {l})"))
+                    .unwrap_or_default();
                 return Err(Error::parse(
                     &self.path,
                     loc,

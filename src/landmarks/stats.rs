@@ -119,7 +119,10 @@ pub fn icc(rows: &[Vec<f64>]) -> Result<Icc> {
             format!("need at least 2 targets and 2 raters, got {n} x {k}"),
         ));
     }
-    if rows.iter().any(|r| r.len() != k || r.iter().any(|v| !v.is_finite())) {
+    if rows
+        .iter()
+        .any(|r| r.len() != k || r.iter().any(|v| !v.is_finite()))
+    {
         return Err(Error::invalid(
             "ICC",
             "every target needs one finite value per rater",
@@ -185,7 +188,10 @@ pub fn shapiro_wilk(x: &[f64]) -> Result<ShapiroWilk> {
     v.sort_by(f64::total_cmp);
     let range = v[n - 1] - v[0];
     if range < 1e-10 * v[n - 1].abs().max(1e-300) || range == 0.0 {
-        return Err(Error::invalid("Shapiro-Wilk", "all values (nearly) identical"));
+        return Err(Error::invalid(
+            "Shapiro-Wilk",
+            "all values (nearly) identical",
+        ));
     }
     let nn2 = n / 2;
     let an = n as f64;
@@ -288,8 +294,8 @@ fn midranks(x: &[f64]) -> (Vec<f64>, Vec<usize>) {
 }
 
 fn chisq_sf(x: f64, df: usize) -> Result<f64> {
-    let d = ChiSquared::new(df as f64)
-        .map_err(|e| Error::numerical("chi-squared", e.to_string()))?;
+    let d =
+        ChiSquared::new(df as f64).map_err(|e| Error::numerical("chi-squared", e.to_string()))?;
     Ok(d.sf(x.max(0.0)))
 }
 
@@ -310,7 +316,10 @@ fn check_table(y: &[Vec<Option<f64>>], what: &str) -> Result<usize> {
 /// Friedman test on complete blocks (`y[block][group]`), tie-corrected as
 /// R's `friedman.test`.
 pub fn friedman(y: &[Vec<f64>]) -> Result<RankTest> {
-    let opt: Vec<Vec<Option<f64>>> = y.iter().map(|r| r.iter().map(|v| Some(*v)).collect()).collect();
+    let opt: Vec<Vec<Option<f64>>> = y
+        .iter()
+        .map(|r| r.iter().map(|v| Some(*v)).collect())
+        .collect();
     let k = check_table(&opt, "Friedman")?;
     let n = y.len();
     if n < 2 {
@@ -326,7 +335,11 @@ pub fn friedman(y: &[Vec<f64>]) -> Result<RankTest> {
         tie_sum += ties.iter().map(|&t| (t * t * t - t) as f64).sum::<f64>();
     }
     let (nf, kf) = (n as f64, k as f64);
-    let num = 12.0 * rsum.iter().map(|s| (s - nf * (kf + 1.0) / 2.0).powi(2)).sum::<f64>();
+    let num = 12.0
+        * rsum
+            .iter()
+            .map(|s| (s - nf * (kf + 1.0) / 2.0).powi(2))
+            .sum::<f64>();
     let den = nf * kf * (kf + 1.0) - tie_sum / (kf - 1.0);
     if den <= 0.0 {
         return Err(Error::invalid("Friedman", "every block is entirely tied"));
@@ -407,7 +420,10 @@ pub fn skillings_mack(y: &[Vec<Option<f64>>]) -> Result<RankTest> {
 pub fn friedman_blocked(y: &[Vec<Option<f64>>]) -> Result<RankTest> {
     check_table(y, "Friedman")?;
     if y.iter().all(|r| r.iter().all(Option::is_some)) {
-        let full: Vec<Vec<f64>> = y.iter().map(|r| r.iter().flatten().copied().collect()).collect();
+        let full: Vec<Vec<f64>> = y
+            .iter()
+            .map(|r| r.iter().flatten().copied().collect())
+            .collect();
         friedman(&full)
     } else {
         skillings_mack(y)
@@ -453,7 +469,11 @@ pub fn studentized_range_cdf_inf(q: f64, k: usize) -> f64 {
 
 /// Upper-`alpha` quantile of the studentized range (infinite df).
 pub fn studentized_range_quantile_inf(alpha: f64, k: usize) -> f64 {
-    bisect(|q| (1.0 - studentized_range_cdf_inf(q, k)) - alpha, 0.0, 12.0)
+    bisect(
+        |q| (1.0 - studentized_range_cdf_inf(q, k)) - alpha,
+        0.0,
+        12.0,
+    )
 }
 
 /// Nemenyi critical |z| for `k` groups: `q_alpha(k, inf) / sqrt 2` (the

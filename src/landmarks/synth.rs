@@ -66,8 +66,16 @@ impl SpineShape {
         SpineShape {
             sacral_slope: deg(40.0),
             sagittal: vec![
-                Bend { apex: 14.0, width: 1.5, angle: deg(50.0) },
-                Bend { apex: 6.0, width: 3.0, angle: deg(-40.0) },
+                Bend {
+                    apex: 14.0,
+                    width: 1.5,
+                    angle: deg(50.0),
+                },
+                Bend {
+                    apex: 6.0,
+                    width: 3.0,
+                    angle: deg(-40.0),
+                },
             ],
             frontal: vec![],
             axial: vec![],
@@ -82,16 +90,40 @@ impl SpineShape {
         SpineShape {
             sacral_slope: deg(28.0),
             sagittal: vec![
-                Bend { apex: 14.0, width: 1.5, angle: deg(34.0) },
-                Bend { apex: 6.0, width: 3.0, angle: deg(-11.0) },
+                Bend {
+                    apex: 14.0,
+                    width: 1.5,
+                    angle: deg(34.0),
+                },
+                Bend {
+                    apex: 6.0,
+                    width: 3.0,
+                    angle: deg(-11.0),
+                },
             ],
             frontal: vec![
-                Bend { apex: 13.5, width: 1.2, angle: deg(-cobb_deg) },
-                Bend { apex: 8.5, width: 1.5, angle: deg(0.7 * cobb_deg) },
+                Bend {
+                    apex: 13.5,
+                    width: 1.2,
+                    angle: deg(-cobb_deg),
+                },
+                Bend {
+                    apex: 8.5,
+                    width: 1.5,
+                    angle: deg(0.7 * cobb_deg),
+                },
             ],
             axial: vec![
-                Twist { apex: 13.5, width: 1.5, peak: deg(0.4 * cobb_deg) },
-                Twist { apex: 8.5, width: 1.5, peak: deg(-0.3 * cobb_deg) },
+                Twist {
+                    apex: 13.5,
+                    width: 1.5,
+                    peak: deg(0.4 * cobb_deg),
+                },
+                Twist {
+                    apex: 8.5,
+                    width: 1.5,
+                    peak: deg(-0.3 * cobb_deg),
+                },
             ],
         }
     }
@@ -101,11 +133,27 @@ impl SpineShape {
         SpineShape {
             sacral_slope: deg(45.0),
             sagittal: vec![
-                Bend { apex: 14.0, width: 1.5, angle: deg(55.0) },
-                Bend { apex: 6.0, width: 3.0, angle: deg(-25.0) },
+                Bend {
+                    apex: 14.0,
+                    width: 1.5,
+                    angle: deg(55.0),
+                },
+                Bend {
+                    apex: 6.0,
+                    width: 3.0,
+                    angle: deg(-25.0),
+                },
             ],
-            frontal: vec![Bend { apex: 7.0, width: 1.8, angle: deg(cobb_deg) }],
-            axial: vec![Twist { apex: 7.0, width: 2.0, peak: deg(-0.35 * cobb_deg) }],
+            frontal: vec![Bend {
+                apex: 7.0,
+                width: 1.8,
+                angle: deg(cobb_deg),
+            }],
+            axial: vec![Twist {
+                apex: 7.0,
+                width: 2.0,
+                peak: deg(-0.35 * cobb_deg),
+            }],
         }
     }
 
@@ -194,13 +242,9 @@ pub fn local_position(d: &LevelDimensions, code: Code) -> Option<Vector3<f64>> {
 /// The true vertebra frames of a synthetic spine, caudal (S1) to cranial;
 /// origins at the body centres (S1: superior endplate centre).
 pub fn frames(table: &DimensionTable, top: Level, shape: &SpineShape) -> Vec<VertebraFrame> {
-    let levels: Vec<Level> = Level::ALL
-        .into_iter()
-        .filter(|l| *l >= top)
-        .rev()
-        .collect(); // S1 first
-    // Joints between levels[k] (lower) and levels[k+1] (upper), at index
-    // (lower.index() - 0.5).
+    let levels: Vec<Level> = Level::ALL.into_iter().filter(|l| *l >= top).rev().collect(); // S1 first
+                                                                                           // Joints between levels[k] (lower) and levels[k+1] (upper), at index
+                                                                                           // (lower.index() - 0.5).
     let joints: Vec<f64> = levels
         .iter()
         .skip(1)
@@ -212,7 +256,9 @@ pub fn frames(table: &DimensionTable, top: Level, shape: &SpineShape) -> Vec<Ver
             .map(|j| (-0.5 * ((j - b.apex) / b.width).powi(2)).exp())
             .collect();
         let s: f64 = w.iter().sum();
-        w.iter().map(|x| if s > 0.0 { x / s } else { 0.0 }).collect()
+        w.iter()
+            .map(|x| if s > 0.0 { x / s } else { 0.0 })
+            .collect()
     };
     let n = joints.len();
     let mut sag = vec![0.0; n];
@@ -313,7 +359,12 @@ mod tests {
         let shape = SpineShape::lumbar_scoliosis(75.0);
         let set = generate_with(
             &table,
-            &SynthOptions { top: Level::T1, shape: shape.clone(), noise_sd: 0.0, seed: 3 },
+            &SynthOptions {
+                top: Level::T1,
+                shape: shape.clone(),
+                noise_sd: 0.0,
+                seed: 3,
+            },
         )
         .unwrap();
         assert_eq!(set.len(), 17 * 14 + 7);
@@ -342,7 +393,11 @@ mod tests {
         let shape = SpineShape {
             sacral_slope: 0.0,
             sagittal: vec![],
-            frontal: vec![Bend { apex: 13.5, width: 1.0, angle: 60f64.to_radians() }],
+            frontal: vec![Bend {
+                apex: 13.5,
+                width: 1.0,
+                angle: 60f64.to_radians(),
+            }],
             axial: vec![],
         };
         let f = frames(&table, Level::T1, &shape);
@@ -356,7 +411,11 @@ mod tests {
 
     #[test]
     fn same_seed_same_set_different_seed_differs() {
-        let o = SynthOptions { noise_sd: 0.002, seed: 7, ..Default::default() };
+        let o = SynthOptions {
+            noise_sd: 0.002,
+            seed: 7,
+            ..Default::default()
+        };
         let a = generate(&o).unwrap();
         let b = generate(&o).unwrap();
         assert_eq!(a, b);

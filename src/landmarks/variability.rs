@@ -1,1 +1,549 @@
-//! placeholder
+//! `osim-spine variability`: statistics of repeated palpations (thesis
+//! chapter 5, "Evaluation of intra and inter-operator variability").
+//!
+//! Input: palpations (operator, repetition, landmark set). Axes follow the
+//! thesis and the OpenSim frame: X anterior-posterior, Y inferior-superior,
+//! Z left-right; values in millimetres. "Euclidean" is the distance of a
+//! landmark from the study origin (the grand centroid of all landmarks of
+//! all palpations), the thesis's "global position"; its IQR measures radial
+//! dispersion, and its ICC is meaningful because targets differ.
+//!
+//! Report sections:
+//! - `landmarks`: per landmark IQR in X, Y, Z and Euclidean over all palpations;
+//! - `summary`: median and IQR of those IQRs, for all / joint / scaling
+//!   markers (thesis Table 5.5);
+//! - `icc`: ICC(2,1) per coordinate and Euclidean, joint and scaling
+//!   markers separately; inter-operator for every repetition number that at
+//!   least two operators have (the thesis used the 3rd), intra-operator for
+//!   every operator with two or more repetitions; targets are the landmarks
+//!   present in every palpation compared;
+//! - `normality`: Shapiro-Wilk per landmark and coordinate;
+//! - `friedman`: per marker type (code) and coordinate, blocked by level:
+//!   inter-operator (groups = operators, one test per repetition) and
+//!   intra-operator (groups = repetitions, one test per operator);
+//!   Friedman when blocks are complete, Skillings-Mack otherwise
+//!   ([`super::stats`]); when p < 0.05 the one-to-many Nemenyi test against
+//!   the first operator / first repetition;
+//! - `model_propagation`: the thesis's Tables 5.6/5.8 (vertebral-centre
+//!   RMSE, curve RMSE and R^2, Cobb angle, lordosis of one generated model
+//!   per palpation) need the patient model generator, which does not exist
+//!   yet: the section is `null` with a note until it does.
+
+use super::stats::{self, Icc};
+use super::{Code, LandmarkId, LandmarkSet, Level};
+use crate::error::{Error, Result};
+use crate::util::write_atomic;
+use nalgebra::Vector3;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// One palpation with a resolved set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PalpationSet {
+    pub operator: String,
+    pub repetition: u32,
+    pub source: PathBuf,
+    pub set: LandmarkSet,
+}
+
+/// Load palpations from files (one per file, or CSVs with operator and
+/// repetition columns). When no file gives operator/repetition (every
+/// palpation is operator "1", repetition 1), the files are taken as
+/// repetitions 1, 2, ... of one operator in the order given.
+pub fn load_palpations(paths: &[PathBuf]) -> Result<Vec<PalpationSet>> {
+    let mut out = Vec::new();
+    for p in paths {
+        for pal in super::io::read_palpations(p)? {
+            let set = pal.raw.to_set()?;
+            out.push(PalpationSet {
+                operator: pal.operator,
+                repetition: pal.repetition,
+                source: p.clone(),
+                set,
+            });
+        }
+    }
+    if out.len() > 1 && out.iter().all(|p| p.operator == "1" && p.repetition == 1) {
+        for (i, p) in out.iter_mut().enumerate() {
+            p.repetition = i as u32 + 1;
+        }
+    }
+    let mut seen = BTreeMap::new();
+    for p in &out {
+        if let Some(prev) = seen.insert((p.operator.clone(), p.repetition), p.source.clone()) {
+            return Err(Error::invalid(
+                p.source.display().to_string(),
+                format!(
+                    "operator `{}` repetition {} appears twice (also in {})",
+                    p.operator,
+                    p.repetition,
+                    prev.display()
+                ),
+            ));
+        }
+    }
+    Ok(out)
+}
+
+pub const AXES: [&str; 4] = ["X", "Y", "Z", "Euclidean"];
+
+/// Per-landmark IQRs (mm).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LandmarkIqr {
+    pub landmark: LandmarkId,
+    pub n: usize,
+    /// X, Y, Z, Euclidean.
+    pub iqr_mm: [f64; 4],
+}
+
+/// Median and IQR of the per-landmark IQRs (Table 5.5).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct IqrSummary {
+    pub group: String,
+    pub axis: String,
+    pub median_mm: f64,
+    pub iqr_mm: f64,
+    pub max_mm: f64,
+}
+
+/// One ICC(2,1) analysis.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct IccEntry {
+    /// `inter` or `intra`.
+    pub kind: String,
+    /// `repetition 3` or `operator A`.
+    pub within: String,
+    /// `joint` or `scaling`.
+    pub group: String,
+    pub axis: String,
+    pub targets: usize,
+    pub raters: usize,
+    pub icc2_1: f64,
+}
+
+/// One Shapiro-Wilk test.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct NormalityEntry {
+    pub landmark: LandmarkId,
+    pub axis: String,
+    pub n: usize,
+    pub w: f64,
+    pub p: f64,
+}
+
+/// One post hoc comparison.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PostHoc {
+    pub versus: String,
+    pub reference: String,
+    pub z: f64,
+    pub p: f64,
+}
+
+/// One Friedman-type test.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FriedmanEntry {
+    pub kind: String,
+    pub within: String,
+    pub marker: Code,
+    pub axis: String,
+    pub method: String,
+    pub statistic: f64,
+    pub df: usize,
+    pub p: f64,
+    pub blocks: usize,
+    pub groups: Vec<String>,
+    /// Nemenyi many-to-one against `groups[0]`, when p < 0.05.
+    pub posthoc: Vec<PostHoc>,
+}
+
+/// The full report.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct VariabilityReport {
+    pub palpations: usize,
+    /// Operator -> repetitions.
+    pub operators: BTreeMap<String, Vec<u32>>,
+    pub units: String,
+    pub axes: String,
+    pub landmarks: Vec<LandmarkIqr>,
+    pub summary: Vec<IqrSummary>,
+    pub icc: Vec<IccEntry>,
+    pub normality: Vec<NormalityEntry>,
+    pub normality_rejected_at_5pct: usize,
+    pub friedman: Vec<FriedmanEntry>,
+    /// Not computed yet (needs the model generator).
+    pub model_propagation: Option<serde_json::Value>,
+    pub notes: Vec<String>,
+}
+
+fn value(p: &nalgebra::Point3<f64>, origin: &Vector3<f64>, axis: usize) -> f64 {
+    if axis < 3 {
+        p.coords[axis] * 1e3
+    } else {
+        (p.coords - origin).norm() * 1e3
+    }
+}
+
+/// (kind, within, labelled palpations in group order).
+type Comparison<'a> = (String, String, Vec<(String, &'a PalpationSet)>);
+
+/// Compute the report.
+pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
+    if pals.len() < 2 {
+        return Err(Error::invalid(
+            "variability",
+            format!("need at least 2 palpations, got {}", pals.len()),
+        ));
+    }
+    let mut operators: BTreeMap<String, Vec<u32>> = BTreeMap::new();
+    for p in pals {
+        operators
+            .entry(p.operator.clone())
+            .or_default()
+            .push(p.repetition);
+    }
+    for v in operators.values_mut() {
+        v.sort_unstable();
+    }
+    // Study origin: grand centroid.
+    let mut sum = Vector3::zeros();
+    let mut cnt = 0usize;
+    for p in pals {
+        for q in p.set.points.values() {
+            sum += q.coords;
+            cnt += 1;
+        }
+    }
+    let origin = sum / cnt.max(1) as f64;
+    let ids: Vec<LandmarkId> = {
+        let mut v: Vec<LandmarkId> = pals
+            .iter()
+            .flat_map(|p| p.set.points.keys().copied())
+            .collect();
+        v.sort();
+        v.dedup();
+        v
+    };
+    // ---- IQRs
+    let mut landmarks = Vec::new();
+    let mut normality = Vec::new();
+    for id in &ids {
+        let pts: Vec<_> = pals.iter().filter_map(|p| p.set.points.get(id)).collect();
+        if pts.len() < 2 {
+            continue;
+        }
+        let mut iqr = [0.0; 4];
+        for (a, slot) in iqr.iter_mut().enumerate() {
+            let vals: Vec<f64> = pts.iter().map(|q| value(q, &origin, a)).collect();
+            *slot = stats::iqr(&vals).unwrap_or(f64::NAN);
+            if vals.len() >= 3 {
+                if let Ok(sw) = stats::shapiro_wilk(&vals) {
+                    normality.push(NormalityEntry {
+                        landmark: *id,
+                        axis: AXES[a].into(),
+                        n: vals.len(),
+                        w: sw.w,
+                        p: sw.p,
+                    });
+                }
+            }
+        }
+        landmarks.push(LandmarkIqr {
+            landmark: *id,
+            n: pts.len(),
+            iqr_mm: iqr,
+        });
+    }
+    let mut summary = Vec::new();
+    for (group, filt) in [
+        ("all", None),
+        ("joint", Some(true)),
+        ("scaling", Some(false)),
+    ] {
+        for (a, axis) in AXES.iter().enumerate() {
+            let v: Vec<f64> = landmarks
+                .iter()
+                .filter(|l| filt.is_none_or(|j| l.landmark.code.is_joint_marker() == j))
+                .map(|l| l.iqr_mm[a])
+                .collect();
+            if let (Some(m), Some(q)) = (stats::median(&v), stats::iqr(&v)) {
+                summary.push(IqrSummary {
+                    group: group.into(),
+                    axis: axis.to_string(),
+                    median_mm: m,
+                    iqr_mm: q,
+                    max_mm: v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                });
+            }
+        }
+    }
+    // ---- comparisons: (kind, within, ordered palpations)
+    let mut comparisons: Vec<Comparison> = Vec::new();
+    let reps: Vec<u32> = {
+        let mut v: Vec<u32> = pals.iter().map(|p| p.repetition).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    for r in reps {
+        let mut g: Vec<(String, &PalpationSet)> = pals
+            .iter()
+            .filter(|p| p.repetition == r)
+            .map(|p| (format!("operator {}", p.operator), p))
+            .collect();
+        g.sort_by(|a, b| a.0.cmp(&b.0));
+        if g.len() >= 2 {
+            comparisons.push(("inter".into(), format!("repetition {r}"), g));
+        }
+    }
+    for op in operators.keys() {
+        let mut g: Vec<(String, &PalpationSet)> = pals
+            .iter()
+            .filter(|p| &p.operator == op)
+            .map(|p| (format!("repetition {}", p.repetition), p))
+            .collect();
+        g.sort_by_key(|a| a.1.repetition);
+        if g.len() >= 2 {
+            comparisons.push(("intra".into(), format!("operator {op}"), g));
+        }
+    }
+    let mut icc = Vec::new();
+    let mut friedman = Vec::new();
+    for (kind, within, g) in &comparisons {
+        for (group, joint) in [("joint", true), ("scaling", false)] {
+            let targets: Vec<LandmarkId> = ids
+                .iter()
+                .filter(|i| i.code.is_joint_marker() == joint)
+                .filter(|i| g.iter().all(|(_, p)| p.set.points.contains_key(i)))
+                .copied()
+                .collect();
+            if targets.len() < 2 {
+                continue;
+            }
+            for (a, axis) in AXES.iter().enumerate() {
+                let rows: Vec<Vec<f64>> = targets
+                    .iter()
+                    .map(|t| {
+                        g.iter()
+                            .map(|(_, p)| value(&p.set.points[t], &origin, a))
+                            .collect()
+                    })
+                    .collect();
+                if let Ok(Icc { icc2_1, n, k, .. }) = stats::icc(&rows) {
+                    icc.push(IccEntry {
+                        kind: kind.clone(),
+                        within: within.clone(),
+                        group: group.into(),
+                        axis: axis.to_string(),
+                        targets: n,
+                        raters: k,
+                        icc2_1,
+                    });
+                }
+            }
+        }
+        let levels: Vec<Level> = {
+            let mut v: Vec<Level> = ids.iter().map(|i| i.level).collect();
+            v.dedup();
+            v
+        };
+        for code in Code::ALL {
+            for (a, axis) in AXES.iter().enumerate() {
+                let y: Vec<Vec<Option<f64>>> = levels
+                    .iter()
+                    .map(|l| {
+                        g.iter()
+                            .map(|(_, p)| p.set.get(*l, code).map(|q| value(&q, &origin, a)))
+                            .collect()
+                    })
+                    .filter(|row: &Vec<Option<f64>>| {
+                        row.iter().filter(|v| v.is_some()).count() >= 2
+                    })
+                    .collect();
+                let Ok(t) = stats::friedman_blocked(&y) else {
+                    continue;
+                };
+                if !t.p.is_finite() {
+                    continue;
+                }
+                let names: Vec<String> = g.iter().map(|(n, _)| n.clone()).collect();
+                let posthoc = if t.p < 0.05 {
+                    stats::nemenyi_many_one(&y)
+                        .map(|v| {
+                            v.into_iter()
+                                .map(|m| PostHoc {
+                                    versus: names.get(m.group).cloned().unwrap_or_default(),
+                                    reference: names[0].clone(),
+                                    z: m.z,
+                                    p: m.p,
+                                })
+                                .collect()
+                        })
+                        .unwrap_or_default()
+                } else {
+                    Vec::new()
+                };
+                friedman.push(FriedmanEntry {
+                    kind: kind.clone(),
+                    within: within.clone(),
+                    marker: code,
+                    axis: axis.to_string(),
+                    method: t.method,
+                    statistic: t.statistic,
+                    df: t.df,
+                    p: t.p,
+                    blocks: t.blocks,
+                    groups: names,
+                    posthoc,
+                });
+            }
+        }
+    }
+    let rejected = normality.iter().filter(|n| n.p < 0.05).count();
+    Ok(VariabilityReport {
+        palpations: pals.len(),
+        operators,
+        units: "mm".into(),
+        axes: "X anterior-posterior, Y inferior-superior, Z left-right (OpenSim frame); Euclidean = distance from the grand centroid".into(),
+        landmarks,
+        summary,
+        icc,
+        normality,
+        normality_rejected_at_5pct: rejected,
+        friedman,
+        model_propagation: None,
+        notes: vec![
+            "model_propagation (thesis Tables 5.6 and 5.8: vertebral-centre RMSE, curve RMSE and R2, Cobb angle, lordosis per generated model) is not computed: it needs the patient model generator".into(),
+        ],
+    })
+}
+
+/// SVG box plot of the per-landmark IQRs in X, Y, Z and Euclidean
+/// (thesis Figure 5.5): boxes at the quartiles, median line, whiskers to
+/// the furthest value within 1.5 IQR, outliers as points.
+pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
+    let (w, h) = (560.0, 380.0);
+    let (left, right, top, bottom) = (60.0, 20.0, 40.0, 50.0);
+    let series: Vec<Vec<f64>> = (0..4)
+        .map(|a| {
+            report
+                .landmarks
+                .iter()
+                .map(|l| l.iqr_mm[a])
+                .filter(|v| v.is_finite())
+                .collect()
+        })
+        .collect();
+    let ymax = series
+        .iter()
+        .flatten()
+        .copied()
+        .fold(1.0f64, f64::max)
+        .mul_add(1.1, 0.0)
+        .ceil();
+    let sy = |v: f64| top + (h - top - bottom) * (1.0 - v / ymax);
+    let slot = (w - left - right) / 4.0;
+    let mut s = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{}\" y=\"22\" text-anchor=\"middle\" font-size=\"14\">IQR of repeated palpations per landmark ({} palpations)</text>\n",
+        w / 2.0,
+        report.palpations
+    );
+    // Axis and ticks.
+    s.push_str(&format!(
+        "<line x1=\"{left}\" y1=\"{top}\" x2=\"{left}\" y2=\"{}\" stroke=\"black\"/>\n",
+        h - bottom
+    ));
+    let step = if ymax > 10.0 {
+        (ymax / 5.0).ceil()
+    } else {
+        1.0
+    };
+    let mut t = 0.0;
+    while t <= ymax + 1e-9 {
+        s.push_str(&format!(
+            "<line x1=\"{}\" y1=\"{y:.1}\" x2=\"{left}\" y2=\"{y:.1}\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">{t}</text>\n",
+            left - 4.0,
+            left - 6.0,
+            sy(t) + 4.0,
+            y = sy(t)
+        ));
+        t += step;
+    }
+    s.push_str(&format!(
+        "<text x=\"16\" y=\"{:.1}\" transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">IQR (mm)</text>\n",
+        (top + h - bottom) / 2.0,
+        (top + h - bottom) / 2.0
+    ));
+    for (i, v) in series.iter().enumerate() {
+        let cx = left + slot * (i as f64 + 0.5);
+        s.push_str(&format!(
+            "<text x=\"{cx:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>\n",
+            h - bottom + 18.0,
+            AXES[i]
+        ));
+        let (Some(q1), Some(q2), Some(q3)) = (
+            stats::quantile(v, 0.25),
+            stats::quantile(v, 0.5),
+            stats::quantile(v, 0.75),
+        ) else {
+            continue;
+        };
+        let iqr = q3 - q1;
+        let lo = v
+            .iter()
+            .copied()
+            .filter(|x| *x >= q1 - 1.5 * iqr)
+            .fold(f64::INFINITY, f64::min);
+        let hi = v
+            .iter()
+            .copied()
+            .filter(|x| *x <= q3 + 1.5 * iqr)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let bw = slot * 0.5;
+        s.push_str(&format!(
+            "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{bw:.1}\" height=\"{:.1}\" fill=\"#9ecae1\" stroke=\"black\"/>\n",
+            cx - bw / 2.0,
+            sy(q3),
+            (sy(q1) - sy(q3)).max(0.5)
+        ));
+        s.push_str(&format!(
+            "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"black\" stroke-width=\"2\"/>\n",
+            cx - bw / 2.0,
+            sy(q2),
+            cx + bw / 2.0,
+            sy(q2)
+        ));
+        for (a, b) in [(q3, hi), (q1, lo)] {
+            s.push_str(&format!(
+                "<line x1=\"{cx:.1}\" y1=\"{:.1}\" x2=\"{cx:.1}\" y2=\"{:.1}\" stroke=\"black\"/><line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"black\"/>\n",
+                sy(a),
+                sy(b),
+                cx - bw / 4.0,
+                sy(b),
+                cx + bw / 4.0,
+                sy(b)
+            ));
+        }
+        for x in v.iter().filter(|x| **x < lo || **x > hi) {
+            s.push_str(&format!(
+                "<circle cx=\"{cx:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"none\" stroke=\"#d62728\"/>\n",
+                sy(*x)
+            ));
+        }
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+/// Compute everything, then write `variability.json` and `iqr_boxplot.svg`
+/// into `out_dir` (atomically, nothing written on error).
+pub fn run(paths: &[PathBuf], out_dir: &Path) -> Result<VariabilityReport> {
+    let pals = load_palpations(paths)?;
+    let report = analyse(&pals)?;
+    let json = serde_json::to_string_pretty(&report)
+        .map_err(|e| Error::invalid("variability report", e.to_string()))?;
+    let svg = iqr_boxplot_svg(&report);
+    write_atomic(&out_dir.join("variability.json"), json.as_bytes())?;
+    write_atomic(&out_dir.join("iqr_boxplot.svg"), svg.as_bytes())?;
+    Ok(report)
+}

@@ -5,9 +5,11 @@
 //! * [`icp`] / [`icp_mesh`]: iterative closest point onto a target surface
 //!   (a [`MeshQuery`]) without correspondences. The initial alignment tries
 //!   the 24 proper signed permutations of the principal-axis frames (a short
-//!   trimmed point-to-point ICP on a subsample for each) and keeps the best;
-//!   the refinement then combines point-to-plane and point-to-point terms,
-//!   rejecting the worst pairs (trimmed ICP) so that partial overlap works.
+//!   refinement on a subsample for each, then full refinement of the best
+//!   few) and keeps the lowest trimmed RMS. Each refinement step solves the
+//!   linearised point-to-plane problem plus a lightly weighted point-to-point
+//!   term, rejecting the worst pairs (trimmed ICP) so that partial overlap
+//!   works.
 //! * [`Residuals`]: surface-distance statistics (RMS, max, percentiles).
 //! * [`gpa`] / [`gpa_meshes`]: generalised Procrustes analysis of shapes in
 //!   vertex correspondence, giving the mean shape.
@@ -224,8 +226,11 @@ pub struct IcpOptions {
     pub initial: Option<Similarity>,
     /// Source points used for the initial-alignment search.
     pub search_points: usize,
-    /// Iterations of point-to-point ICP per initial candidate.
+    /// Refinement iterations per initial candidate on the subsample.
     pub search_iterations: usize,
+    /// Candidates (best after the subsample stage) refined fully; the one
+    /// with the lowest trimmed RMS wins.
+    pub search_keep: usize,
 }
 
 impl Default for IcpOptions {
@@ -237,7 +242,8 @@ impl Default for IcpOptions {
             tolerance: 1e-10,
             initial: None,
             search_points: 400,
-            search_iterations: 15,
+            search_iterations: 30,
+            search_keep: 4,
         }
     }
 }
@@ -284,8 +290,8 @@ fn icp_impl(
     if !(opts.keep_fraction > 0.0 && opts.keep_fraction <= 1.0) {
         return Err(Error::invalid(ctx, "keep_fraction must be in (0, 1]"));
     }
-    let start = match opts.initial {
-        Some(t) => t,
+    let (transform, trimmed_rms, iterations) = match opts.initial {
+        Some(t) => refine(source, target, t, opts, opts.max_iterations),
         None => {
             let tgt_axes = target
                 .mesh()
@@ -293,17 +299,28 @@ fn icp_impl(
                 .ok_or_else(|| Error::invalid(ctx, "the target mesh has no area"))?;
             let step = source.len().div_ceil(opts.search_points.max(3));
             let sub: Vec<Point3<f64>> = source.iter().step_by(step.max(1)).copied().collect();
-            let mut best: Option<(f64, Similarity)> = None;
-            for cand in pca_candidates(src_axes, &tgt_axes, opts.allow_scale) {
-                let (t, rms) = point_to_point(&sub, target, cand, opts, opts.search_iterations);
-                if best.is_none_or(|(b, _)| rms < b) {
-                    best = Some((rms, t));
+            // Short refinement from every candidate on a subsample...
+            let mut coarse: Vec<(f64, usize, Similarity)> =
+                pca_candidates(src_axes, &tgt_axes, opts.allow_scale)
+                    .into_iter()
+                    .enumerate()
+                    .map(|(k, cand)| {
+                        let (t, rms, _) = refine(&sub, target, cand, opts, opts.search_iterations);
+                        (rms, k, t)
+                    })
+                    .collect();
+            coarse.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            // ...then full refinement of the most promising ones.
+            let mut best: Option<(Similarity, f64, usize)> = None;
+            for (_, _, t) in coarse.iter().take(opts.search_keep.max(1)) {
+                let r = refine(source, target, *t, opts, opts.max_iterations);
+                if best.is_none_or(|b| r.1 < b.1) {
+                    best = Some(r);
                 }
             }
-            best.map(|b| b.1).unwrap_or_default()
+            best.ok_or_else(|| Error::numerical(ctx, "no initial alignment"))?
         }
     };
-    let (transform, trimmed_rms, iterations) = refine(source, target, start, opts);
     let moved: Vec<Point3<f64>> = source.iter().map(|p| transform.apply(p)).collect();
     Ok(IcpResult {
         transform,
@@ -361,32 +378,6 @@ fn kept(d: &[f64], keep: f64) -> Vec<usize> {
     idx
 }
 
-/// Trimmed point-to-point ICP (closed-form step each iteration). Returns
-/// the transform and the trimmed RMS.
-fn point_to_point(
-    src: &[Point3<f64>],
-    target: &MeshQuery,
-    mut t: Similarity,
-    opts: &IcpOptions,
-    iterations: usize,
-) -> (Similarity, f64) {
-    let mut rms = f64::INFINITY;
-    for _ in 0..=iterations {
-        let moved: Vec<Point3<f64>> = src.iter().map(|p| t.apply(p)).collect();
-        let hits: Vec<_> = moved.iter().map(|p| target.closest_point(p)).collect();
-        let d: Vec<f64> = hits.iter().map(|h| h.t).collect();
-        let keep = kept(&d, opts.keep_fraction);
-        rms = (keep.iter().map(|&i| d[i] * d[i]).sum::<f64>() / keep.len() as f64).sqrt();
-        let a: Vec<Point3<f64>> = keep.iter().map(|&i| src[i]).collect();
-        let b: Vec<Point3<f64>> = keep.iter().map(|&i| hits[i].point).collect();
-        match umeyama(&a, &b, opts.allow_scale) {
-            Ok(n) => t = n,
-            Err(_) => break,
-        }
-    }
-    (t, rms)
-}
-
 /// Refinement: linearised point-to-plane + weighted point-to-point steps
 /// about the current centroid, on the kept pairs.
 fn refine(
@@ -394,13 +385,14 @@ fn refine(
     target: &MeshQuery,
     mut t: Similarity,
     opts: &IcpOptions,
+    max_iterations: usize,
 ) -> (Similarity, f64, usize) {
     const W_POINT: f64 = 0.1;
     let mut prev = f64::INFINITY;
     let mut rms = f64::INFINITY;
     let mut iters = 0;
     let npar = if opts.allow_scale { 7 } else { 6 };
-    for it in 0..opts.max_iterations {
+    for it in 0..max_iterations {
         iters = it + 1;
         let moved: Vec<Point3<f64>> = src.iter().map(|p| t.apply(p)).collect();
         let hits: Vec<_> = moved.iter().map(|p| target.closest_point(p)).collect();
@@ -412,7 +404,7 @@ fn refine(
             .bounds()
             .map(|(lo, hi)| (hi - lo).norm())
             .unwrap_or(1.0);
-        if rms <= 1e-13 * scale_len || (prev - rms) <= opts.tolerance * prev {
+        if rms <= 1e-13 * scale_len || (prev.is_finite() && prev - rms <= opts.tolerance * prev) {
             break;
         }
         prev = rms;
@@ -472,7 +464,7 @@ fn refine(
             translation: c + dt - s * (rot * c),
             scale: s,
         };
-        if !(s > 0.0) {
+        if s.is_nan() || s <= 0.0 {
             break;
         }
         t = step.compose(&t);

@@ -444,7 +444,7 @@ fn read_piece(ctx: &Ctx, piece: &Elem, p: usize) -> Result<TriMesh> {
             ));
         }
         let vals = read_array(ctx, da, &aloc, Some(3 * n_points))?;
-        let vals = vals.as_f64();
+        let vals = vals.into_f64();
         vertices.reserve(n_points);
         for (i, c) in vals.chunks_exact(3).enumerate() {
             let pt = Point3::new(c[0], c[1], c[2]);
@@ -490,7 +490,7 @@ fn read_piece(ctx: &Ctx, piece: &Elem, p: usize) -> Result<TriMesh> {
             } else {
                 None
             };
-            read_array(ctx, da, &aloc, expected)?.as_i64(name, &aloc)
+            read_array(ctx, da, &aloc, expected)?.into_i64(name, &aloc)
         };
         let conn = get("connectivity")?;
         let offs = get("offsets")?;
@@ -566,13 +566,13 @@ enum Values {
 }
 
 impl Values {
-    fn as_f64(self) -> Vec<f64> {
+    fn into_f64(self) -> Vec<f64> {
         match self {
             Values::F(v) => v,
             Values::I(v) => v.into_iter().map(|x| x as f64).collect(),
         }
     }
-    fn as_i64(self, name: &Path, loc: &str) -> Result<Vec<i64>> {
+    fn into_i64(self, name: &Path, loc: &str) -> Result<Vec<i64>> {
         match self {
             Values::I(v) => Ok(v),
             Values::F(_) => Err(Error::parse(

@@ -133,11 +133,9 @@ impl CubicSpline {
         self.d = d;
     }
 
-    /// Segment index for an abscissa strictly inside (x0, x_{n-1}).
+    /// Segment index for an abscissa inside [x0, x_{n-1}].
     fn segment(&self, x: f64) -> usize {
-        // First knot strictly greater than x, minus one.
-        let k = self.x.partition_point(|&xi| xi <= x);
-        k.saturating_sub(1).min(self.x.len().saturating_sub(2))
+        opensim_segment(&self.x, x)
     }
 
     /// Derivative of order 0, 1 or 2.
@@ -356,6 +354,35 @@ impl Function {
     }
 }
 
+/// The segment k (x_k <= x <= x_k+1) OpenSim's bisection picks for x inside
+/// the knots. At an interior knot either neighbour qualifies and the choice
+/// depends on the bisection path; slopes of piecewise-linear functions differ
+/// there, so the same path is followed.
+fn opensim_segment(xs: &[f64], x: f64) -> usize {
+    let n = xs.len();
+    if n < 3 {
+        return 0;
+    }
+    let (mut lo, mut hi) = (0usize, n);
+    for _ in 0..64 {
+        let k = (lo + hi) / 2;
+        if k + 1 >= n {
+            return n - 2;
+        }
+        if x < xs[k] {
+            hi = k;
+        } else if x > xs[k + 1] {
+            lo = k;
+        } else {
+            return k;
+        }
+    }
+    // Unsorted knots (refused by the reader) could loop: fall back.
+    xs.partition_point(|&xi| xi <= x)
+        .saturating_sub(1)
+        .min(n - 2)
+}
+
 fn piecewise_linear(xs: &[f64], ys: &[f64], x: f64, order: usize) -> f64 {
     let n = xs.len();
     if n == 0 {
@@ -364,11 +391,14 @@ fn piecewise_linear(xs: &[f64], ys: &[f64], x: f64, order: usize) -> f64 {
     if n == 1 {
         return if order == 0 { ys[0] } else { 0.0 };
     }
-    // Segment: clamp to the first/last for extrapolation.
-    let k = xs
-        .partition_point(|&xi| xi <= x)
-        .saturating_sub(1)
-        .min(n - 2);
+    // Outside the knots the first/last segment extrapolates.
+    let k = if x < xs[0] {
+        0
+    } else if x > xs[n - 1] {
+        n - 2
+    } else {
+        opensim_segment(xs, x)
+    };
     let dx = xs[k + 1] - xs[k];
     let slope = if dx > 0.0 {
         (ys[k + 1] - ys[k]) / dx

@@ -632,7 +632,9 @@ fn write_misc(node: &Node, depth: usize, out: &mut String) {
             out.push_str("?>");
         }
         Node::CData(c) => write_cdata(c, out),
-        Node::Text(t) => escape_text(t, out),
+        // Text beside elements (mixed content): its surrounding whitespace is
+        // formatting, regenerated here, so the writer is a fixed point.
+        Node::Text(t) => escape_text(t.trim(), out),
         Node::Element(e) => write_element(e, depth, out),
     }
     out.push('\n');

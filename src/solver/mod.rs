@@ -1,2 +1,37 @@
 //! Rigid-body solver: an immutable system description built from a model and
 //! a reusable workspace; statics (Newton) and forward dynamics.
+//!
+//! | file | what lives there |
+//! |---|---|
+//! | `spec` | [`SystemSpec`] (bodies, joints, coordinates, bushings, gravity) and [`Load`] |
+//! | `system` | [`System`] (validated, parent-before-child), [`Workspace`] (scratch) |
+//! | `scalar`, `function` | scalar types (f64, dual numbers) and transform-axis functions |
+//! | `kinematics` | body poses and motion subspaces, generic over the scalar |
+//! | `forces` | gravity, bushings (OpenSim 4.6 BushingForce), loads, projection |
+//! | `statics` | Newton equilibrium with exact tangent, sensitivities |
+//! | `dynamics` | mass matrix, generalised accelerations, implicit integrator, energy |
+//! | `from_model` | adapter from an OpenSim model document |
+//! | `output` | body poses, bushing records, .sto and JSON writers |
+
+pub mod dynamics;
+pub mod examples;
+pub mod forces;
+pub mod from_model;
+pub mod function;
+pub mod kinematics;
+pub mod output;
+pub mod scalar;
+pub mod spec;
+pub mod statics;
+pub mod system;
+
+pub use forces::{LoadSet, GIMBAL_LIMIT};
+pub use spec::{
+    BodySpec, BushingModel, BushingSpec, CoordinateSpec, FrameSpec, Function, JointKind, JointSpec,
+    Load, LoadFrame, SystemSpec, TransformAxis,
+};
+pub use statics::{StaticOptions, StaticSolution};
+pub use system::{Pose, System, Workspace};
+
+#[cfg(test)]
+mod tests;

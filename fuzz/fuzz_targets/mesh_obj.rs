@@ -1,0 +1,12 @@
+//! Fuzz the OBJ reader: any bytes must give Ok(valid mesh) or Err, never a
+//! panic, hang or huge allocation.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use std::path::Path;
+
+fuzz_target!(|data: &[u8]| {
+    if let Ok(m) = osim_spine::mesh::obj::read_bytes(data, Path::new("fuzz.obj")) {
+        m.validate().expect("reader returned an invalid mesh");
+    }
+});

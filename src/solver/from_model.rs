@@ -1,0 +1,286 @@
+//! Adapter from the typed OpenSim model ([`crate::osim::model::Model`]) to
+//! the solver's [`SystemSpec`]: bodies, joints (WeldJoint, PinJoint,
+//! UniversalJoint, SliderJoint, BallJoint, FreeJoint, CustomJoint with any
+//! axes and functions), coordinates (mapped by name), BushingForces, gravity.
+//! Muscles and other force elements contribute no force to the solver; see
+//! [`ignored_forces`]. Coordinate coupler constraints are not enforced.
+
+use super::spec::*;
+use crate::error::{Error, Result};
+use crate::osim::function::Function as OFunction;
+use crate::osim::model::{Force, JointKind as OJointKind, Model};
+use nalgebra::{Matrix3, Vector3};
+use std::collections::BTreeMap;
+
+fn convert_function(f: &OFunction, ctx: &str) -> Result<Function> {
+    Ok(match f {
+        OFunction::Constant(c) => Function::Constant(*c),
+        OFunction::Linear { slope, intercept } => Function::Linear {
+            slope: *slope,
+            intercept: *intercept,
+        },
+        OFunction::Polynomial(c) => Function::Polynomial(c.clone()),
+        OFunction::Multiplier { scale, inner } => Function::Multiplier {
+            scale: *scale,
+            inner: Box::new(convert_function(inner, ctx)?),
+        },
+        OFunction::PiecewiseLinear { x, y } => Function::PiecewiseLinear {
+            x: x.clone(),
+            y: y.clone(),
+        },
+        OFunction::Spline { spline, .. } => {
+            // Coefficients of OpenSim's spline from its value and first two
+            // derivatives at the knots (the spline is C2).
+            let xs = spline.x.clone();
+            let n = xs.len();
+            if n < 2 {
+                return Err(Error::invalid(ctx, "spline with fewer than 2 points"));
+            }
+            let y: Vec<f64> = xs.iter().map(|&x| spline.eval_order(x, 0)).collect();
+            let b: Vec<f64> = xs.iter().map(|&x| spline.eval_order(x, 1)).collect();
+            let c: Vec<f64> = xs.iter().map(|&x| 0.5 * spline.eval_order(x, 2)).collect();
+            let mut d = vec![0.0; n];
+            for k in 0..n - 1 {
+                let h = xs[k + 1] - xs[k];
+                d[k] = if h > 0.0 {
+                    (c[k + 1] - c[k]) / (3.0 * h)
+                } else {
+                    0.0
+                };
+            }
+            d[n - 1] = if n >= 2 { d[n - 2] } else { 0.0 };
+            let mut y = y;
+            // knot values as given
+            for (yk, sy) in y.iter_mut().zip(&spline.y) {
+                *yk = *sy;
+            }
+            Function::Cubic { x: xs, y, b, c, d }
+        }
+        OFunction::Unsupported { class } => {
+            return Err(Error::invalid(
+                ctx,
+                format!("function class {class} is not supported by the solver"),
+            ));
+        }
+    })
+}
+
+/// Names (class: name) of force elements the solver does not apply.
+pub fn ignored_forces(model: &Model) -> Vec<String> {
+    model
+        .forces
+        .iter()
+        .filter(|f| !matches!(f, Force::Bushing(_)))
+        .map(|f| format!("{}: {}", f.class(), f.name()))
+        .collect()
+}
+
+impl SystemSpec {
+    /// Build the solver description of an OpenSim model.
+    pub fn from_model(model: &Model) -> Result<SystemSpec> {
+        let file = model.file.display().to_string();
+        let mut body_idx: BTreeMap<&str, usize> = BTreeMap::new();
+        let mut bodies = Vec::with_capacity(model.bodies.len());
+        for (i, b) in model.bodies.iter().enumerate() {
+            let [ixx, iyy, izz, ixy, ixz, iyz] = b.inertia;
+            let inertia = Matrix3::new(ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz);
+            body_idx.insert(b.name.as_str(), i);
+            bodies.push(BodySpec {
+                name: b.name.clone(),
+                mass: b.mass,
+                com: b.mass_center,
+                inertia,
+            });
+        }
+        let mut coordinates = Vec::new();
+        let mut coord_idx: BTreeMap<String, usize> = BTreeMap::new();
+        for c in model.coordinates() {
+            coord_idx.insert(c.name.clone(), coordinates.len());
+            coordinates.push(CoordinateSpec {
+                name: c.name.clone(),
+                default: c.default_value,
+                range: c.range,
+                clamped: c.clamped,
+                locked: c.locked,
+            });
+        }
+        let frames = model.joint_frames()?;
+        let mut joints = Vec::with_capacity(model.joints.len());
+        for (j, fr) in model.joints.iter().zip(&frames) {
+            let ctx = format!("{file}: joint '{}'", j.name);
+            let body =
+                |name: &str| -> Result<Option<usize>> {
+                    if name == "ground" {
+                        return Ok(None);
+                    }
+                    body_idx.get(name).copied().map(Some).ok_or_else(|| {
+                        Error::invalid(ctx.clone(), format!("body '{name}' not found"))
+                    })
+                };
+            let parent = body(&fr.parent_body)?;
+            let Some(child) = body(&fr.child_body)? else {
+                return Err(Error::invalid(ctx, "a joint's child frame may not be on ground (reversed joints are not supported)"));
+            };
+            let own: Vec<usize> = j
+                .coordinates
+                .iter()
+                .map(|c| {
+                    coord_idx.get(&c.name).copied().ok_or_else(|| {
+                        Error::invalid(ctx.clone(), format!("coordinate '{}' not found", c.name))
+                    })
+                })
+                .collect::<Result<_>>()?;
+            let need = |n: usize| -> Result<()> {
+                if own.len() != n {
+                    return Err(Error::invalid(
+                        ctx.clone(),
+                        format!("{} needs {n} coordinates, has {}", j.class, own.len()),
+                    ));
+                }
+                Ok(())
+            };
+            let x = Vector3::x();
+            let y = Vector3::y();
+            let z = Vector3::z();
+            let kind = match (&j.kind, j.class.as_str()) {
+                (OJointKind::Weld, _) => JointKind::Weld,
+                (OJointKind::Pin, _) => {
+                    need(1)?;
+                    JointKind::Pin { coord: own[0] }
+                }
+                (OJointKind::Free, _) => {
+                    need(6)?;
+                    JointKind::Free {
+                        coords: [own[0], own[1], own[2], own[3], own[4], own[5]],
+                    }
+                }
+                (OJointKind::Custom { axes }, _) => {
+                    if axes.len() != 6 {
+                        return Err(Error::invalid(
+                            ctx,
+                            format!(
+                                "SpatialTransform needs 6 transform axes, has {}",
+                                axes.len()
+                            ),
+                        ));
+                    }
+                    let mut out = Vec::with_capacity(6);
+                    for ta in axes {
+                        let actx = format!("{ctx}: {}", ta.name);
+                        let coord = match ta.coordinates.as_slice() {
+                            [] => None,
+                            [c] => Some(*coord_idx.get(c).ok_or_else(|| {
+                                Error::invalid(actx.clone(), format!("coordinate '{c}' not found"))
+                            })?),
+                            _ => return Err(Error::invalid(
+                                actx,
+                                "transform axes driven by several coordinates are not supported",
+                            )),
+                        };
+                        let function = convert_function(&ta.function, &actx)?;
+                        out.push(TransformAxis {
+                            axis: ta.axis,
+                            coord,
+                            function,
+                        });
+                    }
+                    let arr: [TransformAxis; 6] = out
+                        .try_into()
+                        .map_err(|_| Error::invalid(ctx.clone(), "needs 6 axes"))?;
+                    JointKind::Custom {
+                        axes: Box::new(arr),
+                    }
+                }
+                (OJointKind::Other, "UniversalJoint") => {
+                    need(2)?;
+                    JointKind::Universal {
+                        coords: [own[0], own[1]],
+                    }
+                }
+                (OJointKind::Other, "SliderJoint") => {
+                    need(1)?;
+                    JointKind::Slider { coord: own[0] }
+                }
+                (OJointKind::Other, "BallJoint") => {
+                    need(3)?;
+                    JointKind::Custom {
+                        axes: Box::new([
+                            TransformAxis::identity(x, own[0]),
+                            TransformAxis::identity(y, own[1]),
+                            TransformAxis::identity(z, own[2]),
+                            TransformAxis::fixed(x),
+                            TransformAxis::fixed(y),
+                            TransformAxis::fixed(z),
+                        ]),
+                    }
+                }
+                (_, class) => {
+                    return Err(Error::invalid(
+                        ctx,
+                        format!("joint class {class} is not supported by the solver"),
+                    ))
+                }
+            };
+            joints.push(JointSpec {
+                name: j.name.clone(),
+                parent,
+                child,
+                x_pf: fr.parent_in_body,
+                x_bm: fr.child_in_body,
+                kind,
+            });
+        }
+        let mut bushings = Vec::new();
+        for f in &model.forces {
+            match f {
+                Force::Bushing(b) => {
+                    let owner = format!("/forceset/{}", b.name);
+                    let ctx = format!("{file}: BushingForce '{}'", b.name);
+                    let frame = |socket: &str| -> Result<FrameSpec> {
+                        let (bn, x) = model.resolve_frame(&owner, socket)?;
+                        let body = if bn == "ground" {
+                            None
+                        } else {
+                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
+                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
+                            })?)
+                        };
+                        Ok(FrameSpec { body, transform: x })
+                    };
+                    bushings.push(BushingSpec {
+                        name: b.name.clone(),
+                        frame1: frame(&b.socket_frame1)?,
+                        frame2: frame(&b.socket_frame2)?,
+                        model: BushingModel::Linear {
+                            rot_stiffness: b.rotational_stiffness,
+                            trans_stiffness: b.translational_stiffness,
+                            rot_damping: b.rotational_damping,
+                            trans_damping: b.translational_damping,
+                        },
+                    });
+                }
+                Force::OtherBushing(b) => {
+                    return Err(Error::invalid(
+                        format!("{file}: {} '{}'", b.class, b.name),
+                        "this bushing class is not supported by the solver yet (only BushingForce)",
+                    ));
+                }
+                _ => {}
+            }
+        }
+        Ok(SystemSpec {
+            bodies,
+            joints,
+            coordinates,
+            bushings,
+            gravity: model.gravity,
+        })
+    }
+
+    /// Read an .osim file and build its solver description.
+    pub fn read_osim(path: &std::path::Path) -> Result<SystemSpec> {
+        let doc = crate::osim::document::Document::read(path)?;
+        let model = doc.model()?;
+        SystemSpec::from_model(&model)
+    }
+}

@@ -1,0 +1,250 @@
+//! The solver's own input description ([`SystemSpec`]) and the load
+//! description ([`Load`]). A spec is plain data: it says what the multibody
+//! system is, in SI units, with indices instead of names where things refer
+//! to each other. [`crate::solver::System::new`] validates and compiles it.
+//!
+//! Conventions (OpenSim 4.6 / Simbody, see `../shared/oracle/README.md`):
+//! a joint connects frame F (fixed in the parent, pose `x_pf`) and frame M
+//! (fixed in the child, pose `x_bm`); the child pose is
+//! `X_GB = X_GP X_PF X_FM(q) inv(X_BM)`. Every joint kind is a special case
+//! of the six-axis function-based transform of a CustomJoint:
+//! `R_FM = R(a0, f0) R(a1, f1) R(a2, f2)` (each rotation about its axis in the
+//! frame produced by the previous ones) and `p_FM = f3 a3 + f4 a4 + f5 a5`
+//! (along F's axes), with unit axes.
+
+use nalgebra::{Isometry3, Matrix3, Vector3};
+
+/// A whole multibody system: bodies, tree joints, coordinates, bushings, gravity.
+#[derive(Debug, Clone)]
+pub struct SystemSpec {
+    /// Bodies (ground excluded). Index = body id used everywhere in the spec.
+    pub bodies: Vec<BodySpec>,
+    /// Tree joints, one per body (the joint whose child it is), any order.
+    pub joints: Vec<JointSpec>,
+    /// Generalised coordinates referenced by the joints' transform axes.
+    pub coordinates: Vec<CoordinateSpec>,
+    /// Bushing forces between pairs of frames.
+    pub bushings: Vec<BushingSpec>,
+    /// Gravity in ground (m/s^2).
+    pub gravity: Vector3<f64>,
+}
+
+/// A rigid body.
+#[derive(Debug, Clone)]
+pub struct BodySpec {
+    pub name: String,
+    /// kg
+    pub mass: f64,
+    /// Centre of mass in the body frame (m).
+    pub com: Vector3<f64>,
+    /// Inertia about the centre of mass, body axes (kg m^2).
+    pub inertia: Matrix3<f64>,
+}
+
+/// A tree joint between `parent` (None = ground) and `child`.
+#[derive(Debug, Clone)]
+pub struct JointSpec {
+    pub name: String,
+    pub parent: Option<usize>,
+    pub child: usize,
+    /// Pose of the joint frame F in the parent body (X_PF).
+    pub x_pf: Isometry3<f64>,
+    /// Pose of the joint frame M in the child body (X_BM).
+    pub x_bm: Isometry3<f64>,
+    pub kind: JointKind,
+}
+
+/// Joint kinds. All of them are lowered to six transform axes.
+#[derive(Debug, Clone)]
+pub enum JointKind {
+    /// No relative motion.
+    Weld,
+    /// Rotation about F's Z axis (OpenSim PinJoint).
+    Pin { coord: usize },
+    /// Rotation about X then about the new Y (OpenSim UniversalJoint).
+    Universal { coords: [usize; 2] },
+    /// Translation along F's X axis (OpenSim SliderJoint).
+    Slider { coord: usize },
+    /// Body-fixed X-Y-Z rotations then translation along F's axes. The
+    /// generalised speeds here are the coordinate rates (OpenSim's FreeJoint
+    /// uses the angular velocity instead; positions and equilibria are the same).
+    Free { coords: [usize; 6] },
+    /// OpenSim CustomJoint: rotation1..3 then translation1..3.
+    Custom { axes: Box<[TransformAxis; 6]> },
+}
+
+/// One of a CustomJoint's six transform axes.
+#[derive(Debug, Clone)]
+pub struct TransformAxis {
+    /// Axis direction (normalised when the system is built).
+    pub axis: Vector3<f64>,
+    /// Coordinate driving the function, or None for a constant function.
+    pub coord: Option<usize>,
+    /// Function of the coordinate giving the angle (rad) or displacement (m).
+    pub function: Function,
+}
+
+impl TransformAxis {
+    /// An axis driven one-to-one by a coordinate.
+    pub fn identity(axis: Vector3<f64>, coord: usize) -> Self {
+        TransformAxis {
+            axis,
+            coord: Some(coord),
+            function: Function::Linear {
+                slope: 1.0,
+                intercept: 0.0,
+            },
+        }
+    }
+    /// An axis that does not move.
+    pub fn fixed(axis: Vector3<f64>) -> Self {
+        TransformAxis {
+            axis,
+            coord: None,
+            function: Function::Constant(0.0),
+        }
+    }
+}
+
+/// Scalar functions of one coordinate, as OpenSim's transform axes use them.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Function {
+    Constant(f64),
+    Linear {
+        slope: f64,
+        intercept: f64,
+    },
+    /// `scale * inner(x)` (OpenSim MultiplierFunction).
+    Multiplier {
+        scale: f64,
+        inner: Box<Function>,
+    },
+    /// Piecewise cubic `y_i + b_i dx + c_i dx^2 + d_i dx^3` with `dx = x - x_i`
+    /// on `[x_i, x_{i+1}]`, extrapolated with the end intervals' cubics
+    /// (SimmSpline / NaturalCubicSpline coefficients, computed by the adapter).
+    Cubic {
+        x: Vec<f64>,
+        y: Vec<f64>,
+        b: Vec<f64>,
+        c: Vec<f64>,
+        d: Vec<f64>,
+    },
+    /// Piecewise linear through the points; linear extrapolation with the end slopes.
+    PiecewiseLinear {
+        x: Vec<f64>,
+        y: Vec<f64>,
+    },
+    /// `sum_i c_i x^(n-1-i)` (highest power first, like OpenSim PolynomialFunction).
+    Polynomial(Vec<f64>),
+}
+
+/// A generalised coordinate.
+#[derive(Debug, Clone)]
+pub struct CoordinateSpec {
+    pub name: String,
+    /// Default value (rad or m); locked coordinates are held here.
+    pub default: f64,
+    /// Allowed range [min, max].
+    pub range: [f64; 2],
+    /// When true, a result outside `range` is reported.
+    pub clamped: bool,
+    /// When true, the coordinate is held at `default` (no degree of freedom).
+    pub locked: bool,
+}
+
+/// A frame fixed in a body (None = ground) at a transform.
+#[derive(Debug, Clone)]
+pub struct FrameSpec {
+    pub body: Option<usize>,
+    /// X_BF: the frame's pose in its body.
+    pub transform: Isometry3<f64>,
+}
+
+/// A bushing force between frame 1 (F) and frame 2 (M).
+#[derive(Debug, Clone)]
+pub struct BushingSpec {
+    pub name: String,
+    pub frame1: FrameSpec,
+    pub frame2: FrameSpec,
+    pub model: BushingModel,
+}
+
+/// Bushing force laws acting on the deflection vector
+/// `(rx, ry, rz, tx, ty, tz)`: body-fixed X-Y-Z angles of frame 2 in frame 1
+/// and the origin of frame 2 in frame 1. New laws (a monotone curve per DoF
+/// as FunctionBasedBushingForce computes it, a coupled 6x6 stiffness) are new
+/// variants: the kinematics and the way the generalised force is applied
+/// (moment through the transpose of the angle-rate map) stay the same.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum BushingModel {
+    /// OpenSim BushingForce: `f = -(K q + C q')` element by element.
+    Linear {
+        /// Nm/rad about the X, Y, Z deflection angles.
+        rot_stiffness: Vector3<f64>,
+        /// N/m along X, Y, Z of frame 1.
+        trans_stiffness: Vector3<f64>,
+        /// Nm/(rad/s)
+        rot_damping: Vector3<f64>,
+        /// N/(m/s)
+        trans_damping: Vector3<f64>,
+    },
+}
+
+impl BushingModel {
+    /// Number of stiffness parameters the law exposes for sensitivities.
+    pub fn n_stiffness_params(&self) -> usize {
+        match self {
+            BushingModel::Linear { .. } => 6,
+        }
+    }
+    /// Stiffness parameters in deflection order (rx, ry, rz, tx, ty, tz).
+    pub fn stiffness_params(&self) -> [f64; 6] {
+        match self {
+            BushingModel::Linear {
+                rot_stiffness: r,
+                trans_stiffness: t,
+                ..
+            } => [r.x, r.y, r.z, t.x, t.y, t.z],
+        }
+    }
+}
+
+/// Axes in which a load vector is given.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LoadFrame {
+    /// Fixed ground axes.
+    Ground,
+    /// The loaded body's axes (the load turns with the body).
+    Body,
+}
+
+/// An external load. Bodies are named; [`crate::solver::System::prepare_loads`]
+/// resolves them (unknown names are an error).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Load {
+    /// A pure moment (N m).
+    Moment {
+        body: String,
+        vec: Vector3<f64>,
+        frame: LoadFrame,
+    },
+    /// A force (N) at a point fixed in the body (body frame, m).
+    Force {
+        body: String,
+        point_in_body: Vector3<f64>,
+        vec: Vector3<f64>,
+        frame: LoadFrame,
+    },
+    /// Compressive follower load (N) at every joint on the tree path between
+    /// `from_body` (the fixed one) and `to_body` (the loaded one), as defined
+    /// in `../shared/formats/experiment.md`: along the line between a guide
+    /// point 10 mm cranial (joint frame +Y) of the joint centre fixed in the
+    /// upper (child) body and one 10 mm caudal fixed in the lower (parent)
+    /// body, both placed in the default pose.
+    Follower {
+        from_body: String,
+        to_body: String,
+        magnitude: f64,
+    },
+}

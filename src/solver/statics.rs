@@ -1,0 +1,353 @@
+//! Static equilibrium: Newton's method on the generalised applied force
+//! `tau(q) = 0` (gravity, bushings, loads; speeds zero), with the exact
+//! tangent `d tau / d q` from forward-mode dual numbers (one pass per joint,
+//! six directions at once), a step cap on rotations and a backtracking line
+//! search on `||tau||`. Converges on residual AND step; failures (no
+//! equilibrium, gimbal lock, singular tangent) are errors, never NaN.
+
+use super::forces::{self, GimbalLock, LoadSet};
+use super::kinematics;
+use super::scalar::{d6_eps, d6_var, Scalar, D6};
+use super::system::{KinBuf, System, Workspace};
+use crate::error::{Error, Result};
+use nalgebra::{DMatrix, DVector, Vector3};
+
+/// Options of the static solver.
+#[derive(Debug, Clone, Copy)]
+pub struct StaticOptions {
+    /// Maximum Newton iterations.
+    pub max_iterations: usize,
+    /// Converged when the largest generalised force residual (N or N m) is below this ...
+    pub residual_tol: f64,
+    /// ... and the largest Newton step component (rad or m) is below this.
+    pub step_tol: f64,
+    /// Largest change of a rotational coordinate in one step (rad).
+    pub max_rotation_step: f64,
+}
+
+impl Default for StaticOptions {
+    fn default() -> Self {
+        StaticOptions {
+            max_iterations: 200,
+            residual_tol: 1e-9,
+            step_tol: 1e-10,
+            max_rotation_step: 0.5,
+        }
+    }
+}
+
+/// A static equilibrium.
+#[derive(Debug, Clone)]
+pub struct StaticSolution {
+    /// Free dofs at equilibrium (see [`System::full_coordinates`]).
+    pub q: DVector<f64>,
+    /// Newton iterations taken.
+    pub iterations: usize,
+    /// Largest |generalised force| at `q`.
+    pub residual_norm: f64,
+}
+
+fn inf_norm(v: &[f64]) -> f64 {
+    v.iter().fold(0.0f64, |m, x| m.max(x.abs()))
+}
+fn two_norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+pub(crate) fn eval_tau<T: Scalar>(
+    sys: &System,
+    loads: &LoadSet,
+    kb: &mut KinBuf<T>,
+) -> Result<(), GimbalLock> {
+    kinematics::forward(sys, kb);
+    forces::static_wrenches(sys, loads, kb)?;
+    forces::project(sys, kb);
+    forces::add_fast_bushings(sys, &kb.q, None, &mut kb.tau)?;
+    Ok(())
+}
+
+impl System {
+    /// Generalised applied force at `q` with zero speeds (gravity, bushing
+    /// stiffness, loads): the static residual. Returned slice lives in `ws`.
+    pub fn static_residual<'w>(
+        &self,
+        q: &[f64],
+        loads: &LoadSet,
+        ws: &'w mut Workspace,
+    ) -> Result<&'w [f64]> {
+        self.check_q(q)?;
+        ws.k64.q.copy_from_slice(q);
+        eval_tau(self, loads, &mut ws.k64).map_err(|g| g.to_error(self))?;
+        Ok(&ws.k64.tau)
+    }
+
+    pub(crate) fn check_q(&self, q: &[f64]) -> Result<()> {
+        if q.len() != self.n_dofs() {
+            return Err(Error::invalid(
+                "solver",
+                format!("expected {} coordinates, got {}", self.n_dofs(), q.len()),
+            ));
+        }
+        if let Some(i) = q.iter().position(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                "solver",
+                format!("coordinate '{}' is not finite", self.dof_name(i)),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Fill `ws.lu.a` with the tangent `d tau / d q` at `q` (not factorised).
+    pub(crate) fn eval_tangent(
+        &self,
+        q: &[f64],
+        loads: &LoadSet,
+        ws: &mut Workspace,
+    ) -> Result<(), GimbalLock> {
+        for bi in 0..self.bodies.len() {
+            let j = &self.bodies[bi].joint;
+            if j.dof_count == 0 {
+                continue;
+            }
+            for (i, qi) in q.iter().enumerate() {
+                ws.kd6.q[i] = D6::from_re(*qi);
+            }
+            for k in 0..j.dof_count.min(6) {
+                let i = j.dof_start + k;
+                ws.kd6.q[i] = d6_var(q[i], k);
+            }
+            eval_tau(self, loads, &mut ws.kd6)?;
+            for (row, t) in ws.kd6.tau.iter().enumerate() {
+                let e = d6_eps(t);
+                for k in 0..j.dof_count.min(6) {
+                    ws.lu.a[(row, j.dof_start + k)] = e[k];
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The tangent `d tau / d q` at `q` as a new matrix (for inspection and tests).
+    pub fn static_tangent(
+        &self,
+        q: &[f64],
+        loads: &LoadSet,
+        ws: &mut Workspace,
+    ) -> Result<DMatrix<f64>> {
+        self.check_q(q)?;
+        self.eval_tangent(q, loads, ws)
+            .map_err(|g| g.to_error(self))?;
+        ws.jac_valid = false;
+        Ok(ws.lu.a.clone())
+    }
+
+    /// Solve for static equilibrium from the start `q0` (e.g. the default
+    /// pose or a previous solution: warm start).
+    pub fn solve_static(
+        &self,
+        loads: &LoadSet,
+        q0: &[f64],
+        ws: &mut Workspace,
+        opts: &StaticOptions,
+    ) -> Result<StaticSolution> {
+        self.check_q(q0)?;
+        let n = self.n_dofs();
+        let ctx = "static equilibrium";
+        ws.jac_valid = false;
+        let mut q: Vec<f64> = q0.to_vec();
+        ws.k64.q.copy_from_slice(&q);
+        eval_tau(self, loads, &mut ws.k64).map_err(|g| g.to_error(self))?;
+        ws.r.copy_from_slice(&ws.k64.tau);
+        if n == 0 {
+            return Ok(StaticSolution {
+                q: DVector::zeros(0),
+                iterations: 0,
+                residual_norm: 0.0,
+            });
+        }
+        let mut it = 0;
+        loop {
+            if it >= opts.max_iterations {
+                let (worst, val) = ws.r.iter().enumerate().fold((0, 0.0f64), |a, (i, v)| {
+                    if v.abs() > a.1 {
+                        (i, v.abs())
+                    } else {
+                        a
+                    }
+                });
+                return Err(Error::numerical(
+                    ctx,
+                    format!(
+                        "no equilibrium found after {it} Newton iterations: the largest generalised force \
+                         residual is {val:.3e} (coordinate '{}'); the loads may be too large for the model to carry",
+                        self.dof_name(worst)
+                    ),
+                ));
+            }
+            self.eval_tangent(&q, loads, ws)
+                .map_err(|g| g.to_error(self))?;
+            if !ws.lu.factor() {
+                return Err(Error::numerical(
+                    ctx,
+                    format!("singular tangent stiffness at iteration {it}: a degree of freedom has no stiffness (add a bushing, lock the coordinate or fix a body)"),
+                ));
+            }
+            ws.jac_valid = true;
+            for i in 0..n {
+                ws.dq[i] = -ws.r[i];
+            }
+            ws.lu.solve_in_place(&mut ws.dq);
+            if ws.dq.iter().any(|v| !v.is_finite()) {
+                return Err(Error::numerical(
+                    ctx,
+                    format!("Newton step not finite at iteration {it}"),
+                ));
+            }
+            let r_inf = inf_norm(&ws.r);
+            let step_inf = inf_norm(&ws.dq);
+            it += 1;
+            if r_inf <= opts.residual_tol && step_inf <= opts.step_tol {
+                for i in 0..n {
+                    q[i] += ws.dq[i];
+                }
+                ws.k64.q.copy_from_slice(&q);
+                eval_tau(self, loads, &mut ws.k64).map_err(|g| g.to_error(self))?;
+                ws.r.copy_from_slice(&ws.k64.tau);
+                return Ok(StaticSolution {
+                    q: DVector::from_vec(q),
+                    iterations: it,
+                    residual_norm: inf_norm(&ws.r),
+                });
+            }
+            // cap rotations
+            let mut max_rot = 0.0f64;
+            for i in 0..n {
+                if self.dof_rotational[i] {
+                    max_rot = max_rot.max(ws.dq[i].abs());
+                }
+            }
+            let mut lambda = if max_rot > opts.max_rotation_step {
+                opts.max_rotation_step / max_rot
+            } else {
+                1.0
+            };
+            let r0 = two_norm(&ws.r);
+            loop {
+                for i in 0..n {
+                    ws.q_trial[i] = q[i] + lambda * ws.dq[i];
+                }
+                ws.k64.q.copy_from_slice(&ws.q_trial);
+                let ok = eval_tau(self, loads, &mut ws.k64).is_ok();
+                if ok {
+                    let rt = two_norm(&ws.k64.tau);
+                    if rt.is_finite() && rt <= (1.0 - 1e-4 * lambda) * r0 {
+                        break;
+                    }
+                    // at the round-off floor: accept a tiny, non-increasing residual
+                    if rt.is_finite() && rt <= r0 && inf_norm(&ws.k64.tau) <= opts.residual_tol {
+                        break;
+                    }
+                }
+                lambda *= 0.5;
+                if lambda < 1e-10 {
+                    if r_inf <= opts.residual_tol * 10.0 {
+                        // cannot improve further: converged to round-off
+                        return Ok(StaticSolution {
+                            q: DVector::from_vec(q),
+                            iterations: it,
+                            residual_norm: r_inf,
+                        });
+                    }
+                    // a gimbal lock right at the current point is the real cause
+                    ws.k64.q.copy_from_slice(&q);
+                    if let Err(g) = eval_tau(self, loads, &mut ws.k64) {
+                        return Err(g.to_error(self));
+                    }
+                    return Err(Error::numerical(
+                        ctx,
+                        format!(
+                            "no equilibrium found: the line search stalled at iteration {it} with largest \
+                             generalised force residual {r_inf:.3e} (the loads may be too large, or a bushing \
+                             approaches gimbal lock)"
+                        ),
+                    ));
+                }
+            }
+            q.copy_from_slice(&ws.q_trial);
+            ws.r.copy_from_slice(&ws.k64.tau);
+        }
+    }
+
+    /// Solve `T x = rhs` in place with the factorised tangent `T = d tau / d q`
+    /// of the last Newton iteration of [`System::solve_static`] (for
+    /// sensitivities `dq/dp = -T^{-1} d tau / d p`).
+    pub fn tangent_solve(&self, ws: &Workspace, rhs: &mut [f64]) -> Result<()> {
+        if !ws.jac_valid || rhs.len() != self.n_dofs() {
+            return Err(Error::invalid(
+                "solver",
+                "no factorised tangent available: run solve_static first",
+            ));
+        }
+        ws.lu.solve_in_place(rhs);
+        Ok(())
+    }
+
+    /// `d tau / d k` at `q`: one column per bushing stiffness parameter
+    /// (bushing-major, deflection order rx, ry, rz, tx, ty, tz). `out` must be
+    /// `n_dofs x 6 n_bushings`.
+    pub fn dtau_dstiffness(
+        &self,
+        q: &[f64],
+        ws: &mut Workspace,
+        out: &mut DMatrix<f64>,
+    ) -> Result<()> {
+        self.check_q(q)?;
+        let n = self.n_dofs();
+        if out.nrows() != n || out.ncols() != 6 * self.bushings.len() {
+            return Err(Error::invalid(
+                "solver",
+                "dtau_dstiffness: output matrix has the wrong shape",
+            ));
+        }
+        let kb = &mut ws.k64;
+        kb.q.copy_from_slice(q);
+        kinematics::forward(self, kb);
+        for (bi, b) in self.bushings.iter().enumerate() {
+            if let Some(s) = b.fast {
+                for k in 0..6 {
+                    for row in 0..n {
+                        out[(row, 6 * bi + k)] = 0.0;
+                    }
+                    out[(s + k, 6 * bi + k)] = -q[s + k];
+                }
+                continue;
+            }
+            let (x1, x2, qr, qt) = forces::bushing_deflection(b, kb);
+            if qr.y.abs() >= forces::GIMBAL_LIMIT {
+                return Err(GimbalLock {
+                    bushing: bi,
+                    angle: qr.y,
+                }
+                .to_error(self));
+            }
+            for k in 0..6 {
+                for w in kb.w.iter_mut() {
+                    *w = [Vector3::zeros(), Vector3::zeros()];
+                }
+                let mut fr = Vector3::zeros();
+                let mut ft = Vector3::zeros();
+                if k < 3 {
+                    fr[k] = -qr[k];
+                } else {
+                    ft[k - 3] = -qt[k - 3];
+                }
+                forces::bushing_apply(b, &x1, &x2, &qr, &fr, &ft, &mut kb.w);
+                forces::project(self, kb);
+                for row in 0..n {
+                    out[(row, 6 * bi + k)] = kb.tau[row];
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,806 @@
+//! The immutable, validated [`System`] compiled from a [`SystemSpec`]
+//! (bodies in parent-before-child order, joints lowered to six function-based
+//! axes, free degrees of freedom numbered joint by joint) and the reusable
+//! [`Workspace`] that holds every scratch buffer, so repeated solves allocate
+//! nothing.
+
+use super::scalar::{Scalar, D6};
+use super::spec::{
+    BushingModel, CoordinateSpec, FrameSpec, Function, JointKind, SystemSpec, TransformAxis,
+};
+use crate::error::{Error, Result};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Vector3};
+use num_dual::Dual64;
+
+/// A rigid transform as rotation matrix + translation, generic scalar.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose<T: Scalar> {
+    pub r: Matrix3<T>,
+    pub p: Vector3<T>,
+}
+
+impl<T: Scalar> Pose<T> {
+    pub fn identity() -> Self {
+        Pose {
+            r: Matrix3::identity(),
+            p: Vector3::zeros(),
+        }
+    }
+    /// `self * other`.
+    #[inline]
+    pub fn compose(&self, o: &Pose<T>) -> Pose<T> {
+        Pose {
+            r: self.r * o.r,
+            p: self.p + self.r * o.p,
+        }
+    }
+    /// `self * other` with a constant `other`.
+    #[inline]
+    pub fn compose_c(&self, o: &Pose<f64>) -> Pose<T> {
+        let r = Matrix3::from_fn(|i, j| {
+            self.r[(i, 0)] * T::c(o.r[(0, j)])
+                + self.r[(i, 1)] * T::c(o.r[(1, j)])
+                + self.r[(i, 2)] * T::c(o.r[(2, j)])
+        });
+        let p = self.p + self.r * super::scalar::v3::<T>(&o.p);
+        Pose { r, p }
+    }
+    /// Map a point given in this frame to the outer frame.
+    #[inline]
+    pub fn point(&self, x: &Vector3<f64>) -> Vector3<T> {
+        self.p + self.r * super::scalar::v3::<T>(x)
+    }
+    /// Value parts.
+    pub fn re(&self) -> Pose<f64> {
+        Pose {
+            r: self.r.map(|x| x.re()),
+            p: self.p.map(|x| x.re()),
+        }
+    }
+}
+
+impl Pose<f64> {
+    pub fn from_isometry(x: &Isometry3<f64>) -> Self {
+        Pose {
+            r: *x.rotation.to_rotation_matrix().matrix(),
+            p: x.translation.vector,
+        }
+    }
+    pub fn inverse(&self) -> Self {
+        let rt = self.r.transpose();
+        Pose {
+            r: rt,
+            p: -(rt * self.p),
+        }
+    }
+}
+
+/// Where an axis' value comes from.
+#[derive(Debug, Clone)]
+pub(crate) enum AxisSource {
+    /// Constant value (no coordinate, or a locked one).
+    Fixed(f64),
+    /// The joint's `k`-th degree of freedom through `function`.
+    Dof(usize, Function),
+}
+
+/// A joint axis after lowering.
+#[derive(Debug, Clone)]
+pub(crate) struct Axis {
+    pub unit: Vector3<f64>,
+    pub source: AxisSource,
+}
+
+/// A compiled joint (the one whose child is the body it is stored with).
+#[derive(Debug, Clone)]
+pub(crate) struct Joint {
+    pub name: String,
+    pub x_pf: Pose<f64>,
+    pub x_mb: Pose<f64>,
+    pub x_bm: Pose<f64>,
+    pub axes: [Axis; 6],
+    /// First free dof of this joint in the dof vector.
+    pub dof_start: usize,
+    /// Number of free dofs.
+    pub dof_count: usize,
+}
+
+/// A compiled body.
+#[derive(Debug, Clone)]
+pub(crate) struct Body {
+    pub name: String,
+    pub parent: Option<usize>,
+    pub mass: f64,
+    pub com: Vector3<f64>,
+    pub inertia: Matrix3<f64>,
+    pub joint: Joint,
+}
+
+/// A compiled bushing.
+#[derive(Debug, Clone)]
+pub(crate) struct Bushing {
+    pub name: String,
+    pub body1: Option<usize>,
+    pub x_b1: Pose<f64>,
+    pub body2: Option<usize>,
+    pub x_b2: Pose<f64>,
+    pub model: BushingModel,
+    /// Diagonal stiffness (rx, ry, rz, tx, ty, tz).
+    pub k: [f64; 6],
+    /// Diagonal damping.
+    pub c: [f64; 6],
+    /// Fast path: the bushing sits on the frames of a joint whose six axes
+    /// are X, Y, Z rotations then X, Y, Z translations, each the identity
+    /// function of its own free dof; then its generalised force is exactly
+    /// `-(K q + C u)` on those dofs (first dof index stored here).
+    pub fast: Option<usize>,
+}
+
+/// The immutable multibody system.
+#[derive(Debug, Clone)]
+pub struct System {
+    pub(crate) bodies: Vec<Body>,
+    /// spec body index -> system body index
+    pub(crate) body_map: Vec<usize>,
+    pub(crate) coords: Vec<CoordinateSpec>,
+    /// spec coordinate -> free dof index (None when locked or unused)
+    pub(crate) coord_dof: Vec<Option<usize>>,
+    /// free dof -> spec coordinate
+    pub(crate) dof_coord: Vec<usize>,
+    /// free dof -> owning system body
+    pub(crate) dof_body: Vec<usize>,
+    /// dof drives a rotation axis
+    pub(crate) dof_rotational: Vec<bool>,
+    pub(crate) bushings: Vec<Bushing>,
+    pub(crate) gravity: Vector3<f64>,
+}
+
+fn lower_joint(kind: &JointKind) -> [TransformAxis; 6] {
+    let x = Vector3::x();
+    let y = Vector3::y();
+    let z = Vector3::z();
+    let fixed = |a| TransformAxis::fixed(a);
+    match kind {
+        JointKind::Weld => [fixed(x), fixed(y), fixed(z), fixed(x), fixed(y), fixed(z)],
+        JointKind::Pin { coord } => [
+            TransformAxis::identity(z, *coord),
+            fixed(x),
+            fixed(y),
+            fixed(x),
+            fixed(y),
+            fixed(z),
+        ],
+        JointKind::Universal { coords } => [
+            TransformAxis::identity(x, coords[0]),
+            TransformAxis::identity(y, coords[1]),
+            fixed(z),
+            fixed(x),
+            fixed(y),
+            fixed(z),
+        ],
+        JointKind::Slider { coord } => [
+            fixed(x),
+            fixed(y),
+            fixed(z),
+            TransformAxis::identity(x, *coord),
+            fixed(y),
+            fixed(z),
+        ],
+        JointKind::Free { coords } => [
+            TransformAxis::identity(x, coords[0]),
+            TransformAxis::identity(y, coords[1]),
+            TransformAxis::identity(z, coords[2]),
+            TransformAxis::identity(x, coords[3]),
+            TransformAxis::identity(y, coords[4]),
+            TransformAxis::identity(z, coords[5]),
+        ],
+        JointKind::Custom { axes } => (**axes).clone(),
+    }
+}
+
+fn check_finite_pose(x: &Isometry3<f64>) -> bool {
+    x.translation.vector.iter().all(|v| v.is_finite())
+        && x.rotation.coords.iter().all(|v| v.is_finite())
+}
+
+impl System {
+    /// Validate and compile a spec. Errors name the offending body, joint,
+    /// coordinate or bushing.
+    pub fn new(spec: &SystemSpec) -> Result<System> {
+        let nb = spec.bodies.len();
+        let ctx = "system";
+        // one joint per body
+        let mut joint_of = vec![None; nb];
+        for (ji, j) in spec.joints.iter().enumerate() {
+            if j.child >= nb {
+                return Err(Error::invalid(
+                    ctx,
+                    format!(
+                        "joint '{}': child body index {} out of range",
+                        j.name, j.child
+                    ),
+                ));
+            }
+            if let Some(p) = j.parent {
+                if p >= nb {
+                    return Err(Error::invalid(
+                        ctx,
+                        format!("joint '{}': parent body index {p} out of range", j.name),
+                    ));
+                }
+            }
+            if joint_of[j.child].is_some() {
+                return Err(Error::invalid(
+                    ctx,
+                    format!("body '{}' is the child of more than one joint (closed loops are not supported)", spec.bodies[j.child].name),
+                ));
+            }
+            if !check_finite_pose(&j.x_pf) || !check_finite_pose(&j.x_bm) {
+                return Err(Error::invalid(
+                    ctx,
+                    format!("joint '{}': frame transform is not finite", j.name),
+                ));
+            }
+            joint_of[j.child] = Some(ji);
+        }
+        for (bi, b) in spec.bodies.iter().enumerate() {
+            if joint_of[bi].is_none() {
+                return Err(Error::invalid(
+                    ctx,
+                    format!(
+                        "body '{}' has no joint to its parent (every body needs one)",
+                        b.name
+                    ),
+                ));
+            }
+            if !(b.mass.is_finite() && b.mass >= 0.0)
+                || !b.com.iter().all(|v| v.is_finite())
+                || !b.inertia.iter().all(|v| v.is_finite())
+            {
+                return Err(Error::invalid(
+                    ctx,
+                    format!(
+                        "body '{}': mass, centre of mass and inertia must be finite (mass >= 0)",
+                        b.name
+                    ),
+                ));
+            }
+        }
+        // topological order: parent before child
+        let mut order: Vec<usize> = Vec::with_capacity(nb);
+        let mut placed = vec![false; nb];
+        let mut progress = true;
+        while order.len() < nb && progress {
+            progress = false;
+            for bi in 0..nb {
+                if placed[bi] {
+                    continue;
+                }
+                let j = &spec.joints[joint_of[bi].unwrap_or(0)];
+                let ready = match j.parent {
+                    None => true,
+                    Some(p) => placed[p],
+                };
+                if ready {
+                    placed[bi] = true;
+                    order.push(bi);
+                    progress = true;
+                }
+            }
+        }
+        if order.len() < nb {
+            let stuck: Vec<&str> = (0..nb)
+                .filter(|&i| !placed[i])
+                .map(|i| spec.bodies[i].name.as_str())
+                .collect();
+            return Err(Error::invalid(
+                ctx,
+                format!(
+                    "bodies not connected to ground (cycle in the joint tree): {}",
+                    stuck.join(", ")
+                ),
+            ));
+        }
+        let mut body_map = vec![0usize; nb];
+        for (si, &bi) in order.iter().enumerate() {
+            body_map[bi] = si;
+        }
+        for (ci, c) in spec.coordinates.iter().enumerate() {
+            if !c.default.is_finite() {
+                return Err(Error::invalid(
+                    ctx,
+                    format!("coordinate '{}' (#{ci}): default value not finite", c.name),
+                ));
+            }
+        }
+        // lower joints, number dofs
+        let mut coord_dof = vec![None; spec.coordinates.len()];
+        let mut coord_owner: Vec<Option<usize>> = vec![None; spec.coordinates.len()];
+        let mut dof_coord = Vec::new();
+        let mut dof_body = Vec::new();
+        let mut dof_rotational = Vec::new();
+        let mut bodies = Vec::with_capacity(nb);
+        for (si, &bi) in order.iter().enumerate() {
+            let js = &spec.joints[joint_of[bi].unwrap_or(0)];
+            let raw = lower_joint(&js.kind);
+            let dof_start = dof_coord.len();
+            let mut local: Vec<usize> = Vec::new(); // spec coords of this joint's dofs
+            let mut axes: Vec<Axis> = Vec::with_capacity(6);
+            for (ai, ta) in raw.iter().enumerate() {
+                let n = ta.axis.norm();
+                if !(n.is_finite() && n > 1e-12) {
+                    return Err(Error::invalid(
+                        ctx,
+                        format!(
+                            "joint '{}': transform axis {} has zero or non-finite direction",
+                            js.name,
+                            ai + 1
+                        ),
+                    ));
+                }
+                ta.function.validate().map_err(|m| {
+                    Error::invalid(
+                        ctx,
+                        format!("joint '{}': transform axis {}: {m}", js.name, ai + 1),
+                    )
+                })?;
+                let unit = ta.axis / n;
+                let source = match ta.coord {
+                    None => AxisSource::Fixed(ta.function.eval(0.0f64).0),
+                    Some(c) => {
+                        let Some(cs) = spec.coordinates.get(c) else {
+                            return Err(Error::invalid(ctx, format!("joint '{}': transform axis {} refers to coordinate #{c} which does not exist", js.name, ai + 1)));
+                        };
+                        match coord_owner[c] {
+                            Some(o) if o != si => {
+                                return Err(Error::invalid(
+                                    ctx,
+                                    format!(
+                                        "coordinate '{}' is used by more than one joint",
+                                        cs.name
+                                    ),
+                                ));
+                            }
+                            _ => coord_owner[c] = Some(si),
+                        }
+                        if cs.locked {
+                            AxisSource::Fixed(ta.function.eval(cs.default).0)
+                        } else {
+                            let k = match local.iter().position(|&x| x == c) {
+                                Some(k) => k,
+                                None => {
+                                    local.push(c);
+                                    coord_dof[c] = Some(dof_coord.len());
+                                    dof_coord.push(c);
+                                    dof_body.push(si);
+                                    dof_rotational.push(false);
+                                    local.len() - 1
+                                }
+                            };
+                            if ai < 3 {
+                                if let Some(r) = dof_rotational.get_mut(dof_start + k) {
+                                    *r = true;
+                                }
+                            }
+                            AxisSource::Dof(k, ta.function.clone())
+                        }
+                    }
+                };
+                axes.push(Axis { unit, source });
+            }
+            let axes: [Axis; 6] = axes
+                .try_into()
+                .map_err(|_| Error::invalid(ctx, format!("joint '{}': needs six axes", js.name)))?;
+            let b = &spec.bodies[bi];
+            let x_bm = Pose::from_isometry(&js.x_bm);
+            bodies.push(Body {
+                name: b.name.clone(),
+                parent: js.parent.map(|p| body_map[p]),
+                mass: b.mass,
+                com: b.com,
+                inertia: b.inertia,
+                joint: Joint {
+                    name: js.name.clone(),
+                    x_pf: Pose::from_isometry(&js.x_pf),
+                    x_mb: x_bm.inverse(),
+                    x_bm,
+                    axes,
+                    dof_start,
+                    dof_count: local.len(),
+                },
+            });
+        }
+        let mut bushings = Vec::with_capacity(spec.bushings.len());
+        let frame = |f: &FrameSpec, name: &str, which: u8| -> Result<(Option<usize>, Pose<f64>)> {
+            let body = match f.body {
+                None => None,
+                Some(b) if b < nb => Some(body_map[b]),
+                Some(b) => {
+                    return Err(Error::invalid(
+                        ctx,
+                        format!("bushing '{name}': frame{which} body index {b} out of range"),
+                    ));
+                }
+            };
+            if !check_finite_pose(&f.transform) {
+                return Err(Error::invalid(
+                    ctx,
+                    format!("bushing '{name}': frame{which} transform not finite"),
+                ));
+            }
+            Ok((body, Pose::from_isometry(&f.transform)))
+        };
+        for bs in &spec.bushings {
+            let (body1, x_b1) = frame(&bs.frame1, &bs.name, 1)?;
+            let (body2, x_b2) = frame(&bs.frame2, &bs.name, 2)?;
+            let (k, c) = match &bs.model {
+                BushingModel::Linear {
+                    rot_stiffness: rk,
+                    trans_stiffness: tk,
+                    rot_damping: rc,
+                    trans_damping: tc,
+                } => (
+                    [rk.x, rk.y, rk.z, tk.x, tk.y, tk.z],
+                    [rc.x, rc.y, rc.z, tc.x, tc.y, tc.z],
+                ),
+            };
+            if !k.iter().chain(c.iter()).all(|v| v.is_finite()) {
+                return Err(Error::invalid(
+                    ctx,
+                    format!(
+                        "bushing '{}': stiffness and damping must be finite",
+                        bs.name
+                    ),
+                ));
+            }
+            let fast = body2.and_then(|c2| {
+                let b = &bodies[c2];
+                let j = &b.joint;
+                let same = |a: &Pose<f64>, b: &Pose<f64>| a.r == b.r && a.p == b.p;
+                let unit = [Vector3::x(), Vector3::y(), Vector3::z()];
+                let axes_ok = j.dof_count == 6
+                    && j.axes.iter().enumerate().all(|(ai, ax)| {
+                        ax.unit == unit[ai % 3]
+                            && matches!(&ax.source, AxisSource::Dof(k, Function::Linear { slope, intercept })
+                                if *k == ai && *slope == 1.0 && *intercept == 0.0)
+                    });
+                (b.parent == body1 && same(&x_b1, &j.x_pf) && same(&x_b2, &j.x_bm) && axes_ok).then_some(j.dof_start)
+            });
+            bushings.push(Bushing {
+                name: bs.name.clone(),
+                body1,
+                x_b1,
+                body2,
+                x_b2,
+                model: bs.model.clone(),
+                k,
+                c,
+                fast,
+            });
+        }
+        if !spec.gravity.iter().all(|v| v.is_finite()) {
+            return Err(Error::invalid(ctx, "gravity not finite"));
+        }
+        Ok(System {
+            bodies,
+            body_map,
+            coords: spec.coordinates.clone(),
+            coord_dof,
+            dof_coord,
+            dof_body,
+            dof_rotational,
+            bushings,
+            gravity: spec.gravity,
+        })
+    }
+
+    /// The same system with every bushing on the general formula (no fast
+    /// path); for validation.
+    pub fn without_fast_paths(mut self) -> Self {
+        for b in self.bushings.iter_mut() {
+            b.fast = None;
+        }
+        self
+    }
+
+    /// Number of free degrees of freedom (generalised coordinates solved for).
+    pub fn n_dofs(&self) -> usize {
+        self.dof_coord.len()
+    }
+    /// Number of bodies (ground excluded).
+    pub fn n_bodies(&self) -> usize {
+        self.bodies.len()
+    }
+    /// Body names in system order (parent before child).
+    pub fn body_names(&self) -> impl Iterator<Item = &str> {
+        self.bodies.iter().map(|b| b.name.as_str())
+    }
+    /// System index of a body by name.
+    pub fn body_index(&self, name: &str) -> Option<usize> {
+        self.bodies.iter().position(|b| b.name == name)
+    }
+    /// Joint names in system order (the joint of each body).
+    pub fn joint_names(&self) -> impl Iterator<Item = &str> {
+        self.bodies.iter().map(|b| b.joint.name.as_str())
+    }
+    /// The force law of bushing `i`.
+    pub fn bushing_model(&self, i: usize) -> Option<&BushingModel> {
+        self.bushings.get(i).map(|b| &b.model)
+    }
+    /// System body index of a spec body index.
+    pub fn body_of_spec(&self, spec_body: usize) -> Option<usize> {
+        self.body_map.get(spec_body).copied()
+    }
+    /// Body (system index) moved by free dof `i`.
+    pub fn dof_body(&self, i: usize) -> Option<usize> {
+        self.dof_body.get(i).copied()
+    }
+    /// True when body `i` hangs on ground through a joint without free dofs.
+    pub fn is_welded_to_ground(&self, i: usize) -> bool {
+        self.bodies
+            .get(i)
+            .map(|b| b.parent.is_none() && b.joint.dof_count == 0)
+            .unwrap_or(false)
+    }
+    /// Bushing names in order.
+    pub fn bushing_names(&self) -> impl Iterator<Item = &str> {
+        self.bushings.iter().map(|b| b.name.as_str())
+    }
+    /// All coordinates of the spec, in spec order.
+    pub fn coordinates(&self) -> &[CoordinateSpec] {
+        &self.coords
+    }
+    /// Name of free dof `i`.
+    pub fn dof_name(&self, i: usize) -> &str {
+        self.dof_coord
+            .get(i)
+            .and_then(|&c| self.coords.get(c))
+            .map(|c| c.name.as_str())
+            .unwrap_or("")
+    }
+    /// Free dof index of a coordinate by name (None when locked/unknown).
+    pub fn dof_of(&self, coord_name: &str) -> Option<usize> {
+        let c = self.coords.iter().position(|c| c.name == coord_name)?;
+        self.coord_dof.get(c).copied().flatten()
+    }
+    /// Gravity vector.
+    pub fn gravity(&self) -> Vector3<f64> {
+        self.gravity
+    }
+    /// Default free-dof vector (coordinate defaults).
+    pub fn default_q(&self) -> DVector<f64> {
+        DVector::from_iterator(
+            self.n_dofs(),
+            self.dof_coord.iter().map(|&c| self.coords[c].default),
+        )
+    }
+    /// All coordinate values (spec order) for a free-dof vector: locked and
+    /// unused coordinates keep their defaults.
+    pub fn full_coordinates(&self, q: &[f64]) -> Vec<f64> {
+        self.coords
+            .iter()
+            .zip(&self.coord_dof)
+            .map(|(c, d)| match d {
+                Some(i) => q.get(*i).copied().unwrap_or(c.default),
+                None => c.default,
+            })
+            .collect()
+    }
+    /// Free-dof vector from full coordinate values (spec order).
+    pub fn dofs_from_full(&self, full: &[f64]) -> DVector<f64> {
+        DVector::from_iterator(
+            self.n_dofs(),
+            self.dof_coord
+                .iter()
+                .map(|&c| full.get(c).copied().unwrap_or(self.coords[c].default)),
+        )
+    }
+    /// Coordinates outside their range that are flagged `clamped`:
+    /// (name, value, [min, max]).
+    pub fn clamp_violations(&self, q: &[f64]) -> Vec<(String, f64, [f64; 2])> {
+        let full = self.full_coordinates(q);
+        self.coords
+            .iter()
+            .zip(full)
+            .filter(|(c, v)| c.clamped && (*v < c.range[0] || *v > c.range[1]))
+            .map(|(c, v)| (c.name.clone(), v, c.range))
+            .collect()
+    }
+    /// Path of system body indices from `b` up to the root (inclusive of b).
+    pub(crate) fn path_to_root(&self, b: usize) -> Vec<usize> {
+        let mut out = vec![b];
+        let mut cur = b;
+        while let Some(p) = self.bodies[cur].parent {
+            out.push(p);
+            cur = p;
+        }
+        out
+    }
+    /// Locks every coordinate of the joints between ground and `body`
+    /// (fixing the body in its default pose) and returns the new system.
+    pub fn with_body_fixed(spec: &SystemSpec, body: &str) -> Result<SystemSpec> {
+        let Some(bi) = spec.bodies.iter().position(|b| b.name == body) else {
+            return Err(Error::invalid(
+                "--fixed",
+                format!("no body named '{body}' in the model"),
+            ));
+        };
+        let mut spec = spec.clone();
+        let mut cur = Some(bi);
+        let mut guard = 0;
+        while let Some(b) = cur {
+            guard += 1;
+            if guard > spec.bodies.len() + 1 {
+                return Err(Error::invalid("--fixed", "cycle in the joint tree"));
+            }
+            let Some(j) = spec.joints.iter().find(|j| j.child == b) else {
+                break;
+            };
+            for ta in lower_joint(&j.kind) {
+                if let Some(c) = ta.coord {
+                    if let Some(cs) = spec.coordinates.get_mut(c) {
+                        cs.locked = true;
+                    }
+                }
+            }
+            cur = j.parent;
+        }
+        Ok(spec)
+    }
+}
+
+/// Kinematic buffers for one scalar type.
+#[derive(Debug, Clone)]
+pub struct KinBuf<T: Scalar> {
+    /// Free dofs as scalars.
+    pub q: Vec<T>,
+    /// X_GB per body.
+    pub x_gb: Vec<Pose<T>>,
+    /// Motion subspace per dof: (angular, linear about the ground origin), ground axes.
+    pub h: Vec<[Vector3<T>; 2]>,
+    /// Wrench per body: (moment about the ground origin, force), ground axes.
+    pub w: Vec<[Vector3<T>; 2]>,
+    /// Generalised force per dof.
+    pub tau: Vec<T>,
+}
+
+impl<T: Scalar> KinBuf<T> {
+    pub fn new(sys: &System) -> Self {
+        let n = sys.n_dofs();
+        let nb = sys.n_bodies();
+        KinBuf {
+            q: vec![T::zero(); n],
+            x_gb: vec![Pose::identity(); nb],
+            h: vec![[Vector3::zeros(), Vector3::zeros()]; n],
+            w: vec![[Vector3::zeros(), Vector3::zeros()]; nb],
+            tau: vec![T::zero(); n],
+        }
+    }
+}
+
+/// Simple dense LU with partial pivoting on a preallocated matrix.
+#[derive(Debug, Clone)]
+pub struct DenseLu {
+    pub(crate) a: DMatrix<f64>,
+    pub(crate) piv: Vec<usize>,
+    pub(crate) ok: bool,
+}
+
+impl DenseLu {
+    pub fn new(n: usize) -> Self {
+        DenseLu {
+            a: DMatrix::zeros(n, n),
+            piv: vec![0; n],
+            ok: false,
+        }
+    }
+    /// Factorise `self.a` in place. Returns false when singular.
+    pub fn factor(&mut self) -> bool {
+        let n = self.a.nrows();
+        let scale = self.a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let tiny = scale * 1e-15 * (n.max(1) as f64);
+        for k in 0..n {
+            let mut p = k;
+            let mut best = self.a[(k, k)].abs();
+            for i in k + 1..n {
+                let v = self.a[(i, k)].abs();
+                if v > best {
+                    best = v;
+                    p = i;
+                }
+            }
+            self.piv[k] = p;
+            if !(best > tiny) || !best.is_finite() {
+                self.ok = false;
+                return false;
+            }
+            if p != k {
+                self.a.swap_rows(p, k);
+            }
+            let d = self.a[(k, k)];
+            for i in k + 1..n {
+                self.a[(i, k)] /= d;
+            }
+            for j in k + 1..n {
+                let akj = self.a[(k, j)];
+                if akj != 0.0 {
+                    for i in k + 1..n {
+                        let l = self.a[(i, k)];
+                        self.a[(i, j)] -= l * akj;
+                    }
+                }
+            }
+        }
+        self.ok = true;
+        true
+    }
+    /// Solve A x = b in place (after a successful `factor`).
+    pub fn solve_in_place(&self, b: &mut [f64]) {
+        let n = self.a.nrows();
+        for k in 0..n {
+            let p = self.piv[k];
+            if p != k {
+                b.swap(p, k);
+            }
+        }
+        for j in 0..n {
+            let bj = b[j];
+            if bj != 0.0 {
+                for i in j + 1..n {
+                    b[i] -= self.a[(i, j)] * bj;
+                }
+            }
+        }
+        for j in (0..n).rev() {
+            b[j] /= self.a[(j, j)];
+            let bj = b[j];
+            for i in 0..j {
+                b[i] -= self.a[(i, j)] * bj;
+            }
+        }
+    }
+}
+
+/// All scratch buffers for a system. Make one per thread and reuse it.
+#[derive(Debug, Clone)]
+pub struct Workspace {
+    pub(crate) k64: KinBuf<f64>,
+    pub(crate) kd6: KinBuf<D6>,
+    pub(crate) kd1: KinBuf<Dual64>,
+    /// Jacobian of the generalised force w.r.t. q (statics tangent), and its LU.
+    pub(crate) lu: DenseLu,
+    pub(crate) jac_valid: bool,
+    pub(crate) r: Vec<f64>,
+    pub(crate) dq: Vec<f64>,
+    pub(crate) q_trial: Vec<f64>,
+    /// Dynamics: mass matrix (Cholesky in place), velocities and bias.
+    pub(crate) mass: DMatrix<f64>,
+    pub(crate) vel: Vec<[Vector3<f64>; 2]>,
+    pub(crate) acc: Vec<[Vector3<f64>; 2]>,
+    pub(crate) hdot: Vec<[Vector3<f64>; 2]>,
+    pub(crate) comp: Vec<super::dynamics::SpatialInertia>,
+    pub(crate) rhs: Vec<f64>,
+}
+
+impl Workspace {
+    pub fn new(sys: &System) -> Self {
+        let n = sys.n_dofs();
+        let nb = sys.n_bodies();
+        Workspace {
+            k64: KinBuf::new(sys),
+            kd6: KinBuf::new(sys),
+            kd1: KinBuf::new(sys),
+            lu: DenseLu::new(n),
+            jac_valid: false,
+            r: vec![0.0; n],
+            dq: vec![0.0; n],
+            q_trial: vec![0.0; n],
+            mass: DMatrix::zeros(n, n),
+            vel: vec![[Vector3::zeros(), Vector3::zeros()]; nb],
+            acc: vec![[Vector3::zeros(), Vector3::zeros()]; nb],
+            hdot: vec![[Vector3::zeros(), Vector3::zeros()]; n],
+            comp: vec![super::dynamics::SpatialInertia::zero(); nb],
+            rhs: vec![0.0; n],
+        }
+    }
+}
