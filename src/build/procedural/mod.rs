@@ -100,6 +100,9 @@ pub struct GenericModel {
     pub body_mass: f64,
 }
 
+/// Range of every rotational coordinate (rad), as the cyclist model's.
+const ROT_RANGE: [f64; 2] = [-std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_2];
+
 /// Mesh file name of a body's procedural mesh.
 pub fn mesh_file(body: &str) -> String {
     match Level::from_body_name(body) {
@@ -212,11 +215,7 @@ fn build_document(
             .iter()
             .enumerate()
             .map(|(i, n)| {
-                let r = if i < 3 {
-                    [-1.5707963267948966, 1.5707963267948966]
-                } else {
-                    [-5.0, 5.0]
-                };
+                let r = if i < 3 { ROT_RANGE } else { [-5.0, 5.0] };
                 builders::coordinate(n, 0.0, r)
             })
             .collect();
@@ -269,7 +268,7 @@ fn build_document(
         let cn = ["FE", "LB", "AR"].map(|s| format!("{}_{s}", j.prefix));
         let coords = cn
             .iter()
-            .map(|n| builders::coordinate(n, 0.0, [-1.5707963267948966, 1.5707963267948966]))
+            .map(|n| builders::coordinate(n, 0.0, ROT_RANGE))
             .collect();
         let rot = [Vector3::z(), Vector3::x(), Vector3::y()];
         let axes: [Element; 6] = std::array::from_fn(|i| {
@@ -315,7 +314,61 @@ pub fn generate_generic(opts: &ProceduralOptions) -> Result<GenericModel> {
     })
 }
 
+/// What the generator did, for the JSON report of `base --procedural`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ProceduralSummary {
+    pub sex: Sex,
+    pub stature_m: f64,
+    pub body_mass_kg: f64,
+    /// Stature / reference stature of the dimension table.
+    pub scale: f64,
+    /// Per IVD joint: (name, segment angle deg, disc wedge deg, disc height m).
+    pub segments: Vec<(String, f64, f64, f64)>,
+    pub masses: Vec<MassProps>,
+    pub muscles: Vec<MuscleSpec>,
+}
+
 impl GenericModel {
+    /// Summary for reports (muscle fibre lengths at the default pose etc.).
+    pub fn summary(&self) -> ProceduralSummary {
+        let sk = &self.skeleton;
+        ProceduralSummary {
+            sex: sk.sex,
+            stature_m: sk.stature,
+            body_mass_kg: self.body_mass,
+            scale: sk.scale,
+            segments: sk
+                .joints
+                .iter()
+                .map(|j| {
+                    (
+                        j.name.clone(),
+                        j.segment_angle.to_degrees(),
+                        j.disc_wedge.to_degrees(),
+                        j.disc_height,
+                    )
+                })
+                .collect(),
+            masses: self.masses.clone(),
+            muscles: self.muscles.clone(),
+        }
+    }
+
+    /// The vertebral-body shells alone, per level (name, mesh in the body
+    /// frame), e.g. for the base pipeline's sphere fits.
+    pub fn body_meshes(&self) -> BTreeMap<Level, (String, TriMesh)> {
+        self.skeleton
+            .vertebrae
+            .iter()
+            .map(|v| {
+                (
+                    v.level,
+                    (format!("procedural {} body", v.level), v.body.clone()),
+                )
+            })
+            .collect()
+    }
+
     /// Serialised outputs: (relative path, bytes): `<stem>.osim` and
     /// `Geometry/<mesh_file>` (ASCII VTP: OpenSim 4.6 reads only ASCII
     /// VTP; coordinates are whole micrometres). Deterministic.

@@ -71,11 +71,10 @@ impl Obstacles {
     }
 }
 
-fn sided_names(
-    f: &Family,
-    origin: Level,
-    side: &str,
-) -> Result<Vec<(String, Vec<(String, String)>)>> {
+/// A fascicle before placement: its name and its (owner, landmark) points.
+type Fascicle = (String, Vec<(String, String)>);
+
+fn sided_names(f: &Family, origin: Level, side: &str) -> Result<Vec<Fascicle>> {
     // returns (muscle name, [(owner, landmark)]) for each fascicle of this origin
     let mut out = Vec::new();
     let o_idx = origin.index();
