@@ -536,3 +536,130 @@ fn generic_model_loads_in_opensim_with_the_same_kinematics_and_muscles() {
         ms.len()
     );
 }
+
+/// The files of a folder (relative name -> bytes), sorted.
+fn folder_files(dir: &std::path::Path) -> BTreeMap<String, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_file() {
+            out.insert(
+                e.file_name().to_string_lossy().into_owned(),
+                std::fs::read(e.path()).unwrap(),
+            );
+        }
+    }
+    out
+}
+
+/// Acceptance 1: `base_model/` is what `osim-spine base --procedural --out
+/// base_model` writes (byte for byte), and it is a complete base model.
+#[test]
+fn base_model_is_regenerated_byte_identically_and_is_complete() {
+    let repo = common::repo_root().join("base_model");
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("base_model");
+    let o = std::process::Command::new(common::bin())
+        .args(["base", "--procedural", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (want, got) = (folder_files(&repo), folder_files(&out));
+    assert_eq!(
+        want.keys().collect::<Vec<_>>(),
+        got.keys().collect::<Vec<_>>(),
+        "file set differs: regenerate with `cargo run --release -- base --procedural --out base_model`"
+    );
+    for (name, bytes) in &want {
+        assert!(
+            bytes == &got[name],
+            "base_model/{name} differs from a fresh build: regenerate with \
+             `cargo run --release -- base --procedural --out base_model`"
+        );
+    }
+    let total: usize = want.values().map(|b| b.len()).sum();
+    println!(
+        "base_model/: {} files, {:.2} MB",
+        want.len(),
+        total as f64 / 1e6
+    );
+    assert!(total < 5_000_000);
+
+    // contents, read back with the tool's own reader
+    let base = repo.join("base.osim");
+    let m = osim_spine::osim::Document::read(&base)
+        .unwrap()
+        .model()
+        .unwrap();
+    let mut names: Vec<String> = m.bodies.iter().map(|b| b.name.clone()).collect();
+    names.sort();
+    let mut expected: Vec<String> = Level::ALL[..17].iter().map(|l| l.body_name()).collect();
+    expected.extend(["sacrum".to_string(), "pelvis".to_string()]);
+    expected.sort();
+    assert_eq!(names, expected);
+    let six_dof = m
+        .joints
+        .iter()
+        .filter(|j| j.name.ends_with("_IVDjnt") && j.coordinates.len() == 6)
+        .count();
+    assert_eq!(six_dof, 17);
+    assert_eq!(m.bushings().count(), 17);
+    let spheres: usize = m
+        .bodies
+        .iter()
+        .flat_map(|b| &b.wrap_objects)
+        .filter(|w| w.class() == "WrapSphere")
+        .count();
+    assert!(spheres >= 17, "{spheres} wrap spheres");
+    let mut per_body: BTreeMap<String, usize> = BTreeMap::new();
+    for mk in &m.markers {
+        let (body, _) = m.marker_frame(mk).unwrap();
+        *per_body.entry(body).or_default() += 1;
+    }
+    for l in &Level::ALL[..17] {
+        assert_eq!(per_body.get(&l.body_name()), Some(&14), "{l} markers");
+    }
+    assert!(m.muscles().count() >= 60);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(repo.join("base_report.json")).unwrap()).unwrap();
+    let sc = &report["self_check"];
+    assert_eq!(
+        sc["muscle_segments_through_vertebrae"]
+            .as_array()
+            .unwrap()
+            .len(),
+        0
+    );
+    assert_eq!(
+        report["palpation_ordering_failures"]
+            .as_array()
+            .unwrap()
+            .len(),
+        0
+    );
+    assert!(sc["bushing_max_rotation"].as_f64().unwrap() < 1e-12);
+    assert!(sc["bushing_max_translation"].as_f64().unwrap() < 1e-12);
+
+    let Some(py) = common::opensim_python() else {
+        return;
+    };
+    let r = common::run_py(&py, "base_check.py", &[base.to_str().unwrap(), "10", "5"]);
+    assert_eq!(r["ivd_6dof_joints"], 17);
+    assert_eq!(r["bushings"], 17);
+    assert!(r["bushing_max_record_at_default"].as_f64().unwrap() < 1e-9);
+    let g = common::run_py(&py, "procedural_generic.py", &[base.to_str().unwrap()]);
+    let ms = g["muscles"].as_array().unwrap();
+    assert!(ms.len() >= 60);
+    let (mut lo, mut hi) = (f64::MAX, f64::MIN);
+    for mu in ms {
+        let ratio =
+            mu["fiber_length"].as_f64().unwrap() / mu["optimal_fiber_length"].as_f64().unwrap();
+        lo = lo.min(ratio);
+        hi = hi.max(ratio);
+        assert!((0.5..=1.5).contains(&ratio), "{}: {ratio}", mu["name"]);
+    }
+    println!(
+        "base_model in OpenSim 4.6: {} muscles, fibre/optimal at the default pose {lo:.3}..{hi:.3}",
+        ms.len()
+    );
+}
