@@ -568,13 +568,13 @@ fn base_model_is_regenerated_byte_identically_and_is_complete() {
     assert_eq!(
         want.keys().collect::<Vec<_>>(),
         got.keys().collect::<Vec<_>>(),
-        "file set differs: regenerate with `cargo run --release -- base --procedural --out base_model`"
+        "file set differs: regenerate with `cargo run -- base --procedural --out base_model`"
     );
     for (name, bytes) in &want {
         assert!(
             bytes == &got[name],
             "base_model/{name} differs from a fresh build: regenerate with \
-             `cargo run --release -- base --procedural --out base_model`"
+             `cargo run -- base --procedural --out base_model`"
         );
     }
     let total: usize = want.values().map(|b| b.len()).sum();
