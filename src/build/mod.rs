@@ -4,3 +4,4 @@
 pub mod anatomy;
 pub mod base;
 pub mod generate;
+pub mod procedural;

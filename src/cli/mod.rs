@@ -11,6 +11,7 @@ pub mod generate;
 pub mod info;
 pub mod mean_shape;
 pub mod simulate;
+pub mod stiffness;
 pub mod variability;
 
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
@@ -49,6 +50,10 @@ pub enum Command {
     /// Accuracy of model(s) against truth vertebral centres: centre RMSE,
     /// per-axis errors, curve fits, Cobb angle, apex, lordosis; JSON + SVG.
     Evaluate(evaluate::Args),
+    /// Assign intervertebral stiffness from a table (uniform, per level,
+    /// base x ratio; linear, non-linear per DoF, coupled 6x6), or --list the
+    /// current stiffness in the same format.
+    Stiffness(stiffness::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -64,6 +69,7 @@ pub fn main() -> i32 {
         Command::Variability(a) => variability::run(&a),
         Command::Generate(a) => generate::run(a),
         Command::Evaluate(a) => evaluate::run(a),
+        Command::Stiffness(a) => stiffness::run(a),
     };
     match result {
         Ok(code) => code,
