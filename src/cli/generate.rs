@@ -135,6 +135,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         method,
         self_check: !args.no_self_check,
         views: true,
+        ..GenerateOptions::default()
     };
     let g = generate(
         &base,

@@ -66,6 +66,9 @@ pub struct GenerateOptions {
     pub self_check: bool,
     /// Draw the SVG views.
     pub views: bool,
+    /// Outlier threshold of the lsq method in noise SDs
+    /// ([`pose::OUTLIER_SIGMAS`] by default).
+    pub outlier_sigmas: f64,
 }
 
 impl Default for GenerateOptions {
@@ -74,6 +77,7 @@ impl Default for GenerateOptions {
             method: Method::Lsq,
             self_check: true,
             views: true,
+            outlier_sigmas: pose::OUTLIER_SIGMAS,
         }
     }
 }
@@ -357,7 +361,13 @@ pub fn generate(
     // ---- 2. fits
     let mut fits: BTreeMap<Level, pose::VertebraFit> = BTreeMap::new();
     for l in &vert_levels {
-        let f = pose::fit_vertebra(*l, &patient[l], &markers[l].1, opts.method)?;
+        let f = pose::fit_vertebra_with(
+            *l,
+            &patient[l],
+            &markers[l].1,
+            opts.method,
+            opts.outlier_sigmas,
+        )?;
         fits.insert(*l, f);
     }
 

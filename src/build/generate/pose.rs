@@ -16,7 +16,8 @@
 //!   rejected by a leave-one-out test: each landmark is predicted from a
 //!   fit (and scaling) without it; its threshold is the larger of
 //!   [`OUTLIER_MIN_MM`] and [`OUTLIER_SIGMAS`] times the per-axis noise
-//!   estimated from the other 13 residuals of that fit; the landmark with
+//!   estimated from the other 13 residuals of that fit (`3 n - 9` degrees
+//!   of freedom: 6 pose and 3 scale parameters); the landmark with
 //!   the largest error-to-threshold ratio is rejected when the ratio
 //!   exceeds 1.
 
@@ -29,7 +30,7 @@ use std::collections::BTreeMap;
 /// Smallest prediction error (mm) that can flag a landmark as an outlier.
 pub const OUTLIER_MIN_MM: f64 = 6.0;
 /// Prediction error over the per-axis noise estimate that flags an outlier.
-pub const OUTLIER_SIGMAS: f64 = 3.5;
+pub const OUTLIER_SIGMAS: f64 = 4.0;
 /// Accepted range of a scale factor (beyond it the landmarks are wrong).
 pub const SCALE_RANGE: [f64; 2] = [0.5, 2.0];
 
@@ -274,6 +275,17 @@ pub fn fit_vertebra(
     model: &Points,
     method: Method,
 ) -> Result<VertebraFit> {
+    fit_vertebra_with(level, patient, model, method, OUTLIER_SIGMAS)
+}
+
+/// [`fit_vertebra`] with an explicit outlier threshold in noise SDs.
+pub fn fit_vertebra_with(
+    level: Level,
+    patient: &Points,
+    model: &Points,
+    method: Method,
+    outlier_sigmas: f64,
+) -> Result<VertebraFit> {
     let pts: Vec<Point3<f64>> = patient.values().copied().collect();
     require_spread(level, &pts)?;
     match method {
@@ -312,7 +324,7 @@ pub fn fit_vertebra(
             // landmark whose error is largest relative to its threshold
             // (a displaced landmark inflates the noise estimate of every
             // other candidate's fit, not its own).
-            let threshold = |sigma: f64| (OUTLIER_MIN_MM * 1e-3).max(OUTLIER_SIGMAS * sigma);
+            let threshold = |sigma: f64| (OUTLIER_MIN_MM * 1e-3).max(outlier_sigmas * sigma);
             let mut worst: Option<(Code, f64, f64)> = None; // (code, error, threshold)
             if patient.len() >= 6 {
                 for c in patient.keys() {
@@ -331,7 +343,7 @@ pub fn fit_vertebra(
                     let others = residuals(&pose, patient, &scaled, Some(*c));
                     let n = others.len() as f64;
                     let ss: f64 = others.values().map(|r| r * r).sum();
-                    let dof = (3.0 * n - 6.0).max(1.0);
+                    let dof = (3.0 * n - 9.0).max(1.0);
                     let t = threshold((ss / dof).sqrt());
                     if worst.map(|w| e / t > w.1 / w.2).unwrap_or(true) {
                         worst = Some((*c, e, t));
