@@ -19,7 +19,7 @@ mod common;
 
 use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 use osim_spine::build::generate::{generate, GenerateOptions, Method};
-use osim_spine::evaluate::{evaluate_model, Align, ModelShape, Truth};
+use osim_spine::evaluate::{evaluate_model, Align, CentreDef, ModelShape, Truth};
 use osim_spine::landmarks::{Frame, LandmarkId, LandmarkSet, Level, Units};
 use osim_spine::osim::Document;
 use rand::{Rng, SeedableRng};
@@ -147,10 +147,26 @@ fn shapes() -> Vec<Shape> {
     ]
 }
 
-/// OpenSim's posed markers and centres (ground, m).
+/// OpenSim's posed markers and vertebral-body sphere centres (ground, m).
 struct Posed {
     markers: BTreeMap<String, Point3<f64>>,
-    centres: BTreeMap<Level, Point3<f64>>,
+    spheres: BTreeMap<Level, Point3<f64>>,
+}
+
+impl Posed {
+    /// Vertebral centres by the default definition: midpoints of the posed
+    /// SEC and IEC markers.
+    fn centres(&self) -> BTreeMap<Level, Point3<f64>> {
+        Level::ALL
+            .iter()
+            .filter(|l| !l.is_sacrum())
+            .filter_map(|l| {
+                let a = self.markers.get(&format!("{l}_SEC"))?;
+                let b = self.markers.get(&format!("{l}_IEC"))?;
+                Some((*l, nalgebra::center(a, b)))
+            })
+            .collect()
+    }
 }
 
 fn pose_in_opensim(py: &Path, model: &Path, shape: &Shape) -> Posed {
@@ -181,7 +197,7 @@ fn pose_in_opensim(py: &Path, model: &Path, shape: &Shape) -> Posed {
             .iter()
             .map(|(k, v)| (k.clone(), p(v)))
             .collect(),
-        centres: r["centres"]
+        spheres: r["centres"]
             .as_object()
             .unwrap()
             .iter()
@@ -266,12 +282,15 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
     let mut rng = ChaCha8Rng::seed_from_u64(2024);
     for (k, shape) in shapes().iter().enumerate() {
         let posed = pose_in_opensim(&py, &base_osim, shape);
-        assert_eq!(posed.centres.len(), 17);
+        assert_eq!(posed.spheres.len(), 17);
+        assert_eq!(posed.centres().len(), 17);
         let x = ToLps::random(&mut rng);
         let lm = tmp.path().join(format!("shape{k}.csv"));
         let ct = tmp.path().join(format!("shape{k}_centres.csv"));
+        let cs = tmp.path().join(format!("shape{k}_spheres.csv"));
         std::fs::write(&lm, landmarks_csv(&posed.markers, &x, &|_| true)).unwrap();
-        std::fs::write(&ct, centres_csv(&posed.centres, &x)).unwrap();
+        std::fs::write(&ct, centres_csv(&posed.centres(), &x)).unwrap();
+        std::fs::write(&cs, centres_csv(&posed.spheres, &x)).unwrap();
         for method in ["lsq", "thesis"] {
             let out = tmp.path().join(format!("gen{k}_{method}/patient.osim"));
             let o = run(&[
@@ -326,6 +345,27 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
                 shape.name
             );
             assert_eq!(m["apex"], m["truth_apex"]);
+            // The thesis's definition (wrap-sphere centres) agrees too.
+            let ev2 = tmp.path().join(format!("ev{k}_{method}_sphere"));
+            let o = run(&[
+                "evaluate",
+                "--model",
+                out.to_str().unwrap(),
+                "--truth",
+                cs.to_str().unwrap(),
+                "--centre",
+                "sphere",
+                "--align",
+                "sacrum",
+                "--out",
+                ev2.to_str().unwrap(),
+            ]);
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            let r2: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(ev2.join("evaluation.json")).unwrap())
+                    .unwrap();
+            let rmse2 = r2["models"][0]["centre_rmse_mm"].as_f64().unwrap();
+            assert!(rmse2 < 0.5, "{}: sphere-centre RMSE {rmse2} mm", shape.name);
             // Acceptance 3 in OpenSim (once per shape).
             if method == "lsq" {
                 check_in_opensim(&py, &out);
@@ -406,7 +446,7 @@ fn partial_set_keeps_the_base_alignment_above() {
     let lm = tmp.path().join("t9.csv");
     let ct = tmp.path().join("centres.csv");
     std::fs::write(&lm, landmarks_csv(&posed.markers, &x, &|l| l >= Level::T9)).unwrap();
-    std::fs::write(&ct, centres_csv(&posed.centres, &x)).unwrap();
+    std::fs::write(&ct, centres_csv(&posed.centres(), &x)).unwrap();
     let out = tmp.path().join("g/p.osim");
     let o = run(&[
         "generate",
@@ -492,7 +532,12 @@ fn one_run(
             .unwrap_or(osim_spine::build::generate::pose::OUTLIER_SIGMAS),
     };
     let g = generate(base, &set, "noisy.csv", &opts, None).unwrap();
-    let shape = ModelShape::from_document(&g.doc, Some(g.report.registration.clone())).unwrap();
+    let shape = ModelShape::from_document(
+        &g.doc,
+        Some(g.report.registration.clone()),
+        CentreDef::Endplates,
+    )
+    .unwrap();
     let m = evaluate_model(&shape, truth, Align::Rigid, None).unwrap();
     if debug {
         eprintln!("cobb {:?}", m.cobb);
@@ -547,7 +592,7 @@ fn noise_study_table() {
             let posed = pose_in_opensim(&py, &base.join("base.osim"), &shape);
             let x = ToLps::random(&mut rng);
             let truth_lps: BTreeMap<Level, Vector3<f64>> = posed
-                .centres
+                .centres()
                 .iter()
                 .map(|(l, p)| (*l, x.apply(p)))
                 .collect();

@@ -6,7 +6,9 @@
 //! everything is computed.
 
 use crate::error::Error;
-use crate::evaluate::{centres_from_meshes, evaluate, load_model, read_centres_csv, Align, Truth};
+use crate::evaluate::{
+    centres_from_meshes, evaluate, load_model, read_centres_csv, Align, CentreDef, Truth,
+};
 use crate::landmarks::{Frame, Level, Units};
 use std::path::PathBuf;
 
@@ -33,6 +35,11 @@ pub struct Args {
     /// registration: rigid (shape error), l5 (thesis), sacrum (none).
     #[arg(long, value_enum, default_value = "rigid")]
     pub align: Align,
+    /// Vertebral centre: endplates (midpoint of SEC/IEC; meshes: volume
+    /// centroid) or sphere (vertebral-body wrap sphere; meshes: anterior-wall
+    /// sphere fit, the thesis's definition).
+    #[arg(long, value_enum, default_value = "endplates")]
+    pub centre: CentreDef,
     /// End vertebrae of the main curve, `UPPER,LOWER` (default: automatic).
     #[arg(long, value_name = "UPPER,LOWER")]
     pub cobb_ends: Option<String>,
@@ -79,7 +86,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
                     "truth meshes need --truth-frame LPS|RAS|opensim",
                 )
             })?;
-        centres_from_meshes(&args.truth, units, frame)?
+        centres_from_meshes(&args.truth, units, frame, args.centre)?
     } else {
         read_centres_csv(&args.truth)?
     };
@@ -94,9 +101,9 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     };
     let mut models = Vec::new();
     for m in &args.model {
-        models.push(load_model(m)?);
+        models.push(load_model(m, args.centre)?);
     }
-    let (report, figures) = evaluate(&models, &truth, args.align, ends)?;
+    let (report, figures) = evaluate(&models, &truth, args.align, ends, args.centre)?;
     let mut files: Vec<(PathBuf, Vec<u8>)> = vec![(
         args.out.join("evaluation.json"),
         serde_json::to_string_pretty(&report)?.into_bytes(),

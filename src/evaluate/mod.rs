@@ -2,17 +2,21 @@
 //! metrics of the source thesis (chapter 5, Tables 5.6-5.8, Figures
 //! 5.6-5.7).
 //!
-//! **Vertebral centre** (one definition everywhere): the centre of the
-//! vertebra's vertebral-body wrap sphere (`<LEVEL>_body_sphere`, else the
-//! body's first WrapSphere), placed in ground at the model's default pose;
-//! this is what the thesis used for the model, and its truth was the same
-//! sphere fit on the CT vertebral bodies. A vertebra without a sphere falls
-//! back to the midpoint of its `SEC`/`IEC` markers (reported). The truth is
-//! either a centres CSV (`level,x,y,z` with mandatory `# units:` and
-//! `# frame:` headers, like landmark files) or a folder of vertebral-body
-//! meshes (`<LEVEL>*.stl|obj|vtp|ply`, units and frame given on the
-//! command line) whose centres are sphere fits to their anterior walls
-//! ([`crate::mesh::anterior_body_nodes`] + [`crate::mesh::fit_sphere`]).
+//! **Vertebral centre** ([`CentreDef`], the same definition for model and
+//! truth): by default the midpoint of the vertebra's `SEC` and `IEC`
+//! markers at the model's default pose, the centre of the vertebral body on
+//! its endplate axis (for truth meshes: the volume centroid of each
+//! vertebral-body mesh). This is robust to the quality of the base model's
+//! wrap-sphere fits (on coarse meshes some sphere centres sit outside the
+//! vertebral body, which would turn small rotation errors into large
+//! position errors). `--centre sphere` uses the thesis's definition
+//! instead: the centre of the vertebral-body wrap sphere
+//! (`<LEVEL>_body_sphere`), and for truth meshes a sphere fitted to the
+//! anterior wall ([`crate::mesh::anterior_body_nodes`] +
+//! [`crate::mesh::fit_sphere`]). The truth is either a centres CSV
+//! (`level,x,y,z` with mandatory `# units:` and `# frame:` headers, like
+//! landmark files) or a folder of vertebral-body meshes
+//! (`<LEVEL>*.stl|obj|vtp|ply`, units and frame given on the command line).
 //!
 //! **Common frame**: the truth is brought into the model's ground with the
 //! generator's sacral registration (read from `<model stem>_report.json`
@@ -46,10 +50,26 @@ use nalgebra::{Isometry3, Point3};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// Vertebral centres of a model in ground at `poses` (module rule).
+/// Definition of the vertebral centre.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum CentreDef {
+    /// Midpoint of the `SEC` and `IEC` markers (centre of the vertebral
+    /// body on its endplate axis); for truth meshes, the volume centroid of
+    /// the vertebral-body mesh.
+    #[default]
+    Endplates,
+    /// Centre of the vertebral-body wrap sphere (thesis); for truth meshes,
+    /// a sphere fit to the anterior wall.
+    Sphere,
+}
+
+/// Vertebral centres of a model in ground at `poses` (see [`CentreDef`];
+/// a vertebra lacking what the definition needs falls back to the other).
 pub fn model_centres(
     model: &Model,
     poses: &BTreeMap<String, Isometry3<f64>>,
+    def: CentreDef,
 ) -> Result<BTreeMap<Level, Point3<f64>>> {
     let mut out = BTreeMap::new();
     let markers = model_landmarks(model, poses)?;
@@ -73,13 +93,15 @@ pub fn model_centres(
                 b.wrap_objects
                     .iter()
                     .find(|w| matches!(w.shape, WrapShape::Sphere { .. }))
-            });
-        let c = match sphere {
-            Some(w) => Some(x * Point3::from(w.translation)),
-            None => match (markers.get(l, Code::SEC), markers.get(l, Code::IEC)) {
-                (Some(a), Some(b)) => Some(nalgebra::center(&a, &b)),
-                _ => None,
-            },
+            })
+            .map(|w| x * Point3::from(w.translation));
+        let mid = match (markers.get(l, Code::SEC), markers.get(l, Code::IEC)) {
+            (Some(a), Some(b)) => Some(nalgebra::center(&a, &b)),
+            _ => None,
+        };
+        let c = match def {
+            CentreDef::Endplates => mid.or(sphere),
+            CentreDef::Sphere => sphere.or(mid),
         };
         if let Some(c) = c {
             out.insert(l, c);
@@ -126,11 +148,15 @@ pub fn report_path(model: &Path) -> PathBuf {
 
 impl ModelShape {
     /// Centres and markers of an in-memory model at its default pose.
-    pub fn from_document(doc: &Document, registration: Option<Registration>) -> Result<ModelShape> {
+    pub fn from_document(
+        doc: &Document,
+        registration: Option<Registration>,
+        def: CentreDef,
+    ) -> Result<ModelShape> {
         let model = doc.model()?;
         let kin = Kinematics::new(&model)?;
         let poses = kin.body_poses(&kin.default_values())?;
-        let centres = model_centres(&model, &poses)?;
+        let centres = model_centres(&model, &poses, def)?;
         let name = doc.path().display().to_string();
         if centres.is_empty() {
             return Err(Error::invalid(
@@ -150,7 +176,7 @@ impl ModelShape {
 
 /// Load a model's centres and markers at its default pose, and the
 /// registration from its generate report when present.
-pub fn load_model(path: &Path) -> Result<ModelShape> {
+pub fn load_model(path: &Path, def: CentreDef) -> Result<ModelShape> {
     let doc = Document::read(path)?;
     let rp = report_path(path);
     let registration = if rp.exists() {
@@ -166,7 +192,7 @@ pub fn load_model(path: &Path) -> Result<ModelShape> {
     } else {
         None
     };
-    ModelShape::from_document(&doc, registration)
+    ModelShape::from_document(&doc, registration, def)
 }
 
 /// Truth data in OpenSim axes and metres (the patient's frame; see
@@ -323,12 +349,14 @@ pub fn centres_csv(centres: &BTreeMap<Level, Point3<f64>>, units: Units, frame: 
 }
 
 /// Truth centres from vertebral-body meshes in `dir` (`<LEVEL>*.{stl,obj,
-/// vtp,ply}`, one per level) in the given units and frame: sphere fits to
-/// their anterior walls (the thesis's CT rule).
+/// vtp,ply}`, one per level) in the given units and frame, by `def`
+/// (volume centroids, or sphere fits to the anterior walls: the thesis's
+/// CT rule).
 pub fn centres_from_meshes(
     dir: &Path,
     units: Units,
     frame: Frame,
+    def: CentreDef,
 ) -> Result<BTreeMap<Level, Point3<f64>>> {
     let rd = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
     let mut files: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();
@@ -369,16 +397,24 @@ pub fn centres_from_meshes(
             triangles: mesh.triangles.clone(),
         };
         let ctx = f.display().to_string();
-        let frame = crate::mesh::AnatomicalFrame::opensim_body();
-        let idx = crate::mesh::anterior_body_nodes(&moved, &frame)
-            .map_err(|e| Error::invalid(&ctx, e.to_string()))?;
-        let nodes: Vec<Point3<f64>> = idx
-            .iter()
-            .filter_map(|i| moved.vertices.get(*i).copied())
-            .collect();
-        let sp = crate::mesh::fit_sphere(&nodes)
-            .map_err(|e| Error::invalid(&ctx, format!("sphere fit: {e}")))?;
-        if out.insert(level, sp.centre).is_some() {
+        let centre = match def {
+            CentreDef::Endplates => moved.volume_centroid().ok_or_else(|| {
+                Error::invalid(&ctx, "no volume centroid (open or degenerate mesh)")
+            })?,
+            CentreDef::Sphere => {
+                let frame = crate::mesh::AnatomicalFrame::opensim_body();
+                let idx = crate::mesh::anterior_body_nodes(&moved, &frame)
+                    .map_err(|e| Error::invalid(&ctx, e.to_string()))?;
+                let nodes: Vec<Point3<f64>> = idx
+                    .iter()
+                    .filter_map(|i| moved.vertices.get(*i).copied())
+                    .collect();
+                crate::mesh::fit_sphere(&nodes)
+                    .map_err(|e| Error::invalid(&ctx, format!("sphere fit: {e}")))?
+                    .centre
+            }
+        };
+        if out.insert(level, centre).is_some() {
             return Err(Error::invalid(&ctx, format!("a second mesh for {level}")));
         }
     }
@@ -704,9 +740,13 @@ pub struct EvaluateReport {
     pub summary: Summary,
 }
 
-/// Definition string written into reports.
-pub const CENTRE_DEFINITION: &str =
-    "centre of the vertebral-body wrap sphere (sphere fit to the anterior wall), default pose";
+/// Definition text written into reports.
+pub fn centre_definition(def: CentreDef) -> &'static str {
+    match def {
+        CentreDef::Endplates => "midpoint of the SEC and IEC markers at the default pose (truth meshes: volume centroid)",
+        CentreDef::Sphere => "centre of the vertebral-body wrap sphere at the default pose (truth meshes: anterior-wall sphere fit)",
+    }
+}
 
 /// Evaluate models against the truth; returns the report and the figures
 /// `[(file name, svg)]`.
@@ -715,6 +755,7 @@ pub fn evaluate(
     truth: &Truth,
     align: Align,
     cobb_ends: Option<(Level, Level)>,
+    def: CentreDef,
 ) -> Result<(EvaluateReport, Vec<(String, String)>)> {
     let mut all = Vec::new();
     for m in models {
@@ -725,7 +766,7 @@ pub fn evaluate(
     Ok((
         EvaluateReport {
             truth: truth.source.clone(),
-            vertebral_centre: CENTRE_DEFINITION,
+            vertebral_centre: centre_definition(def),
             models: all,
             summary,
         },

@@ -40,6 +40,7 @@
 //! the disc below, X anterior, Y cranial, Z right; see
 //! [`crate::build::base`]); only the poses change.
 
+pub mod example;
 pub mod pose;
 pub mod scale;
 pub mod wraps;
@@ -166,7 +167,8 @@ pub struct GenerateReport {
     pub joints_rewritten: Vec<String>,
     pub scaling: BTreeMap<String, scale::ScaleCount>,
     pub spheres: Vec<wraps::SphereOut>,
-    /// Vertebral centres (wrap-sphere centres) in ground at the default pose (m).
+    /// Vertebral centres ([`crate::evaluate::CentreDef::Endplates`]) in
+    /// ground at the default pose (m).
     pub centres: BTreeMap<String, [f64; 3]>,
     pub self_check: Option<crate::build::base::check::SelfCheck>,
 }
@@ -463,7 +465,8 @@ pub fn generate(
     let out_model = doc.model()?;
     let kin2 = Kinematics::new(&out_model)?;
     let poses2 = kin2.body_poses(&kin2.default_values())?;
-    let centres = crate::evaluate::model_centres(&out_model, &poses2)?;
+    let centres =
+        crate::evaluate::model_centres(&out_model, &poses2, crate::evaluate::CentreDef::default())?;
     let mut rows = Vec::new();
     let mut outliers = Vec::new();
     let mut all_res = Vec::new();
