@@ -539,7 +539,7 @@ pub fn generate(
                 source: "refitted from the base model".into(),
                 body_mesh_registration_rms_mm: None,
                 muscles: s.muscles.clone(),
-                muscles_refused: s.pathwraps_removed.clone(),
+                muscles_refused: s.muscles_refused.clone(),
             })
             .collect();
         Some(crate::build::base::check::run(&out_model, &refs, &rows)?)

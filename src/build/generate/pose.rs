@@ -370,6 +370,8 @@ pub fn fit_vertebra_with(
 mod tests {
     use super::*;
 
+    /// A box vertebra whose dimension pairs are axis-aligned (so that
+    /// distance ratios are exactly the scale factors).
     fn box_vertebra() -> Points {
         let pts = [
             (Code::SEC, [0.0, 0.012, 0.0]),
@@ -382,10 +384,10 @@ mod tests {
             (Code::SP, [-0.017, 0.012, 0.0]),
             (Code::SR, [0.0, 0.012, 0.021]),
             (Code::SL, [0.0, 0.012, -0.021]),
-            (Code::IA, [0.018, -0.012, 0.0]),
-            (Code::IP, [-0.018, -0.012, 0.0]),
-            (Code::IR, [0.0, -0.012, 0.022]),
-            (Code::IL, [0.0, -0.012, -0.022]),
+            (Code::IA, [0.017, -0.012, 0.0]),
+            (Code::IP, [-0.017, -0.012, 0.0]),
+            (Code::IR, [0.0, -0.012, 0.021]),
+            (Code::IL, [0.0, -0.012, -0.021]),
         ];
         pts.iter()
             .map(|(c, p)| (*c, Point3::new(p[0], p[1] + 0.02, p[2])))

@@ -10,22 +10,28 @@
 //!   the base sphere's anterior wall (the region the base pipeline fitted
 //!   it to: points within 60 degrees of anterior in the transverse plane
 //!   and within 25 degrees of it in elevation);
-//! * then the base pipeline's consistency rules are enforced at the default
-//!   pose and the base test poses ([`crate::build::base::wrap::test_poses`]):
-//!   spheres do not overlap (pairs shrunk to 98 % of their closest centre
-//!   distance) and no path point of a muscle wrapping over a sphere lies
-//!   within the radius + 0.5 mm; a muscle that would force the radius
-//!   below half the refitted one loses that PathWrap (reported).
+//! * then the base pipeline's wrapping rules ([`crate::build::base::wrap`])
+//!   are re-applied on the generated pose (its default pose and the base
+//!   test poses around it), since the scoliotic curve changes which
+//!   muscles cross which vertebral body: spheres may not overlap (pairs
+//!   shrunk to 98 % of their closest centre distance); the crossing rule
+//!   and the inside-point fix decide which muscles wrap over each sphere
+//!   and shrink it clear of their path points (a muscle that would force
+//!   it below half its radius is refused, reported); each muscle gets one
+//!   PathWrap, over the sphere its straight path penetrates deepest; the
+//!   base model's PathWraps over vertebral-body spheres are replaced.
 
-use crate::build::base::kin::{muscle_path, Kinematics};
-use crate::build::base::wrap::{test_poses, CLEARANCE};
+use crate::build::base::body_level_index;
+use crate::build::base::kin::{muscle_path, point_segment_distance, Kinematics};
+use crate::build::base::wrap::{assign, test_poses, MuscleGeom, SphereGeom};
 use crate::error::{Error, Result};
+use crate::osim::builders;
 use crate::osim::document::set_f64;
 use crate::osim::model::WrapShape;
 use crate::osim::xml::Node;
 use crate::osim::Document;
 use nalgebra::{Point3, Vector3};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 /// Least-squares radius about the scaled centre of the scaled anterior wall
 /// of a sphere of radius `r` scaled by `s`.
@@ -59,10 +65,10 @@ pub struct SphereOut {
     pub radius: f64,
     /// What limited the radius below the refit ("" when nothing did).
     pub limited_by: String,
-    /// Muscles wrapping over it.
+    /// Muscles wrapping over it (PathWraps).
     pub muscles: Vec<String>,
-    /// Muscles whose PathWrap over it was removed (a path point too deep).
-    pub pathwraps_removed: Vec<String>,
+    /// Muscles that cross it but have a path point too deep inside.
+    pub muscles_refused: Vec<String>,
 }
 
 /// Refit and constrain every WrapSphere of `doc` (already scaled, joints
@@ -104,7 +110,7 @@ pub fn refit_spheres(
                     radius: rf,
                     limited_by: String::new(),
                     muscles: vec![],
-                    pathwraps_removed: vec![],
+                    muscles_refused: vec![],
                 });
             }
         }
@@ -136,39 +142,67 @@ pub fn refit_spheres(
             }
         }
     }
-    // Path points of the muscles wrapping over each sphere.
-    let mut removals: Vec<(String, String)> = Vec::new(); // (muscle, sphere)
-    for (k, s) in out.iter_mut().enumerate() {
-        let mut limits: Vec<(f64, String)> = Vec::new();
-        for m in model.muscles() {
-            if !m.wraps.iter().any(|w| w.wrap_object == s.name) {
-                continue;
+    // Muscles over the test poses, and the base pipeline's crossing rule
+    // and inside-point fix on the generated pose.
+    let mut mgeo = Vec::new();
+    for m in model.muscles() {
+        let mut paths = Vec::new();
+        let mut bodies = BTreeSet::new();
+        for ((_, q), bp) in poses.iter().zip(&body_poses) {
+            let path = muscle_path(&model, m, bp, q)?;
+            for p in &path {
+                bodies.insert(p.body.clone());
             }
-            s.muscles.push(m.name.clone());
-            let mut dpose = f64::MAX;
-            for (pi, ((_, q), bp)) in poses.iter().zip(&body_poses).enumerate() {
-                for p in muscle_path(&model, m, bp, q)? {
-                    dpose = dpose.min((p.ground - all_c[k][pi]).norm());
-                }
-            }
-            limits.push((dpose - CLEARANCE, m.name.clone()));
+            paths.push(path.iter().map(|p| p.ground).collect::<Vec<_>>());
         }
-        limits.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        for (lim, name) in limits {
-            if lim >= s.radius {
-                continue;
-            }
-            if lim < 0.5 * s.radius_refit {
-                s.pathwraps_removed.push(name.clone());
-                s.muscles.retain(|x| *x != name);
-                removals.push((name, s.name.clone()));
-            } else {
-                s.radius = lim;
-                s.limited_by = format!("path point of {name}");
-            }
+        let lv: Vec<usize> = bodies.iter().filter_map(|b| body_level_index(b)).collect();
+        mgeo.push(MuscleGeom {
+            name: m.name.clone(),
+            level_lo: lv.iter().copied().min().unwrap_or(0),
+            level_hi: lv.iter().copied().max().unwrap_or(0),
+            bodies: bodies.into_iter().collect(),
+            paths,
+        });
+    }
+    // Per muscle: (clearance, sphere index) of every sphere it crosses.
+    let mut crossings: BTreeMap<usize, Vec<(f64, usize)>> = BTreeMap::new();
+    for (k, s) in out.iter_mut().enumerate() {
+        let g = SphereGeom {
+            level_index: body_level_index(&s.body).unwrap_or(0),
+            body: s.body.clone(),
+            radius_fit: s.radius,
+            centres: all_c[k].clone(),
+        };
+        let a = assign(&g, &mgeo);
+        if a.radius < s.radius {
+            s.limited_by = "path points of its muscles (inside-point rule)".into();
+        }
+        s.radius = a.radius;
+        s.muscles_refused = a.refused.iter().map(|&i| mgeo[i].name.clone()).collect();
+        for &i in &a.muscles {
+            let clear = mgeo[i]
+                .paths
+                .iter()
+                .zip(&g.centres)
+                .flat_map(|(p, c)| {
+                    p.windows(2)
+                        .map(move |w| point_segment_distance(c, &w[0], &w[1]))
+                })
+                .fold(f64::MAX, f64::min)
+                - a.radius;
+            crossings.entry(i).or_default().push((clear, k));
         }
     }
-    // Write radii and remove PathWraps.
+    // One PathWrap per muscle: the sphere its straight path penetrates deepest.
+    let mut chosen: BTreeMap<String, String> = BTreeMap::new(); // muscle -> sphere
+    for (i, list) in crossings.iter_mut() {
+        list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        if let Some((_, k)) = list.first() {
+            out[*k].muscles.push(mgeo[*i].name.clone());
+            chosen.insert(mgeo[*i].name.clone(), out[*k].name.clone());
+        }
+    }
+    // Write radii and PathWraps.
     for s in &out {
         let el = doc
             .component_mut("BodySet", &s.body)
@@ -183,17 +217,34 @@ pub fn refit_spheres(
             })?;
         set_f64(el, "radius", s.radius);
     }
-    for (muscle, sphere) in &removals {
-        if let Some(objs) = doc
-            .component_mut("ForceSet", muscle)
-            .and_then(|m| m.elements_mut().find(|e| e.name == "GeometryPath"))
-            .and_then(|g| g.child_mut("PathWrapSet"))
-            .and_then(|w| w.child_mut("objects"))
-        {
-            objs.children.retain(|n| match n {
-                Node::Element(e) => e.child_text("wrap_object").as_deref() != Some(sphere),
-                _ => true,
-            });
+    let sphere_names: BTreeSet<String> = out.iter().map(|s| s.name.clone()).collect();
+    for m in model.muscles() {
+        let Some(gp) = doc
+            .component_mut("ForceSet", &m.name)
+            .and_then(|e| e.elements_mut().find(|e| e.name == "GeometryPath"))
+        else {
+            continue;
+        };
+        let had = gp.child("PathWrapSet").is_some();
+        let new = chosen.get(&m.name);
+        if !had && new.is_none() {
+            continue;
+        }
+        let objs = gp.child_or_insert("PathWrapSet").child_or_insert("objects");
+        objs.children.retain(|n| match n {
+            Node::Element(e) => e
+                .child_text("wrap_object")
+                .map(|w| !sphere_names.contains(&w))
+                .unwrap_or(true),
+            _ => true,
+        });
+        if let Some(sphere) = new {
+            objs.children.push(Node::Element(builders::path_wrap(
+                &format!("pathwrap_{sphere}"),
+                sphere,
+                "hybrid",
+                [-1, -1],
+            )));
         }
     }
     Ok(out)
