@@ -209,7 +209,9 @@ fn without(lines: &[String], pred: &dyn Fn(&str) -> bool) -> String {
         + "\n"
 }
 
-fn map_points(lines: &[String], f: &dyn Fn(&str, [f64; 3]) -> (String, [f64; 3])) -> String {
+type Rename = dyn Fn(&str, [f64; 3]) -> (String, [f64; 3]);
+
+fn map_points(lines: &[String], f: &Rename) -> String {
     let mut s = String::new();
     for l in lines {
         let parts: Vec<&str> = l.split(',').collect();

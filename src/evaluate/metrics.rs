@@ -39,9 +39,12 @@ pub fn tilts(r: &Vector3<f64>, a: &Vector3<f64>) -> (f64, f64) {
     ((-r.y).atan2(r.z), (-a.y).atan2(a.x))
 }
 
+/// Frontal and sagittal tilt of one endplate (rad).
+pub type Tilts = (f64, f64);
+
 /// Frontal and sagittal tilts (rad) of the superior and inferior endplates
 /// of a level (`None` when landmarks are missing).
-pub fn endplate_tilts(set: &LandmarkSet, level: Level) -> (Option<(f64, f64)>, Option<(f64, f64)>) {
+pub fn endplate_tilts(set: &LandmarkSet, level: Level) -> (Option<Tilts>, Option<Tilts>) {
     let g = |c| set.get(level, c);
     let t = |a: Option<Point3<f64>>,
              p: Option<Point3<f64>>,

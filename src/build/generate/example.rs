@@ -15,7 +15,7 @@
 use crate::build::base::kin::Kinematics;
 use crate::error::Result;
 use crate::evaluate::{model_centres, model_landmarks};
-use crate::landmarks::Level;
+use crate::landmarks::{LandmarkSet, Level};
 use crate::osim::Document;
 use nalgebra::{Point3, Rotation3, Unit, Vector3};
 use rand::SeedableRng;
@@ -52,8 +52,12 @@ fn fmt(v: f64) -> String {
     }
 }
 
-/// Build the example from the default base model `base`.
-pub fn example_scoliosis(base: &Document) -> Result<Example> {
+/// The base model's markers (a landmark set, metres, OpenSim frame) and
+/// vertebral centres with the model posed by [`POSE`] (the tool's own
+/// forward kinematics). Every level of the base model is included.
+pub fn posed_example(
+    base: &Document,
+) -> Result<(LandmarkSet, std::collections::BTreeMap<Level, Point3<f64>>)> {
     let model = base.model()?;
     let kin = Kinematics::new(&model)?;
     let mut q = kin.default_values();
@@ -67,6 +71,12 @@ pub fn example_scoliosis(base: &Document) -> Result<Example> {
     let poses = kin.body_poses(&q)?;
     let set = model_landmarks(&model, &poses)?;
     let centres = model_centres(&model, &poses, crate::evaluate::CentreDef::default())?;
+    Ok((set, centres))
+}
+
+/// Build the example from the default base model `base`.
+pub fn example_scoliosis(base: &Document) -> Result<Example> {
+    let (set, centres) = posed_example(base)?;
     // CT frame: OpenSim axes (m) -> LPS (mm), then the scanner's pose.
     let lps = crate::landmarks::Frame::Lps.to_opensim().transpose();
     let r = Rotation3::from_axis_angle(
