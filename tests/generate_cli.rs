@@ -209,9 +209,9 @@ fn without(lines: &[String], pred: &dyn Fn(&str) -> bool) -> String {
         + "\n"
 }
 
-type Rename = dyn Fn(&str, [f64; 3]) -> (String, [f64; 3]);
+type Rename<'a> = dyn Fn(&str, [f64; 3]) -> (String, [f64; 3]) + 'a;
 
-fn map_points(lines: &[String], f: &Rename) -> String {
+fn map_points(lines: &[String], f: &Rename<'_>) -> String {
     let mut s = String::new();
     for l in lines {
         let parts: Vec<&str> = l.split(',').collect();
