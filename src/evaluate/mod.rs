@@ -785,7 +785,14 @@ fn figures(models: &[ModelShape], truth: &Truth, align: Align) -> Result<Vec<(St
     let mut curves = Vec::new();
     for (k, m) in models.iter().enumerate() {
         let col = RGBColor(70 + (k * 37 % 120) as u8, 110, 220 - (k * 23 % 100) as u8);
-        let pts: Vec<Point3<f64>> = m.centres.values().copied().collect();
+        // Only the levels the truth has (the thesis's figures span the CT).
+        let common: BTreeMap<Level, Point3<f64>> = m
+            .centres
+            .iter()
+            .filter(|(l, _)| truth.centres.contains_key(l))
+            .map(|(l, p)| (*l, *p))
+            .collect();
+        let pts: Vec<Point3<f64>> = common.values().copied().collect();
         series.push(Series {
             label: if k == 0 {
                 "model centres".into()
@@ -804,7 +811,7 @@ fn figures(models: &[ModelShape], truth: &Truth, align: Align) -> Result<Vec<(St
                 String::new()
             },
             colour: col,
-            points: poly_curve(&m.centres),
+            points: poly_curve(&common),
             radius: 0,
             line: true,
         });
