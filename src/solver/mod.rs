@@ -9,6 +9,7 @@
 //! | `kinematics` | body poses and motion subspaces, generic over the scalar |
 //! | `forces` | gravity, bushings (OpenSim 4.6 BushingForce), loads, projection |
 //! | `statics` | Newton equilibrium with exact tangent, sensitivities |
+//! | `tree` | structured O(n) statics tangent: assembly and block elimination on the body tree |
 //! | `dynamics` | mass matrix, generalised accelerations, implicit integrator, energy |
 //! | `from_model` | adapter from an OpenSim model document |
 //! | `output` | body poses, bushing records, .sto and JSON writers |
@@ -24,6 +25,7 @@ pub mod scalar;
 pub mod spec;
 pub mod statics;
 pub mod system;
+pub mod tree;
 
 pub use forces::{LoadSet, GIMBAL_LIMIT};
 pub use spec::{
@@ -32,6 +34,7 @@ pub use spec::{
 };
 pub use statics::{StaticOptions, StaticSolution};
 pub use system::{Pose, System, Workspace};
+pub use tree::TangentMethod;
 
 #[cfg(test)]
 mod tests;

@@ -8,7 +8,8 @@
 use super::forces::{self, GimbalLock, LoadSet};
 use super::kinematics;
 use super::scalar::{d6_eps, d6_var, Scalar, D6};
-use super::system::{KinBuf, System, Workspace};
+use super::system::{Factored, KinBuf, System, Workspace};
+use super::tree::TangentMethod;
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector, Vector3};
 
@@ -127,6 +128,35 @@ impl System {
         Ok(())
     }
 
+    /// Factorise the tangent at `q` and overwrite `ws.dq` with the solution
+    /// of `T x = ws.dq`. `ws.k64` must hold the residual evaluation at `q`.
+    /// Structured when the workspace allows it and the system is
+    /// tree-coupled, dense otherwise or when a joint block of the structured
+    /// elimination is singular. Leaves `ws.factored` at `None` when the
+    /// tangent is singular.
+    fn factor_and_solve(
+        &self,
+        q: &[f64],
+        loads: &LoadSet,
+        ws: &mut Workspace,
+    ) -> Result<(), GimbalLock> {
+        ws.factored = Factored::None;
+        if ws.method == TangentMethod::Auto && ws.tree.usable {
+            ws.tree.assemble(self, loads, &ws.k64, &mut ws.kd6)?;
+            if ws.tree.factor(self) {
+                ws.tree.solve(self, &mut ws.dq);
+                ws.factored = Factored::Tree;
+                return Ok(());
+            }
+        }
+        self.eval_tangent(q, loads, ws)?;
+        if ws.lu.factor() {
+            ws.lu.solve_in_place(&mut ws.dq);
+            ws.factored = Factored::Dense;
+        }
+        Ok(())
+    }
+
     /// The tangent `d tau / d q` at `q` as a new matrix (for inspection and tests).
     pub fn static_tangent(
         &self,
@@ -137,7 +167,7 @@ impl System {
         self.check_q(q)?;
         self.eval_tangent(q, loads, ws)
             .map_err(|g| g.to_error(self))?;
-        ws.jac_valid = false;
+        ws.factored = Factored::None;
         Ok(ws.lu.a.clone())
     }
 
@@ -153,7 +183,7 @@ impl System {
         self.check_q(q0)?;
         let n = self.n_dofs();
         let ctx = "static equilibrium";
-        ws.jac_valid = false;
+        ws.factored = Factored::None;
         let mut q: Vec<f64> = q0.to_vec();
         ws.k64.q.copy_from_slice(&q);
         eval_tau(self, loads, &mut ws.k64).map_err(|g| g.to_error(self))?;
@@ -184,19 +214,17 @@ impl System {
                     ),
                 ));
             }
-            self.eval_tangent(&q, loads, ws)
+            for i in 0..n {
+                ws.dq[i] = -ws.r[i];
+            }
+            self.factor_and_solve(&q, loads, ws)
                 .map_err(|g| g.to_error(self))?;
-            if !ws.lu.factor() {
+            if ws.factored == Factored::None {
                 return Err(Error::numerical(
                     ctx,
                     format!("singular tangent stiffness at iteration {it}: a degree of freedom has no stiffness (add a bushing, lock the coordinate or fix a body)"),
                 ));
             }
-            ws.jac_valid = true;
-            for i in 0..n {
-                ws.dq[i] = -ws.r[i];
-            }
-            ws.lu.solve_in_place(&mut ws.dq);
             if ws.dq.iter().any(|v| !v.is_finite()) {
                 return Err(Error::numerical(
                     ctx,
@@ -282,13 +310,26 @@ impl System {
     /// of the last Newton iteration of [`System::solve_static`] (for
     /// sensitivities `dq/dp = -T^{-1} d tau / d p`).
     pub fn tangent_solve(&self, ws: &Workspace, rhs: &mut [f64]) -> Result<()> {
-        if !ws.jac_valid || rhs.len() != self.n_dofs() {
+        if rhs.len() != self.n_dofs() {
             return Err(Error::invalid(
                 "solver",
-                "no factorised tangent available: run solve_static first",
+                format!(
+                    "tangent_solve: expected {} right-hand-side entries, got {}",
+                    self.n_dofs(),
+                    rhs.len()
+                ),
             ));
         }
-        ws.lu.solve_in_place(rhs);
+        match ws.factored {
+            Factored::Dense => ws.lu.solve_in_place(rhs),
+            Factored::Tree => ws.tree.solve_alloc(self, rhs),
+            Factored::None => {
+                return Err(Error::invalid(
+                    "solver",
+                    "no factorised tangent available: run solve_static first",
+                ))
+            }
+        }
         Ok(())
     }
 
