@@ -1,30 +1,82 @@
-//! Time of one static solve (cold start from the default pose) of a
-//! spine-like chain of 6, 12, 17, 34 and 68 six-DoF joints under a 7.5 N m
-//! flexion moment on the top vertebra, gravity off (acceptance 4: the cost
-//! should grow about linearly with the number of joints).
+//! Time of one static solve of a spine-like chain of 6, 12, 17, 34 and 68
+//! six-DoF joints under a 7.5 N m flexion moment on the top vertebra, gravity
+//! off (acceptance 4: the cost should grow about linearly with the number of
+//! joints):
+//! - `static_solve/N_joints`: cold start from the default pose (structured
+//!   O(n) tangent, the default);
+//! - `static_solve_warm/N_joints`: warm start from the equilibrium under
+//!   7.0 N m (what calibration and load sweeps do);
+//! - `static_solve_dense/N_joints`: cold start with the dense reference
+//!   tangent (`TangentMethod::Dense`), for comparison.
 
-use criterion::{criterion_group, criterion_main, Criterion};
-use nalgebra::Vector3;
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use nalgebra::{DVector, Vector3};
 use osim_spine::solver::examples::spine_chain;
-use osim_spine::solver::{Load, LoadFrame, StaticOptions, System, Workspace};
+use osim_spine::solver::{
+    Load, LoadFrame, LoadSet, StaticOptions, System, TangentMethod, Workspace,
+};
 use std::hint::black_box;
 
+const SIZES: [usize; 5] = [6, 12, 17, 34, 68];
+
+fn setup(n: usize, moment: f64) -> (System, LoadSet) {
+    let sys = System::new(&spine_chain(n)).expect("chain");
+    let loads = sys
+        .prepare_loads(&[Load::Moment {
+            body: format!("v{n}"),
+            vec: Vector3::new(0.0, 0.0, moment),
+            frame: LoadFrame::Ground,
+        }])
+        .expect("loads");
+    (sys, loads)
+}
+
 fn bench_chains(c: &mut Criterion) {
+    let opts = StaticOptions::default();
     let mut g = c.benchmark_group("static_solve");
-    for n in [6usize, 12, 17, 34, 68] {
-        let sys = System::new(&spine_chain(n)).expect("chain");
+    for n in SIZES {
+        let (sys, loads) = setup(n, -7.5);
         let mut ws = Workspace::new(&sys);
-        let top = format!("v{n}");
-        let loads = sys
-            .prepare_loads(&[Load::Moment {
-                body: top,
-                vec: Vector3::new(0.0, 0.0, -7.5),
-                frame: LoadFrame::Ground,
-            }])
-            .expect("loads");
         let q0 = sys.default_q();
-        let opts = StaticOptions::default();
-        g.bench_function(format!("{n}_joints"), |b| {
+        g.bench_function(BenchmarkId::from_parameter(format!("{n}_joints")), |b| {
+            b.iter(|| {
+                black_box(
+                    sys.solve_static(&loads, q0.as_slice(), &mut ws, &opts)
+                        .expect("solve"),
+                )
+            })
+        });
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("static_solve_warm");
+    for n in SIZES {
+        let (sys, loads) = setup(n, -7.5);
+        let (_, near) = setup(n, -7.0);
+        let mut ws = Workspace::new(&sys);
+        let q_near: DVector<f64> = sys
+            .solve_static(&near, sys.default_q().as_slice(), &mut ws, &opts)
+            .expect("solve")
+            .q;
+        g.bench_function(BenchmarkId::from_parameter(format!("{n}_joints")), |b| {
+            b.iter(|| {
+                black_box(
+                    sys.solve_static(&loads, q_near.as_slice(), &mut ws, &opts)
+                        .expect("solve"),
+                )
+            })
+        });
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("static_solve_dense");
+    g.sample_size(10);
+    for n in SIZES {
+        let (sys, loads) = setup(n, -7.5);
+        let mut ws = Workspace::new(&sys);
+        ws.set_tangent_method(TangentMethod::Dense);
+        let q0 = sys.default_q();
+        g.bench_function(BenchmarkId::from_parameter(format!("{n}_joints")), |b| {
             b.iter(|| {
                 black_box(
                     sys.solve_static(&loads, q0.as_slice(), &mut ws, &opts)

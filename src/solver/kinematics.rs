@@ -6,7 +6,8 @@
 
 use super::scalar::{rot_axis, v3, Scalar};
 use super::system::{AxisSource, Joint, KinBuf, Pose, System};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Matrix6, Vector3};
+use num_dual::Dual64;
 
 /// Compute `kb.x_gb` and `kb.h` from `kb.q`.
 pub fn forward<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
@@ -26,8 +27,7 @@ pub fn forward<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
 
 /// One joint: the child body's pose in ground from its parent's pose `x_gp`
 /// and the joint's own free dofs `q` (`dof_count` values), and the joint's
-/// motion subspace written into `h` (`dof_count` entries). Used per joint by
-/// the structured statics tangent (parent pose held constant).
+/// motion subspace written into `h` (`dof_count` entries).
 pub(crate) fn joint_forward<T: Scalar>(
     j: &Joint,
     x_gp: &Pose<T>,
@@ -35,6 +35,30 @@ pub(crate) fn joint_forward<T: Scalar>(
     h: &mut [[Vector3<T>; 2]],
 ) -> Pose<T> {
     let x_gf = x_gp.compose_c(&j.x_pf);
+    let mut local = [[Vector3::zeros(); 2]; 6];
+    let x_fm = joint_local(j, q, &mut local);
+    let x_gm = x_gf.compose(&x_fm);
+    for (k, [w_f, v_f]) in local.iter().enumerate().take(j.dof_count) {
+        let w = x_gf.r * w_f;
+        let v = x_gf.r * v_f - w.cross(&x_gm.p);
+        if let Some(h) = h.get_mut(k) {
+            *h = [w, v];
+        }
+    }
+    x_gm.compose_c(&j.x_mb)
+}
+
+/// The joint's own transform `X_FM` (mobilised frame in the parent-side
+/// frame F) from its free dofs `q`, and per dof the angular and linear
+/// velocity of M's origin in F axes per unit speed (`local[k] = [w_F, v_F]`;
+/// rotations turn about M's origin, so `v_F` comes from the translation
+/// axes only). Needs no parent pose: the structured statics tangent
+/// differentiates it alone.
+pub(crate) fn joint_local<T: Scalar>(
+    j: &Joint,
+    q: &[T],
+    local: &mut [[Vector3<T>; 2]; 6],
+) -> Pose<T> {
     let mut val = [T::zero(); 6];
     let mut der: [Option<(usize, T)>; 6] = [None; 6];
     for (ai, ax) in j.axes.iter().enumerate() {
@@ -71,8 +95,7 @@ pub(crate) fn joint_forward<T: Scalar>(
             p += v3::<T>(&j.axes[ai].unit) * val[ai];
         }
     }
-    let x_gm = x_gf.compose(&Pose { r, p });
-    // motion subspace
+    // motion subspace in F
     let es = [e0, e1, e2];
     for k in 0..j.dof_count {
         let mut w_f = Vector3::zeros();
@@ -88,11 +111,91 @@ pub(crate) fn joint_forward<T: Scalar>(
                 }
             }
         }
-        let w = x_gf.r * w_f;
-        let v = x_gf.r * v_f - w.cross(&x_gm.p);
-        if let Some(h) = h.get_mut(k) {
-            *h = [w, v];
+        if let Some(l) = local.get_mut(k) {
+            *l = [w_f, v_f];
         }
     }
-    x_gm.compose_c(&j.x_mb)
+    Pose { r, p }
+}
+
+/// Joint-local part of the statics tangent, analytically: with the
+/// subtree wrench held fixed in the joint's parent-side frame F (moment
+/// `n_f` about F's origin and force `f_f`, F axes), the generalised force of
+/// dof `k` is `w_k . (n_f - p_FM x f_f) + v_k . f_f` (`w_k`, `v_k` the
+/// dof's rates from [`joint_local`]); `out[(k, m)]` receives its exact
+/// derivative w.r.t. dof `m` (k, m < `dof_count`; the rest is zeroed).
+/// Uses `d e_a / d val_b = e_b x e_a` for the rotation axes (b before a) and
+/// the transform functions' second derivatives.
+pub(crate) fn joint_local_tangent(
+    j: &Joint,
+    q: &[f64],
+    n_f: &Vector3<f64>,
+    f_f: &Vector3<f64>,
+    out: &mut Matrix6<f64>,
+) {
+    *out = Matrix6::zeros();
+    let n = j.dof_count.min(6);
+    let mut val = [0.0f64; 6];
+    let mut d1 = [0.0f64; 6];
+    let mut d2 = [0.0f64; 6];
+    let mut dof: [Option<usize>; 6] = [None; 6];
+    for (ai, ax) in j.axes.iter().enumerate() {
+        match &ax.source {
+            AxisSource::Fixed(v) => val[ai] = *v,
+            AxisSource::Dof(k, f) => {
+                let qk = q.get(*k).copied().unwrap_or(0.0);
+                let (v, d) = f.eval(Dual64::new(qk, 1.0));
+                val[ai] = v.re;
+                d1[ai] = d.re;
+                d2[ai] = d.eps;
+                dof[ai] = (*k < n).then_some(*k);
+            }
+        }
+    }
+    let is_zero = |ai: usize| matches!(j.axes[ai].source, AxisSource::Fixed(v) if v == 0.0);
+    let mut e = [j.axes[0].unit; 3];
+    let mut r = if is_zero(0) {
+        Matrix3::identity()
+    } else {
+        rot_axis(&j.axes[0].unit, val[0])
+    };
+    e[1] = r * j.axes[1].unit;
+    if !is_zero(1) {
+        r *= rot_axis(&j.axes[1].unit, val[1]);
+    }
+    e[2] = r * j.axes[2].unit;
+    let mut p = Vector3::zeros();
+    let mut w = [Vector3::zeros(); 6];
+    let mut v = [Vector3::zeros(); 6];
+    for ai in 0..6 {
+        if ai >= 3 && !is_zero(ai) {
+            p += j.axes[ai].unit * val[ai];
+        }
+        if let Some(k) = dof[ai] {
+            if ai < 3 {
+                w[k] += e[ai] * d1[ai];
+            } else {
+                v[k] += j.axes[ai].unit * d1[ai];
+            }
+        }
+    }
+    let arm = n_f - p.cross(f_f);
+    for ai in 0..6 {
+        let Some(k) = dof[ai] else { continue };
+        if ai < 3 {
+            out[(k, k)] += d2[ai] * e[ai].dot(&arm);
+            for bi in 0..ai {
+                if let Some(m) = dof[bi] {
+                    out[(k, m)] += d1[ai] * d1[bi] * e[bi].cross(&e[ai]).dot(&arm);
+                }
+            }
+        } else {
+            out[(k, k)] += d2[ai] * j.axes[ai].unit.dot(f_f);
+        }
+    }
+    for k in 0..n {
+        for m in 0..n {
+            out[(k, m)] -= w[k].dot(&v[m].cross(f_f));
+        }
+    }
 }
