@@ -51,9 +51,9 @@
 //! Systems with a force element between non-adjacent bodies (e.g. a bushing
 //! skipping a level) are not tree-coupled and use the dense tangent.
 
-use super::forces::{self, GimbalLock, LoadSet};
+use super::forces::{self, GimbalLock, LoadSet, Resolved};
 use super::kinematics;
-use super::scalar::{d6_eps, d6_var, v3, D6};
+use super::scalar::{d6_eps, d6_var, D6};
 use super::system::{KinBuf, Pose, System};
 use nalgebra::{Matrix3, Matrix6, SVector, Vector3, Vector6};
 use num_dual::Derivative;
@@ -283,6 +283,42 @@ fn tree_coupled(sys: &System) -> bool {
     })
 }
 
+/// Mark the bodies whose poses [`forces::static_wrenches`] reads (and the
+/// only ones it applies wrenches to): bodies with mass under gravity, the
+/// bodies of general-path bushings, loaded bodies. Keep in step with
+/// `static_wrenches` when adding force elements (the structured-vs-dense
+/// tests catch a miss).
+fn mark_touched(sys: &System, loads: &LoadSet, touched: &mut [bool]) {
+    touched.fill(false);
+    let mut mark = |b: Option<usize>| {
+        if let Some(t) = b.and_then(|b| touched.get_mut(b)) {
+            *t = true;
+        }
+    };
+    if sys.gravity != Vector3::zeros() {
+        for (bi, b) in sys.bodies.iter().enumerate() {
+            if b.mass != 0.0 {
+                mark(Some(bi));
+            }
+        }
+    }
+    for b in &sys.bushings {
+        if b.fast.is_none() {
+            mark(b.body1);
+            mark(b.body2);
+        }
+    }
+    for l in &loads.items {
+        match l {
+            Resolved::Moment { body, .. } | Resolved::Force { body, .. } => mark(Some(*body)),
+            Resolved::Follower { upper, lower, .. } => {
+                mark(Some(*upper));
+                mark(*lower);
+            }
+        }
+    }
+}
+
 /// Greedy distance-2 colouring of the body tree (parents before children):
 /// a body's colour differs from its parent's, its grandparent's and its
 /// earlier siblings'. Returns (colours, number of colours).
@@ -322,6 +358,8 @@ pub(crate) struct TreeTangent {
     pub(crate) usable: bool,
     colour: Vec<usize>,
     n_colours: usize,
+    /// Bodies read by some force element (per assembly).
+    touched: Vec<bool>,
     /// Motion subspace of the body's joint (columns beyond n_b are zero).
     h: Vec<Matrix6<f64>>,
     /// Wrench of the body w.r.t. its own twist, its parent's twist; wrench
@@ -353,6 +391,7 @@ impl TreeTangent {
             usable: tree_coupled(sys),
             colour,
             n_colours,
+            touched: vec![false; nb],
             h: z6.clone(),
             g_self: z6.clone(),
             g_par: z6.clone(),
@@ -433,30 +472,54 @@ impl TreeTangent {
             }
             self.local[bi] = l;
         }
-        // wrench derivatives w.r.t. body twists, one pass per colour
-        for g in self.g_par.iter_mut().chain(self.g_child.iter_mut()) {
+        // wrench derivatives w.r.t. body twists, one pass per colour, only
+        // over the bodies some force element reads (the others carry no
+        // wrench and stale poses that nothing reads)
+        mark_touched(sys, loads, &mut self.touched);
+        for g in self
+            .g_self
+            .iter_mut()
+            .chain(self.g_par.iter_mut())
+            .chain(self.g_child.iter_mut())
+        {
             *g = Matrix6::zeros();
         }
+        for bi in 0..nb {
+            if self.touched[bi] {
+                kd6.x_gb[bi] = constant(&k64.x_gb[bi]);
+            }
+        }
         for colour in 0..self.n_colours {
+            let mut any = false;
             for bi in 0..nb {
-                kd6.x_gb[bi] = if self.colour[bi] == colour {
-                    perturbed(&k64.x_gb[bi])
-                } else {
-                    constant(&k64.x_gb[bi])
-                };
+                if self.touched[bi] && self.colour[bi] == colour {
+                    kd6.x_gb[bi] = perturbed(&k64.x_gb[bi]);
+                    any = true;
+                }
+            }
+            if !any {
+                continue;
             }
             forces::static_wrenches(sys, loads, kd6)?;
             for bi in 0..nb {
+                if !self.touched[bi] {
+                    continue;
+                }
                 let parent = sys.bodies[bi].parent;
                 if self.colour[bi] == colour {
                     self.g_self[bi] = wrench_jacobian(&kd6.w[bi]);
-                    if let Some(p) = parent {
+                    if let Some(p) = parent.filter(|&p| self.touched[p]) {
                         self.g_child[bi] = wrench_jacobian(&kd6.w[p]);
                     }
-                } else if let Some(p) = parent {
+                } else if let Some(p) = parent.filter(|&p| self.touched[p]) {
                     if self.colour[p] == colour {
                         self.g_par[bi] = wrench_jacobian(&kd6.w[bi]);
                     }
+                }
+            }
+            for bi in 0..nb {
+                if self.touched[bi] && self.colour[bi] == colour {
+                    kd6.x_gb[bi] = constant(&k64.x_gb[bi]);
                 }
             }
         }
@@ -579,6 +642,7 @@ impl TreeTangent {
 #[cfg(test)]
 mod tests {
     use super::super::examples::{add_level, iso, spine_chain, thesis_bushing};
+    use super::super::scalar::v3;
     use super::super::spec::{BodySpec, Load, LoadFrame, SystemSpec};
     use super::super::statics::eval_tau;
     use super::super::system::Workspace;
@@ -683,12 +747,26 @@ mod tests {
 
     #[test]
     fn structured_solve_matches_dense_chain() {
-        for n in [1usize, 2, 6, 17] {
+        // (joints, gravity, follower): without gravity and follower only the
+        // loaded bodies carry wrenches (partial assembly)
+        for (n, gravity, follower) in [
+            (1usize, true, true),
+            (2, true, true),
+            (6, true, true),
+            (17, true, true),
+            (6, false, true),
+            (17, false, false),
+        ] {
             let mut spec = spine_chain(n);
-            spec.gravity = Vector3::new(0.0, -9.80665, 0.0);
+            if gravity {
+                spec.gravity = Vector3::new(0.0, -9.80665, 0.0);
+            }
             let sys = System::new(&spec).unwrap();
             let top = format!("v{n}");
             let mut loads = all_loads(&top);
+            if !follower {
+                loads.retain(|l| !matches!(l, Load::Follower { .. }));
+            }
             if n < 3 {
                 loads.retain(|l| !matches!(l, Load::Force { body, .. } if body == "v3"));
             }
