@@ -2,3 +2,5 @@
 //! the embedded default, and patient-specific model generation.
 
 pub mod anatomy;
+pub mod base;
+pub mod procedural;

@@ -3,10 +3,13 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod base;
 pub mod check;
 pub mod convert;
 pub mod info;
+pub mod mean_shape;
 pub mod simulate;
+pub mod stiffness;
 pub mod variability;
 
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
@@ -24,6 +27,11 @@ pub enum Command {
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
     Convert(convert::Args),
+    /// Build the base model (T1-L5, sacrum, pelvis; 6-DoF IVD joints with bushings,
+    /// wrap spheres, palpated markers) from a generic model.
+    Base(base::Args),
+    /// Mean of meshes in vertex correspondence (generalised Procrustes analysis).
+    MeanShape(mean_shape::Args),
     /// Static equilibrium (or forward dynamics) of a model under load cases.
     Simulate(simulate::Args),
     /// Validate landmark sets: protocol completeness, names, units and
@@ -33,6 +41,10 @@ pub enum Command {
     /// Repeated-palpation statistics: IQRs, ICC(2,1), Shapiro-Wilk,
     /// Friedman/Skillings-Mack with Nemenyi post hoc; JSON + SVG.
     Variability(variability::Args),
+    /// Assign intervertebral stiffness from a table (uniform, per level,
+    /// base x ratio; linear, non-linear per DoF, coupled 6x6), or --list the
+    /// current stiffness in the same format.
+    Stiffness(stiffness::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -41,9 +53,12 @@ pub fn main() -> i32 {
     let result: anyhow::Result<i32> = match cli.command {
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
+        Command::Base(a) => base::run(a),
+        Command::MeanShape(a) => mean_shape::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Check(a) => check::run(&a),
         Command::Variability(a) => variability::run(&a),
+        Command::Stiffness(a) => stiffness::run(a),
     };
     match result {
         Ok(code) => code,
