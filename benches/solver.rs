@@ -7,7 +7,10 @@
 //! - `static_solve_warm/N_joints`: warm start from the equilibrium under
 //!   7.0 N m (what calibration and load sweeps do);
 //! - `static_solve_dense/N_joints`: cold start with the dense reference
-//!   tangent (`TangentMethod::Dense`), for comparison.
+//!   tangent (`TangentMethod::Dense`), for comparison;
+//! - `static_solve_loaded/{cold,warm}_N_joints` (6 and 12 joints): a
+//!   non-linear case, gravity on, the moment plus a 300 N follower load;
+//!   warm from the equilibrium under 7.0 N m.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nalgebra::{DVector, Vector3};
@@ -20,14 +23,26 @@ use std::hint::black_box;
 const SIZES: [usize; 5] = [6, 12, 17, 34, 68];
 
 fn setup(n: usize, moment: f64) -> (System, LoadSet) {
-    let sys = System::new(&spine_chain(n)).expect("chain");
-    let loads = sys
-        .prepare_loads(&[Load::Moment {
-            body: format!("v{n}"),
-            vec: Vector3::new(0.0, 0.0, moment),
-            frame: LoadFrame::Ground,
-        }])
-        .expect("loads");
+    setup_with(n, moment, false)
+}
+
+fn setup_with(n: usize, moment: f64, loaded: bool) -> (System, LoadSet) {
+    let mut spec = spine_chain(n);
+    let mut loads = vec![Load::Moment {
+        body: format!("v{n}"),
+        vec: Vector3::new(0.0, 0.0, moment),
+        frame: LoadFrame::Ground,
+    }];
+    if loaded {
+        spec.gravity = Vector3::new(0.0, -9.80665, 0.0);
+        loads.push(Load::Follower {
+            from_body: "sacrum".into(),
+            to_body: format!("v{n}"),
+            magnitude: 300.0,
+        });
+    }
+    let sys = System::new(&spec).expect("chain");
+    let loads = sys.prepare_loads(&loads).expect("loads");
     (sys, loads)
 }
 
@@ -66,6 +81,37 @@ fn bench_chains(c: &mut Criterion) {
                 )
             })
         });
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("static_solve_loaded");
+    for n in [6usize, 12] {
+        let (sys, loads) = setup_with(n, -7.5, true);
+        let (_, near) = setup_with(n, -7.0, true);
+        let mut ws = Workspace::new(&sys);
+        let q0 = sys.default_q();
+        let q_near: DVector<f64> = sys
+            .solve_static(&near, q0.as_slice(), &mut ws, &opts)
+            .expect("solve")
+            .q;
+        for (label, start) in [("cold", &q0), ("warm", &q_near)] {
+            let it = sys
+                .solve_static(&loads, start.as_slice(), &mut ws, &opts)
+                .expect("solve")
+                .iterations;
+            eprintln!("static_solve_loaded {label} {n} joints: {it} Newton iterations");
+            g.bench_function(
+                BenchmarkId::from_parameter(format!("{label}_{n}_joints")),
+                |b| {
+                    b.iter(|| {
+                        black_box(
+                            sys.solve_static(&loads, start.as_slice(), &mut ws, &opts)
+                                .expect("solve"),
+                        )
+                    })
+                },
+            );
+        }
     }
     g.finish();
 

@@ -111,7 +111,7 @@ impl Lu6 {
                     p = i;
                 }
             }
-            if !(best > tiny) || !best.is_finite() {
+            if !best.is_finite() || best <= tiny {
                 return None;
             }
             piv[k] = p;
@@ -536,7 +536,8 @@ impl TreeTangent {
             let n = sys.bodies[bi].joint.dof_count.min(6);
             let h = &self.h[bi];
             let kb = self.g_self[bi] + self.acc[bi];
-            let mut d = h.transpose() * (kb * h) + self.local[bi];
+            let htk = h.tr_mul(&kb);
+            let mut d = htk * h + self.local[bi];
             for i in n..6 {
                 d[(i, i)] = 1.0;
             }
@@ -544,8 +545,7 @@ impl TreeTangent {
                 return false;
             };
             // V = -D^-1 H^T (K_b + G_bp - Fbar_b)
-            let e = kb + self.g_par[bi] + self.neg_fbar[bi];
-            let hte = h.transpose() * e;
+            let hte = htk + h.tr_mul(&(self.g_par[bi] + self.neg_fbar[bi]));
             let mut v = Matrix6::zeros();
             for c in 0..6 {
                 let mut col: Vector6<f64> = -hte.column(c);
