@@ -5,8 +5,9 @@
 //! yields exact derivatives (Jacobians, time derivatives of the subspace).
 
 use super::scalar::{rot_axis, v3, Scalar};
-use super::system::{AxisSource, KinBuf, Pose, System};
-use nalgebra::{Matrix3, Vector3};
+use super::system::{AxisSource, Joint, KinBuf, Pose, System};
+use nalgebra::{Matrix3, Matrix6, Vector3};
+use num_dual::Dual64;
 
 /// Compute `kb.x_gb` and `kb.h` from `kb.q`.
 pub fn forward<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
@@ -16,67 +17,185 @@ pub fn forward<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
             Some(p) => kb.x_gb[p],
             None => Pose::identity(),
         };
-        let x_gf = x_gp.compose_c(&b.joint.x_pf);
         let j = &b.joint;
-        let mut val = [T::zero(); 6];
-        let mut der: [Option<(usize, T)>; 6] = [None; 6];
-        for (ai, ax) in j.axes.iter().enumerate() {
-            match &ax.source {
-                AxisSource::Fixed(v) => val[ai] = T::c(*v),
-                AxisSource::Dof(k, f) => {
-                    let qk = kb.q.get(j.dof_start + k).copied().unwrap_or_else(T::zero);
-                    let (v, d) = f.eval(qk);
-                    val[ai] = v;
-                    der[ai] = Some((*k, d));
-                }
+        let range = j.dof_start..j.dof_start + j.dof_count;
+        let q = kb.q.get(range.clone()).unwrap_or(&[]);
+        let h = kb.h.get_mut(range).unwrap_or(&mut []);
+        kb.x_gb[bi] = joint_forward(j, &x_gp, q, h);
+    }
+}
+
+/// One joint: the child body's pose in ground from its parent's pose `x_gp`
+/// and the joint's own free dofs `q` (`dof_count` values), and the joint's
+/// motion subspace written into `h` (`dof_count` entries).
+pub(crate) fn joint_forward<T: Scalar>(
+    j: &Joint,
+    x_gp: &Pose<T>,
+    q: &[T],
+    h: &mut [[Vector3<T>; 2]],
+) -> Pose<T> {
+    let x_gf = x_gp.compose_c(&j.x_pf);
+    let mut local = [[Vector3::zeros(); 2]; 6];
+    let x_fm = joint_local(j, q, &mut local);
+    let x_gm = x_gf.compose(&x_fm);
+    for (k, [w_f, v_f]) in local.iter().enumerate().take(j.dof_count) {
+        let w = x_gf.r * w_f;
+        let v = x_gf.r * v_f - w.cross(&x_gm.p);
+        if let Some(h) = h.get_mut(k) {
+            *h = [w, v];
+        }
+    }
+    x_gm.compose_c(&j.x_mb)
+}
+
+/// The joint's own transform `X_FM` (mobilised frame in the parent-side
+/// frame F) from its free dofs `q`, and per dof the angular and linear
+/// velocity of M's origin in F axes per unit speed (`local[k] = [w_F, v_F]`;
+/// rotations turn about M's origin, so `v_F` comes from the translation
+/// axes only). Needs no parent pose: the structured statics tangent
+/// differentiates it alone.
+pub(crate) fn joint_local<T: Scalar>(
+    j: &Joint,
+    q: &[T],
+    local: &mut [[Vector3<T>; 2]; 6],
+) -> Pose<T> {
+    let mut val = [T::zero(); 6];
+    let mut der: [Option<(usize, T)>; 6] = [None; 6];
+    for (ai, ax) in j.axes.iter().enumerate() {
+        match &ax.source {
+            AxisSource::Fixed(v) => val[ai] = T::c(*v),
+            AxisSource::Dof(k, f) => {
+                let qk = q.get(*k).copied().unwrap_or_else(T::zero);
+                let (v, d) = f.eval(qk);
+                val[ai] = v;
+                der[ai] = Some((*k, d));
             }
         }
-        // R_FM = R(a0,v0) R(a1,v1) R(a2,v2); the axes of the later rotations
-        // expressed in F are e1 = R0 a1, e2 = R0 R1 a2.
-        let is_zero = |ai: usize| matches!(j.axes[ai].source, AxisSource::Fixed(v) if v == 0.0);
-        let e0: Vector3<T> = v3(&j.axes[0].unit);
-        let mut r = if is_zero(0) {
-            Matrix3::identity()
-        } else {
-            rot_axis(&j.axes[0].unit, val[0])
-        };
-        let e1: Vector3<T> = r * v3::<T>(&j.axes[1].unit);
-        if !is_zero(1) {
-            r *= rot_axis(&j.axes[1].unit, val[1]);
+    }
+    // R_FM = R(a0,v0) R(a1,v1) R(a2,v2); the axes of the later rotations
+    // expressed in F are e1 = R0 a1, e2 = R0 R1 a2.
+    let is_zero = |ai: usize| matches!(j.axes[ai].source, AxisSource::Fixed(v) if v == 0.0);
+    let e0: Vector3<T> = v3(&j.axes[0].unit);
+    let mut r = if is_zero(0) {
+        Matrix3::identity()
+    } else {
+        rot_axis(&j.axes[0].unit, val[0])
+    };
+    let e1: Vector3<T> = r * v3::<T>(&j.axes[1].unit);
+    if !is_zero(1) {
+        r *= rot_axis(&j.axes[1].unit, val[1]);
+    }
+    let e2: Vector3<T> = r * v3::<T>(&j.axes[2].unit);
+    if !is_zero(2) {
+        r *= rot_axis(&j.axes[2].unit, val[2]);
+    }
+    let mut p = Vector3::zeros();
+    for ai in 3..6 {
+        if !is_zero(ai) {
+            p += v3::<T>(&j.axes[ai].unit) * val[ai];
         }
-        let e2: Vector3<T> = r * v3::<T>(&j.axes[2].unit);
-        if !is_zero(2) {
-            r *= rot_axis(&j.axes[2].unit, val[2]);
-        }
-        let mut p = Vector3::zeros();
-        for ai in 3..6 {
-            if !is_zero(ai) {
-                p += v3::<T>(&j.axes[ai].unit) * val[ai];
-            }
-        }
-        let x_gm = x_gf.compose(&Pose { r, p });
-        kb.x_gb[bi] = x_gm.compose_c(&j.x_mb);
-        // motion subspace
-        let es = [e0, e1, e2];
-        for k in 0..j.dof_count {
-            let mut w_f = Vector3::zeros();
-            let mut v_f = Vector3::zeros();
-            for (ai, d) in der.iter().enumerate() {
-                if let Some((kk, dv)) = d {
-                    if *kk == k {
-                        if ai < 3 {
-                            w_f += es[ai] * *dv;
-                        } else {
-                            v_f += v3::<T>(&j.axes[ai].unit) * *dv;
-                        }
+    }
+    // motion subspace in F
+    let es = [e0, e1, e2];
+    for k in 0..j.dof_count {
+        let mut w_f = Vector3::zeros();
+        let mut v_f = Vector3::zeros();
+        for (ai, d) in der.iter().enumerate() {
+            if let Some((kk, dv)) = d {
+                if *kk == k {
+                    if ai < 3 {
+                        w_f += es[ai] * *dv;
+                    } else {
+                        v_f += v3::<T>(&j.axes[ai].unit) * *dv;
                     }
                 }
             }
-            let w = x_gf.r * w_f;
-            let v = x_gf.r * v_f - w.cross(&x_gm.p);
-            if let Some(h) = kb.h.get_mut(j.dof_start + k) {
-                *h = [w, v];
+        }
+        if let Some(l) = local.get_mut(k) {
+            *l = [w_f, v_f];
+        }
+    }
+    Pose { r, p }
+}
+
+/// Joint-local part of the statics tangent, analytically: with the
+/// subtree wrench held fixed in the joint's parent-side frame F (moment
+/// `n_f` about F's origin and force `f_f`, F axes), the generalised force of
+/// dof `k` is `w_k . (n_f - p_FM x f_f) + v_k . f_f` (`w_k`, `v_k` the
+/// dof's rates from [`joint_local`]); `out[(k, m)]` receives its exact
+/// derivative w.r.t. dof `m` (k, m < `dof_count`; the rest is zeroed).
+/// Uses `d e_a / d val_b = e_b x e_a` for the rotation axes (b before a) and
+/// the transform functions' second derivatives.
+pub(crate) fn joint_local_tangent(
+    j: &Joint,
+    q: &[f64],
+    n_f: &Vector3<f64>,
+    f_f: &Vector3<f64>,
+    out: &mut Matrix6<f64>,
+) {
+    *out = Matrix6::zeros();
+    let n = j.dof_count.min(6);
+    let mut val = [0.0f64; 6];
+    let mut d1 = [0.0f64; 6];
+    let mut d2 = [0.0f64; 6];
+    let mut dof: [Option<usize>; 6] = [None; 6];
+    for (ai, ax) in j.axes.iter().enumerate() {
+        match &ax.source {
+            AxisSource::Fixed(v) => val[ai] = *v,
+            AxisSource::Dof(k, f) => {
+                let qk = q.get(*k).copied().unwrap_or(0.0);
+                let (v, d) = f.eval(Dual64::new(qk, 1.0));
+                val[ai] = v.re;
+                d1[ai] = d.re;
+                d2[ai] = d.eps;
+                dof[ai] = (*k < n).then_some(*k);
             }
+        }
+    }
+    let is_zero = |ai: usize| matches!(j.axes[ai].source, AxisSource::Fixed(v) if v == 0.0);
+    let mut e = [j.axes[0].unit; 3];
+    let mut r = if is_zero(0) {
+        Matrix3::identity()
+    } else {
+        rot_axis(&j.axes[0].unit, val[0])
+    };
+    e[1] = r * j.axes[1].unit;
+    if !is_zero(1) {
+        r *= rot_axis(&j.axes[1].unit, val[1]);
+    }
+    e[2] = r * j.axes[2].unit;
+    let mut p = Vector3::zeros();
+    let mut w = [Vector3::zeros(); 6];
+    let mut v = [Vector3::zeros(); 6];
+    for ai in 0..6 {
+        if ai >= 3 && !is_zero(ai) {
+            p += j.axes[ai].unit * val[ai];
+        }
+        if let Some(k) = dof[ai] {
+            if ai < 3 {
+                w[k] += e[ai] * d1[ai];
+            } else {
+                v[k] += j.axes[ai].unit * d1[ai];
+            }
+        }
+    }
+    let arm = n_f - p.cross(f_f);
+    for ai in 0..6 {
+        let Some(k) = dof[ai] else { continue };
+        if ai < 3 {
+            out[(k, k)] += d2[ai] * e[ai].dot(&arm);
+            for bi in 0..ai {
+                if let Some(m) = dof[bi] {
+                    out[(k, m)] += d1[ai] * d1[bi] * e[bi].cross(&e[ai]).dot(&arm);
+                }
+            }
+        } else {
+            out[(k, k)] += d2[ai] * j.axes[ai].unit.dot(f_f);
+        }
+    }
+    for k in 0..n {
+        for m in 0..n {
+            out[(k, m)] -= w[k].dot(&v[m].cross(f_f));
         }
     }
 }

@@ -10,6 +10,7 @@
 //! | `law`, `expr` | bushing force laws (linear, per-DoF curves, coupled 6x6, Lepton expressions) |
 //! | `forces` | gravity, bushings (OpenSim 4.6 bushing classes), loads, projection |
 //! | `statics` | Newton equilibrium with exact tangent, sensitivities |
+//! | `tree` | structured O(n) statics tangent: assembly and block elimination on the body tree |
 //! | `dynamics` | mass matrix, generalised accelerations, implicit integrator, energy |
 //! | `from_model` | adapter from an OpenSim model document |
 //! | `output` | body poses, bushing records, .sto and JSON writers |
@@ -27,6 +28,7 @@ pub mod scalar;
 pub mod spec;
 pub mod statics;
 pub mod system;
+pub mod tree;
 
 pub use forces::{LoadSet, GIMBAL_LIMIT};
 pub use spec::{
@@ -35,6 +37,7 @@ pub use spec::{
 };
 pub use statics::{StaticOptions, StaticSolution};
 pub use system::{Pose, System, Workspace};
+pub use tree::TangentMethod;
 
 #[cfg(test)]
 mod tests;

@@ -1,14 +1,29 @@
 //! Static equilibrium: Newton's method on the generalised applied force
-//! `tau(q) = 0` (gravity, bushings, loads; speeds zero), with the exact
-//! tangent `d tau / d q` from forward-mode dual numbers (one pass per joint,
-//! six directions at once), a step cap on rotations and a backtracking line
+//! `tau(q) = 0` (gravity, bushings, loads; speeds zero) with the exact
+//! tangent `d tau / d q`, a step cap on rotations and a backtracking line
 //! search on `||tau||`. Converges on residual AND step; failures (no
 //! equilibrium, gimbal lock, singular tangent) are errors, never NaN.
+//!
+//! The Newton system is solved by one of two exact factorisations (see
+//! [`TangentMethod`]):
+//! - structured (default on tree-coupled systems, `tree`): per-joint blocks
+//!   assembled from the residual evaluation already at hand, eliminated
+//!   leaves-to-root; O(n) per iteration. On the 6-68 joint spine chains a
+//!   cold solve costs about 7 us per joint (criterion, `benches/solver.rs`).
+//! - dense (reference and fallback): one six-direction dual-number pass of
+//!   the whole residual per joint (O(n^2)) and a dense LU (O(n^3)); used when
+//!   a force element couples non-adjacent bodies, when a joint block of the
+//!   structured elimination is singular, or on request.
+//!
+//! Both give the same Newton iterates to round-off (tests/solver_structured.rs)
+//! and keep the factorisation of the last iteration for
+//! [`System::tangent_solve`] (sensitivities).
 
 use super::forces::{self, GimbalLock, LoadSet};
 use super::kinematics;
 use super::scalar::{d6_eps, d6_var, Scalar, D6};
-use super::system::{KinBuf, System, Workspace};
+use super::system::{Factored, KinBuf, System, Workspace};
+use super::tree::TangentMethod;
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector, Vector3};
 use num_dual::Dual64;
@@ -128,6 +143,35 @@ impl System {
         Ok(())
     }
 
+    /// Factorise the tangent at `q` and overwrite `ws.dq` with the solution
+    /// of `T x = ws.dq`. `ws.k64` must hold the residual evaluation at `q`.
+    /// Structured when the workspace allows it and the system is
+    /// tree-coupled, dense otherwise or when a joint block of the structured
+    /// elimination is singular. Leaves `ws.factored` at `None` when the
+    /// tangent is singular.
+    fn factor_and_solve(
+        &self,
+        q: &[f64],
+        loads: &LoadSet,
+        ws: &mut Workspace,
+    ) -> Result<(), GimbalLock> {
+        ws.factored = Factored::None;
+        if ws.method == TangentMethod::Auto && ws.tree.usable {
+            ws.tree.assemble(self, loads, &ws.k64, &mut ws.kd6)?;
+            if ws.tree.factor(self) {
+                ws.tree.solve(self, &mut ws.dq);
+                ws.factored = Factored::Tree;
+                return Ok(());
+            }
+        }
+        self.eval_tangent(q, loads, ws)?;
+        if ws.lu.factor() {
+            ws.lu.solve_in_place(&mut ws.dq);
+            ws.factored = Factored::Dense;
+        }
+        Ok(())
+    }
+
     /// The tangent `d tau / d q` at `q` as a new matrix (for inspection and tests).
     pub fn static_tangent(
         &self,
@@ -138,7 +182,7 @@ impl System {
         self.check_q(q)?;
         self.eval_tangent(q, loads, ws)
             .map_err(|g| g.to_error(self))?;
-        ws.jac_valid = false;
+        ws.factored = Factored::None;
         Ok(ws.lu.a.clone())
     }
 
@@ -154,7 +198,7 @@ impl System {
         self.check_q(q0)?;
         let n = self.n_dofs();
         let ctx = "static equilibrium";
-        ws.jac_valid = false;
+        ws.factored = Factored::None;
         let mut q: Vec<f64> = q0.to_vec();
         ws.k64.q.copy_from_slice(&q);
         eval_tau(self, loads, &mut ws.k64).map_err(|g| g.to_error(self))?;
@@ -185,19 +229,17 @@ impl System {
                     ),
                 ));
             }
-            self.eval_tangent(&q, loads, ws)
+            for i in 0..n {
+                ws.dq[i] = -ws.r[i];
+            }
+            self.factor_and_solve(&q, loads, ws)
                 .map_err(|g| g.to_error(self))?;
-            if !ws.lu.factor() {
+            if ws.factored == Factored::None {
                 return Err(Error::numerical(
                     ctx,
                     format!("singular tangent stiffness at iteration {it}: a degree of freedom has no stiffness (add a bushing, lock the coordinate or fix a body)"),
                 ));
             }
-            ws.jac_valid = true;
-            for i in 0..n {
-                ws.dq[i] = -ws.r[i];
-            }
-            ws.lu.solve_in_place(&mut ws.dq);
             if ws.dq.iter().any(|v| !v.is_finite()) {
                 return Err(Error::numerical(
                     ctx,
@@ -283,13 +325,26 @@ impl System {
     /// of the last Newton iteration of [`System::solve_static`] (for
     /// sensitivities `dq/dp = -T^{-1} d tau / d p`).
     pub fn tangent_solve(&self, ws: &Workspace, rhs: &mut [f64]) -> Result<()> {
-        if !ws.jac_valid || rhs.len() != self.n_dofs() {
+        if rhs.len() != self.n_dofs() {
             return Err(Error::invalid(
                 "solver",
-                "no factorised tangent available: run solve_static first",
+                format!(
+                    "tangent_solve: expected {} right-hand-side entries, got {}",
+                    self.n_dofs(),
+                    rhs.len()
+                ),
             ));
         }
-        ws.lu.solve_in_place(rhs);
+        match ws.factored {
+            Factored::Dense => ws.lu.solve_in_place(rhs),
+            Factored::Tree => ws.tree.solve_alloc(self, rhs),
+            Factored::None => {
+                return Err(Error::invalid(
+                    "solver",
+                    "no factorised tangent available: run solve_static first",
+                ))
+            }
+        }
         Ok(())
     }
 

@@ -748,6 +748,14 @@ impl DenseLu {
     }
 }
 
+/// Which factorisation of the statics tangent is valid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Factored {
+    None,
+    Dense,
+    Tree,
+}
+
 /// All scratch buffers for a system. Make one per thread and reuse it.
 #[derive(Debug, Clone)]
 pub struct Workspace {
@@ -756,7 +764,12 @@ pub struct Workspace {
     pub(crate) kd1: KinBuf<Dual64>,
     /// Jacobian of the generalised force w.r.t. q (statics tangent), and its LU.
     pub(crate) lu: DenseLu,
-    pub(crate) jac_valid: bool,
+    /// Structured (tree) statics tangent and its factors.
+    pub(crate) tree: super::tree::TreeTangent,
+    /// Which factorisation of the tangent the statics use.
+    pub(crate) method: super::tree::TangentMethod,
+    /// Which factorisation (if any) holds the tangent of the last Newton step.
+    pub(crate) factored: Factored,
     pub(crate) r: Vec<f64>,
     pub(crate) dq: Vec<f64>,
     pub(crate) q_trial: Vec<f64>,
@@ -778,7 +791,9 @@ impl Workspace {
             kd6: KinBuf::new(sys),
             kd1: KinBuf::new(sys),
             lu: DenseLu::new(n),
-            jac_valid: false,
+            tree: super::tree::TreeTangent::new(sys),
+            method: super::tree::TangentMethod::Auto,
+            factored: Factored::None,
             r: vec![0.0; n],
             dq: vec![0.0; n],
             q_trial: vec![0.0; n],
@@ -789,5 +804,19 @@ impl Workspace {
             comp: vec![super::dynamics::SpatialInertia::zero(); nb],
             rhs: vec![0.0; n],
         }
+    }
+
+    /// Choose how the statics factorise the tangent (default
+    /// [`TangentMethod::Auto`](super::TangentMethod::Auto)); the dense
+    /// method is the reference the structured one is tested against.
+    pub fn set_tangent_method(&mut self, method: super::tree::TangentMethod) {
+        self.method = method;
+        self.factored = Factored::None;
+    }
+
+    /// The factorisation used by the last Newton step of
+    /// [`System::solve_static`]: true when it was the structured (tree) one.
+    pub fn used_structured_tangent(&self) -> bool {
+        self.factored == Factored::Tree
     }
 }
