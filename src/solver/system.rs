@@ -804,3 +804,46 @@ impl Workspace {
         }
     }
 }
+
+impl System {
+    /// Replace the diagonal stiffness `(rx, ry, rz, tx, ty, tz)` of a linear
+    /// bushing without rebuilding the system (calibration changes stiffness
+    /// parameters thousands of times). Values must be finite.
+    pub fn set_bushing_stiffness(&mut self, i: usize, k: [f64; 6]) -> Result<()> {
+        let n = self.bushings.len();
+        let Some(b) = self.bushings.get_mut(i) else {
+            return Err(Error::invalid(
+                "solver",
+                format!("bushing index {i} out of range ({n} bushings)"),
+            ));
+        };
+        if !k.iter().all(|v| v.is_finite()) {
+            return Err(Error::invalid(
+                format!("bushing '{}'", b.name),
+                "stiffness must be finite",
+            ));
+        }
+        match &mut b.model {
+            BushingModel::Linear {
+                rot_stiffness,
+                trans_stiffness,
+                ..
+            } => {
+                *rot_stiffness = Vector3::new(k[0], k[1], k[2]);
+                *trans_stiffness = Vector3::new(k[3], k[4], k[5]);
+            }
+        }
+        b.k = k;
+        Ok(())
+    }
+
+    /// The two bodies (system indices, None = ground) a bushing connects.
+    pub fn bushing_bodies(&self, i: usize) -> Option<(Option<usize>, Option<usize>)> {
+        self.bushings.get(i).map(|b| (b.body1, b.body2))
+    }
+
+    /// Parent body (system index) of body `i` (None = ground or out of range).
+    pub fn parent_of(&self, i: usize) -> Option<usize> {
+        self.bodies.get(i).and_then(|b| b.parent)
+    }
+}
