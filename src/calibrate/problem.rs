@@ -15,7 +15,7 @@ use super::family::ModelFamily;
 use super::measure::{pair_increment, pair_increment_loaded, pair_increment_unloaded, Convention};
 use crate::error::{Error, Result};
 use crate::solver::kinematics;
-use crate::solver::scalar::{d6_eps, d6_var, D6};
+use crate::solver::scalar::{d6_eps, D6};
 use crate::solver::system::KinBuf;
 use crate::solver::{LoadSet, Pose, StaticOptions, System, Workspace};
 use nalgebra::{DMatrix, DVector};
@@ -248,6 +248,8 @@ impl Problem {
             k64: KinBuf::new(&self.sys),
             q0: self.sys.default_q(),
             q1: vec![self.sys.default_q(); self.exp.cases.len()],
+            pred0: None,
+            pred1: vec![None; self.exp.cases.len()],
             dtau: DMatrix::zeros(n, self.n_params()),
             evaluations: 0,
         }
@@ -263,6 +265,10 @@ pub struct Evaluator {
     k64: KinBuf<f64>,
     q0: DVector<f64>,
     q1: Vec<DVector<f64>>,
+    /// Last sensitivities (parameters, dq/dp) of the unloaded and loaded
+    /// solutions, for first-order predicted warm starts.
+    pred0: Option<(Vec<f64>, DMatrix<f64>)>,
+    pred1: Vec<Option<(Vec<f64>, DMatrix<f64>)>>,
     dtau: DMatrix<f64>,
     /// Residual evaluations done.
     pub evaluations: usize,
@@ -298,28 +304,33 @@ impl Evaluator {
         self.k64.x_gb.clone()
     }
 
-    /// dy/dq for the rows of one case (rows x n_dofs), loaded (`which=1`) or
-    /// unloaded (`which=0`) coordinates varying.
-    fn dy_dq(
+    /// `dy/dp` for the rows of one case (6 per row x n_params), by seeding
+    /// the dual parts of the coordinates with the columns of `dq` (six
+    /// parameters per kinematics pass). `loaded_varies` says whether `q_var`
+    /// is the loaded (true) or unloaded configuration; the other one's poses
+    /// are `fixed_poses`.
+    #[allow(clippy::too_many_arguments)]
+    fn dy_dp(
         &mut self,
         pb: &Problem,
         rows: &[usize],
         q_var: &[f64],
+        dq: &DMatrix<f64>,
         fixed_poses: &[Pose<f64>],
         loaded_varies: bool,
         out: &mut DMatrix<f64>,
     ) {
-        let n = self.sys.n_dofs();
-        out.fill(0.0);
+        let np = dq.ncols();
         let conv = pb.opts.convention;
         let mut start = 0;
-        while start < n {
-            let width = (n - start).min(6);
+        while start < np {
+            let width = (np - start).min(6);
             for (i, qi) in q_var.iter().enumerate() {
-                self.kd6.q[i] = D6::from_re(*qi);
-            }
-            for k in 0..width {
-                self.kd6.q[start + k] = d6_var(q_var[start + k], k);
+                let mut e = nalgebra::SVector::<f64, 6>::zeros();
+                for k in 0..width {
+                    e[k] = dq[(i, start + k)];
+                }
+                self.kd6.q[i] = D6::new(*qi, num_dual::Derivative::some(e));
             }
             kinematics::forward(&self.sys, &mut self.kd6);
             for (ri, &row) in rows.iter().enumerate() {
@@ -344,12 +355,37 @@ impl Evaluator {
                 for d in 0..6 {
                     let e = d6_eps(&inc[d]);
                     for k in 0..width {
-                        out[(6 * ri + d, start + k)] = e[k];
+                        out[(6 * ri + d, start + k)] += e[k];
                     }
                 }
             }
             start += width;
         }
+    }
+
+    /// `dq/dp = -T^{-1} d tau/d p` with the tangent factorised by the last solve.
+    fn dq_dp(&mut self, pb: &Problem, p: &[f64], q: &[f64], loads: &LoadSet) -> Result<DMatrix<f64>> {
+        let n = self.sys.n_dofs();
+        let np = p.len();
+        pb.family
+            .dtau_dp(p, &mut self.sys, q, loads, &mut self.ws, &mut self.dtau)?;
+        let mut d = DMatrix::zeros(n, np);
+        let mut col = vec![0.0; n];
+        for j in 0..np {
+            let mut any = false;
+            for i in 0..n {
+                col[i] = -self.dtau[(i, j)];
+                any |= col[i] != 0.0;
+            }
+            if !any {
+                continue;
+            }
+            self.sys.tangent_solve(&self.ws, &mut col)?;
+            for i in 0..n {
+                d[(i, j)] = col[i];
+            }
+        }
+        Ok(d)
     }
 
     /// Solve every case for parameters `p` (natural units) and return the
@@ -396,37 +432,18 @@ impl Evaluator {
     ) -> Result<(Predictions, Option<DMatrix<f64>>)> {
         self.evaluations += 1;
         pb.family.apply(p, &mut self.sys)?;
-        let n = self.sys.n_dofs();
         let np = p.len();
         let empty = LoadSet::empty();
-        let q0 = solve_warm(&self.sys, &empty, &mut self.q0, &mut self.ws).map_err(|e| {
+        let mut q0_warm = self.predict_start(None, p);
+        let q0 = solve_warm(&self.sys, &empty, &mut q0_warm, &mut self.ws).map_err(|e| {
             Error::numerical("unloaded equilibrium", format!("cannot be reached: {e}"))
         })?;
-        // dq0/dp
+        self.q0 = q0.clone();
         let mut dq0: Option<DMatrix<f64>> = None;
         if jac {
-            pb.family.dtau_dp(
-                p,
-                &mut self.sys,
-                q0.as_slice(),
-                &empty,
-                &mut self.ws,
-                &mut self.dtau,
-            )?;
-            if self.dtau.iter().any(|v| *v != 0.0) {
-                // the tangent of the last Newton iteration is still factorised
-                // (dtau_dp only uses the kinematic buffers)
-                let mut d = DMatrix::zeros(n, np);
-                let mut col = vec![0.0; n];
-                for j in 0..np {
-                    for i in 0..n {
-                        col[i] = -self.dtau[(i, j)];
-                    }
-                    self.sys.tangent_solve(&self.ws, &mut col)?;
-                    for i in 0..n {
-                        d[(i, j)] = col[i];
-                    }
-                }
+            let d = self.dq_dp(pb, p, q0.as_slice(), &empty)?;
+            self.pred0 = Some((p.to_vec(), d.clone()));
+            if d.iter().any(|v| *v != 0.0) {
                 dq0 = Some(d);
             }
         }
@@ -438,7 +455,6 @@ impl Evaluator {
         } else {
             None
         };
-        // rows of each case
         let mut case_rows: Vec<Vec<usize>> = vec![Vec::new(); pb.exp.cases.len()];
         for (ri, r) in pb.exp.rows.iter().enumerate() {
             if let Some(v) = case_rows.get_mut(r.case) {
@@ -450,12 +466,14 @@ impl Evaluator {
                 continue;
             }
             let loads = &pb.loads[ci];
-            let q1 = solve_warm(&self.sys, loads, &mut self.q1[ci], &mut self.ws).map_err(|e| {
+            let mut warm = self.predict_start(Some(ci), p);
+            let q1 = solve_warm(&self.sys, loads, &mut warm, &mut self.ws).map_err(|e| {
                 Error::numerical(
                     format!("case '{}'", pb.exp.cases[ci].id),
                     format!("no equilibrium: {e}"),
                 )
             })?;
+            self.q1[ci] = q1.clone();
             let poses1 = self.poses(q1.as_slice());
             for &ri in rows {
                 let rb = &pb.rows[ri];
@@ -468,36 +486,13 @@ impl Evaluator {
                 );
             }
             if let Some(dp) = dpred.as_mut() {
-                // dq1/dp from the factorised tangent of this solve
-                let mut dtau = std::mem::replace(&mut self.dtau, DMatrix::zeros(0, 0));
-                pb.family.dtau_dp(
-                    p,
-                    &mut self.sys,
-                    q1.as_slice(),
-                    loads,
-                    &mut self.ws,
-                    &mut dtau,
-                )?;
-                let mut dq1 = DMatrix::zeros(n, np);
-                let mut col = vec![0.0; n];
-                for j in 0..np {
-                    for i in 0..n {
-                        col[i] = -dtau[(i, j)];
-                    }
-                    self.sys.tangent_solve(&self.ws, &mut col)?;
-                    for i in 0..n {
-                        dq1[(i, j)] = col[i];
-                    }
-                }
-                self.dtau = dtau;
-                let mut dy = DMatrix::zeros(6 * rows.len(), n);
-                self.dy_dq(pb, rows, q1.as_slice(), &poses0, true, &mut dy);
-                let mut block = &dy * &dq1;
+                let dq1 = self.dq_dp(pb, p, q1.as_slice(), loads)?;
+                let mut block = DMatrix::zeros(6 * rows.len(), np);
+                self.dy_dp(pb, rows, q1.as_slice(), &dq1, &poses0, true, &mut block);
                 if let Some(d0) = &dq0 {
-                    let mut dy0 = DMatrix::zeros(6 * rows.len(), n);
-                    self.dy_dq(pb, rows, q0.as_slice(), &poses1, false, &mut dy0);
-                    block += &dy0 * d0;
+                    self.dy_dp(pb, rows, q0.as_slice(), d0, &poses1, false, &mut block);
                 }
+                self.pred1[ci] = Some((p.to_vec(), dq1));
                 for (k, &ri) in rows.iter().enumerate() {
                     for d in 0..6 {
                         for j in 0..np {
@@ -508,5 +503,28 @@ impl Evaluator {
             }
         }
         Ok((pred, dpred))
+    }
+
+    /// Warm start for a case (None = unloaded): the last solution moved to
+    /// first order by the last sensitivities, `q + dq/dp (p - p_last)`.
+    fn predict_start(&self, case: Option<usize>, p: &[f64]) -> DVector<f64> {
+        let (q, pred) = match case {
+            None => (&self.q0, &self.pred0),
+            Some(c) => (&self.q1[c], &self.pred1[c]),
+        };
+        let mut out = q.clone();
+        if let Some((pl, d)) = pred {
+            if pl.len() == p.len() && d.nrows() == out.len() {
+                for j in 0..p.len() {
+                    let dp = p[j] - pl[j];
+                    if dp != 0.0 {
+                        for i in 0..out.len() {
+                            out[i] += d[(i, j)] * dp;
+                        }
+                    }
+                }
+            }
+        }
+        out
     }
 }
