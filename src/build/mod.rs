@@ -2,3 +2,4 @@
 //! the embedded default, and patient-specific model generation.
 
 pub mod anatomy;
+pub mod base;

@@ -3,9 +3,11 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod base;
 pub mod check;
 pub mod convert;
 pub mod info;
+pub mod mean_shape;
 pub mod simulate;
 pub mod variability;
 
@@ -24,6 +26,11 @@ pub enum Command {
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
     Convert(convert::Args),
+    /// Build the base model (T1-L5, sacrum, pelvis; 6-DoF IVD joints with bushings,
+    /// wrap spheres, palpated markers) from a generic model.
+    Base(base::Args),
+    /// Mean of meshes in vertex correspondence (generalised Procrustes analysis).
+    MeanShape(mean_shape::Args),
     /// Static equilibrium (or forward dynamics) of a model under load cases.
     Simulate(simulate::Args),
     /// Validate landmark sets: protocol completeness, names, units and
@@ -41,6 +48,8 @@ pub fn main() -> i32 {
     let result: anyhow::Result<i32> = match cli.command {
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
+        Command::Base(a) => base::run(a),
+        Command::MeanShape(a) => mean_shape::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Check(a) => check::run(&a),
         Command::Variability(a) => variability::run(&a),

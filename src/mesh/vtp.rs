@@ -67,8 +67,40 @@ impl Elem {
     }
 }
 
+/// Line numbers of increasing byte offsets in linear total time.
+struct LineCounter<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+    line: usize,
+}
+
+impl<'a> LineCounter<'a> {
+    fn new(bytes: &'a [u8]) -> Self {
+        LineCounter {
+            bytes,
+            pos: 0,
+            line: 1,
+        }
+    }
+    /// 1-based line of `pos` (offsets must not decrease between calls;
+    /// a smaller one falls back to counting from the start).
+    fn at(&mut self, pos: usize) -> usize {
+        let pos = pos.min(self.bytes.len());
+        if pos < self.pos {
+            return super::line_of(self.bytes, pos);
+        }
+        self.line += self.bytes[self.pos..pos]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
+        self.pos = pos;
+        self.line
+    }
+}
+
 fn parse_xml(xml: &[u8], name: &Path) -> Result<Elem> {
     let mut reader = quick_xml::Reader::from_reader(xml);
+    let mut lines = LineCounter::new(xml);
     let mut stack: Vec<Elem> = vec![Elem {
         name: "#document".into(),
         ..Default::default()
@@ -85,7 +117,7 @@ fn parse_xml(xml: &[u8], name: &Path) -> Result<Elem> {
         })?;
         match ev {
             Event::Start(ref e) | Event::Empty(ref e) => {
-                let line = super::line_of(xml, pos);
+                let line = lines.at(pos);
                 let mut el = Elem {
                     name: String::from_utf8_lossy(e.name().as_ref()).into_owned(),
                     line,
@@ -121,7 +153,7 @@ fn parse_xml(xml: &[u8], name: &Path) -> Result<Elem> {
                 if stack.len() < 2 {
                     return Err(Error::parse(
                         name,
-                        format!("line {}", super::line_of(xml, pos)),
+                        format!("line {}", lines.at(pos)),
                         "unbalanced closing tag",
                     ));
                 }
@@ -136,7 +168,7 @@ fn parse_xml(xml: &[u8], name: &Path) -> Result<Elem> {
                     let s = t.decode().map_err(|err| {
                         Error::parse(
                             name,
-                            format!("line {}", super::line_of(xml, pos)),
+                            format!("line {}", lines.at(pos)),
                             format!("text is not valid: {err}"),
                         )
                     })?;
@@ -766,46 +798,51 @@ fn payload_len(header: &[u8], s: &Settings, name: &Path, loc: &str) -> Result<u6
 /// Only the characters that belong to this array are decoded, so the text
 /// may continue with further arrays (appended data).
 fn split_base64(text: &[u8], s: &Settings, name: &Path, loc: &str) -> Result<(Vec<u8>, Vec<u8>)> {
-    let t: Vec<u8> = text
-        .iter()
-        .copied()
-        .filter(|b| !b.is_ascii_whitespace())
-        .collect();
+    // Whitespace is skipped; only as many characters as needed are taken
+    // (linear in what this array uses, whatever follows it).
+    let compact = |max: usize| -> Vec<u8> {
+        text.iter()
+            .copied()
+            .filter(|b| !b.is_ascii_whitespace())
+            .take(max)
+            .collect()
+    };
     let w = header_words(s);
     // The first three words (12 or 24 bytes, a multiple of 3) decode on
     // their own whichever way the header was encoded.
     let first_chars = if s.zlib { 4 * w } else { w.div_ceil(3) * 4 };
+    let t = compact(first_chars);
     let first = t
         .get(..first_chars)
         .ok_or_else(|| Error::parse(name, loc, "binary data too short for its header"))?;
     let first = b64(first, name, loc)?;
-    let hb = header_len(&first, t.len(), s, name, loc)?;
+    let hb = header_len(&first, text.len(), s, name, loc)?;
     let hc = hb.div_ceil(3) * 4;
     let short = || {
         Error::parse(
             name,
             loc,
-            format!(
-                "binary data ({} base64 characters) is shorter than its header declares (truncated?)",
-                t.len()
-            ),
+            "binary data is shorter than its header declares (truncated?)",
         )
     };
+    let t = compact(hc);
     let head = t.get(..hc).ok_or_else(short)?;
     let separate = hb % 3 == 0 || head.last() == Some(&b'=');
     let mut header = b64(head, name, loc)?;
     header.truncate(hb);
     let n = payload_len(&header, s, name, loc)?;
-    if n > t.len() as u64 {
+    if n > text.len() as u64 {
         return Err(short());
     }
     let n = n as usize;
     if separate {
         let dc = n.div_ceil(3) * 4;
+        let t = compact(hc + dc);
         let data = t.get(hc..hc + dc).ok_or_else(short)?;
         Ok((header, b64(data, name, loc)?))
     } else {
         let total = (hb + n).div_ceil(3) * 4;
+        let t = compact(total);
         let all = b64(t.get(..total).ok_or_else(short)?, name, loc)?;
         let data = all.get(hb..hb + n).ok_or_else(short)?.to_vec();
         Ok((header, data))

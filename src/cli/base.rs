@@ -1,0 +1,172 @@
+//! `osim-spine base`: build the base model from a generic model (see
+//! [`crate::build::base`]). Everything is computed in memory first; then
+//! `OUT/base.osim`, its meshes, `OUT/base_report.json` and the SVG views
+//! are written, each atomically. Nothing is written on error.
+
+use crate::build::base::{build_base, BaseOptions, DirMeshSource, FixedBody, IvdParams};
+use crate::error::Error;
+use crate::landmarks::Level;
+use crate::osim::Document;
+use clap::Args as ClapArgs;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Arguments of `base`.
+#[derive(Debug, ClapArgs)]
+pub struct Args {
+    /// The generic model (.osim) with an articulated thoracolumbar spine.
+    #[arg(long, value_name = "MODEL.osim")]
+    pub generic: PathBuf,
+    /// Folder(s) to search for the model's mesh files (after the model's
+    /// own folder and its Geometry/).
+    #[arg(long, value_name = "DIR")]
+    pub geometry: Vec<PathBuf>,
+    /// Mean sacrum mesh to register onto the generic sacrum and swap in.
+    #[arg(long, value_name = "MESH")]
+    pub sacrum: Option<PathBuf>,
+    /// Allow a uniform scale in the sacrum registration (similarity).
+    #[arg(long)]
+    pub allow_scale: bool,
+    /// Kept vertebrae, `TOP..L5` (default T1..L5).
+    #[arg(long, value_name = "T1..L5", default_value = "T1..L5")]
+    pub keep: String,
+    /// Body welded to ground.
+    #[arg(long, value_enum, default_value = "pelvis")]
+    pub fixed: Fixed,
+    /// Folder with body-only meshes `<LEVEL>_body.{obj,vtp,stl,ply}` for
+    /// the sphere fits (e.g. ../shared/data/vertebra-meshes).
+    #[arg(long, value_name = "DIR")]
+    pub body_meshes: Option<PathBuf>,
+    /// IVD parameter template (default: the embedded templates/ivd_defaults.toml).
+    #[arg(long, value_name = "TOML")]
+    pub ivd: Option<PathBuf>,
+    /// Output folder.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+/// `--fixed` values.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum Fixed {
+    Pelvis,
+    Sacrum,
+}
+
+/// Parse `--keep TOP..L5`.
+pub fn parse_keep(s: &str) -> crate::Result<Level> {
+    let bad = || {
+        Error::invalid(
+            "--keep",
+            format!("'{s}' is not a level range TOP..L5 (e.g. T1..L5, T6..L5)"),
+        )
+    };
+    let (a, b) = s.split_once("..").ok_or_else(bad)?;
+    let top: Level = a.parse().map_err(|_| bad())?;
+    let bottom: Level = b.parse().map_err(|_| bad())?;
+    if bottom != Level::L5 {
+        return Err(Error::invalid(
+            "--keep",
+            format!("the kept run must end at L5 (the sacrum and pelvis are kept), got '{s}'"),
+        ));
+    }
+    if top > Level::L5 {
+        return Err(bad());
+    }
+    Ok(top)
+}
+
+fn body_meshes(
+    dir: &Path,
+    top: Level,
+) -> crate::Result<BTreeMap<Level, (String, crate::mesh::TriMesh)>> {
+    if !dir.is_dir() {
+        return Err(Error::invalid(
+            "--body-meshes",
+            format!("{} is not a folder", dir.display()),
+        ));
+    }
+    let mut out = BTreeMap::new();
+    for l in &Level::ALL[top.index()..=Level::L5.index()] {
+        for ext in ["obj", "vtp", "stl", "ply"] {
+            let p = dir.join(format!("{l}_body.{ext}"));
+            if p.is_file() {
+                out.insert(*l, (p.display().to_string(), crate::mesh::read(&p)?));
+                break;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Run `base`; returns the exit code.
+pub fn run(args: Args) -> anyhow::Result<i32> {
+    let top = parse_keep(&args.keep)?;
+    let generic = Document::read(&args.generic)?;
+    let mut opts = BaseOptions {
+        top,
+        fixed: match args.fixed {
+            Fixed::Pelvis => FixedBody::Pelvis,
+            Fixed::Sacrum => FixedBody::Sacrum,
+        },
+        allow_scale: args.allow_scale,
+        ..BaseOptions::default()
+    };
+    if let Some(p) = &args.ivd {
+        opts.ivd = IvdParams::read(p)?;
+    }
+    if let Some(p) = &args.sacrum {
+        opts.sacrum = Some((p.display().to_string(), crate::mesh::read(p)?));
+    }
+    if let Some(d) = &args.body_meshes {
+        opts.body_meshes = body_meshes(d, top)?;
+    }
+    let source = DirMeshSource {
+        model_path: args.generic.clone(),
+        extra: args.geometry.clone(),
+    };
+    let built = build_base(&generic, &opts, &source)?;
+    // Everything computed: serialise, then write.
+    let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+    files.push((
+        args.out.join("base.osim"),
+        built.doc.to_xml_string().into_bytes(),
+    ));
+    for (name, mesh) in &built.meshes {
+        let path = args.out.join(name);
+        let fmt = crate::mesh::Format::from_path(&path)?;
+        files.push((path, crate::mesh::to_bytes(fmt, mesh)));
+    }
+    let json = serde_json::to_string_pretty(&built.report)?;
+    files.push((args.out.join("base_report.json"), json.into_bytes()));
+    for (name, svg) in &built.views {
+        files.push((args.out.join(name), svg.clone().into_bytes()));
+    }
+    for (p, bytes) in &files {
+        crate::util::write_atomic(p, bytes)?;
+    }
+    let r = &built.report;
+    println!(
+        "base model: {} bodies, {} joints ({} rebuilt 6-DoF), {} muscles kept ({} dropped), {} bushings",
+        r.prune.bodies_kept.len(),
+        r.joints.len(),
+        r.joints.iter().filter(|j| j.bushing.is_some()).count(),
+        r.prune.muscles_kept.len(),
+        r.prune.muscles_dropped.len(),
+        r.joints.iter().filter(|j| j.bushing.is_some()).count(),
+    );
+    if let Some(s) = &r.sacrum {
+        println!(
+            "sacrum: {} registered, RMS surface distance {:.2} mm (max {:.2} mm)",
+            s.source, s.residual_to_generic.rms_mm, s.residual_to_generic.max_mm
+        );
+    }
+    println!(
+        "wrap spheres: {}, path wraps: {} on {} muscles; markers: {}",
+        r.spheres.len(),
+        r.path_wraps_added,
+        r.muscles_with_wraps,
+        r.markers.len()
+    );
+    println!("wrote {} files to {}", files.len(), args.out.display());
+    Ok(0)
+}
