@@ -358,6 +358,16 @@ impl StiffnessFamily {
         k
     }
 
+    /// The family's label (`uniform`, `ratio`, `per-level`).
+    pub fn label_str(&self) -> &str {
+        &self.label
+    }
+
+    /// Nominal parameter values.
+    pub fn params_nominal(&self) -> Vec<f64> {
+        self.params.iter().map(|p| p.nominal).collect()
+    }
+
     /// Override the bounds of parameters on stiffness DoF `d`.
     pub fn set_bounds(&mut self, d: usize, lower: f64, upper: f64) {
         for (j, entries) in self.map.iter().enumerate() {
@@ -412,5 +422,164 @@ impl ModelFamily for StiffnessFamily {
             }
         }
         Ok(())
+    }
+}
+
+/// A level-ratio table: [`level_key`] -> values per DoF (rx..tz).
+pub type RatioTable = BTreeMap<String, [Option<f64>; 6]>;
+
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RatioLevelToml {
+    name: String,
+    rx: Option<f64>,
+    ry: Option<f64>,
+    rz: Option<f64>,
+    tx: Option<f64>,
+    ty: Option<f64>,
+    tz: Option<f64>,
+}
+
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RatioToml {
+    #[serde(default)]
+    #[allow(dead_code)]
+    source: Option<String>,
+    #[serde(default)]
+    #[allow(dead_code)]
+    unit: Option<String>,
+    level: Vec<RatioLevelToml>,
+}
+
+/// Read a level-ratio table: TOML (`[[level]]` tables with `name` and any of
+/// `rx .. tz`) or CSV with a header `level,rx,ry,rz[,tx,ty,tz]`. Values must
+/// be positive; levels must be unique.
+pub fn read_ratio_table(path: &std::path::Path) -> Result<RatioTable> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut out = RatioTable::new();
+    let mut put = |name: &str, vals: [Option<f64>; 6], at: String| -> Result<()> {
+        for (d, v) in vals.iter().enumerate() {
+            if let Some(v) = v {
+                if !(v.is_finite() && *v > 0.0) {
+                    return Err(Error::parse(
+                        path,
+                        at.clone(),
+                        format!(
+                            "{} of level '{name}' must be a positive number, got {v}",
+                            DOF_NAMES[d]
+                        ),
+                    ));
+                }
+            }
+        }
+        if out.insert(level_key(name), vals).is_some() {
+            return Err(Error::parse(
+                path,
+                at,
+                format!("level '{name}' appears twice"),
+            ));
+        }
+        Ok(())
+    };
+    let is_toml = path
+        .extension()
+        .map(|e| e.eq_ignore_ascii_case("toml"))
+        .unwrap_or(false);
+    if is_toml {
+        let t: RatioToml = toml::from_str(&text).map_err(|e| {
+            let location = match e.span() {
+                Some(s) => format!(
+                    "line {}",
+                    text[..s.start.min(text.len())].lines().count().max(1)
+                ),
+                None => "file".to_string(),
+            };
+            Error::parse(path, location, e.message().to_string())
+        })?;
+        for (i, l) in t.level.iter().enumerate() {
+            put(
+                &l.name,
+                [l.rx, l.ry, l.rz, l.tx, l.ty, l.tz],
+                format!("[[level]] #{}", i + 1),
+            )?;
+        }
+    } else {
+        let mut rdr = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .from_reader(text.as_bytes());
+        let headers = rdr
+            .headers()
+            .map_err(|e| Error::parse(path, "line 1", e.to_string()))?
+            .clone();
+        let col = |n: &str| headers.iter().position(|h| h == n);
+        let Some(lc) = col("level") else {
+            return Err(Error::parse(
+                path,
+                "line 1",
+                "missing column 'level' (expected level,rx,ry,rz)",
+            ));
+        };
+        let cols: Vec<Option<usize>> = DOF_NAMES.iter().map(|d| col(d)).collect();
+        if cols.iter().all(|c| c.is_none()) {
+            return Err(Error::parse(
+                path,
+                "line 1",
+                "no DoF column (rx, ry, rz, tx, ty, tz)",
+            ));
+        }
+        for rec in rdr.records() {
+            let rec = rec.map_err(|e| Error::parse(path, "file", e.to_string()))?;
+            let line = rec.position().map(|p| p.line()).unwrap_or(0);
+            let at = format!("line {line}");
+            let name = rec.get(lc).unwrap_or("").to_string();
+            let mut vals = [None; 6];
+            for (d, c) in cols.iter().enumerate() {
+                let Some(c) = c else { continue };
+                let s = rec.get(*c).unwrap_or("");
+                if s.is_empty() {
+                    continue;
+                }
+                vals[d] = Some(s.parse::<f64>().map_err(|_| {
+                    Error::parse(
+                        path,
+                        at.clone(),
+                        format!("column {}: '{s}' is not a number", DOF_NAMES[d]),
+                    )
+                })?);
+            }
+            put(&name, vals, at)?;
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::parse(path, "file", "no level in the ratio table"));
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_the_shipped_zhang_template_and_csv() {
+        let t =
+            read_ratio_table(std::path::Path::new("templates/level_ratios_zhang.toml")).unwrap();
+        assert_eq!(t.len(), 6);
+        assert_eq!(t["T12L1"][0], Some(36.4));
+        assert_eq!(t["L5S1"][2], Some(51.0));
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("r.csv");
+        std::fs::write(&p, "level,rx,ry,rz\nL4_L5,1,2,3\nL5-S1,2,,4\n").unwrap();
+        let t = read_ratio_table(&p).unwrap();
+        assert_eq!(t["L5S1"], [Some(2.0), None, Some(4.0), None, None, None]);
+        std::fs::write(&p, "level,rx\nL4_L5,-1\n").unwrap();
+        let e = read_ratio_table(&p).unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("positive"), "{e}");
+        std::fs::write(&p, "level,rx\nL4_L5,1\nl4l5,2\n").unwrap();
+        assert!(read_ratio_table(&p)
+            .unwrap_err()
+            .to_string()
+            .contains("twice"));
     }
 }

@@ -485,6 +485,29 @@ pub struct ErrorEntry {
     pub rmse: f64,
     /// RMSE divided by the range (max - min) of the measured values.
     pub nrmse: f64,
+    /// RMSE in the experiment's unit (`unit`).
+    pub rmse_in_unit: f64,
+    /// `deg`/`rad` or `mm`/`m` as in `[units]`.
+    pub unit: String,
+}
+
+impl ErrorTable {
+    /// Pooled RMSE over all entries of rotational (`rot = true`) or
+    /// translational DoFs, in the experiment's unit; NaN when there is none.
+    pub fn pooled(&self, rot: bool) -> f64 {
+        let (mut ss, mut n) = (0.0, 0usize);
+        for e in &self.entries {
+            if DOF_NAMES[..3].contains(&e.dof.as_str()) == rot {
+                ss += e.rmse_in_unit.powi(2) * e.n as f64;
+                n += e.n;
+            }
+        }
+        if n == 0 {
+            f64::NAN
+        } else {
+            (ss / n as f64).sqrt()
+        }
+    }
 }
 
 /// Error table of `pred` vs measured over the selected DoFs and rows.
@@ -518,6 +541,13 @@ pub fn error_table(pb: &Problem, pred: &[[f64; 6]], rows: impl Fn(usize) -> bool
                     n,
                     rmse,
                     nrmse: if hi > lo { rmse / (hi - lo) } else { f64::NAN },
+                    rmse_in_unit: rmse * pb.exp.units.from_si(d),
+                    unit: if d < 3 {
+                        pb.exp.units.angle
+                    } else {
+                        pb.exp.units.length
+                    }
+                    .to_string(),
                 }
             })
             .collect(),

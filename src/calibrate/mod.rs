@@ -14,3 +14,6 @@ pub mod lhs;
 pub mod lm;
 pub mod measure;
 pub mod problem;
+pub mod report;
+pub mod setup;
+pub mod validate;

@@ -364,7 +364,13 @@ impl Evaluator {
     }
 
     /// `dq/dp = -T^{-1} d tau/d p` with the tangent factorised by the last solve.
-    fn dq_dp(&mut self, pb: &Problem, p: &[f64], q: &[f64], loads: &LoadSet) -> Result<DMatrix<f64>> {
+    fn dq_dp(
+        &mut self,
+        pb: &Problem,
+        p: &[f64],
+        q: &[f64],
+        loads: &LoadSet,
+    ) -> Result<DMatrix<f64>> {
         let n = self.sys.n_dofs();
         let np = p.len();
         pb.family

@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod base;
+pub mod calibrate;
 pub mod check;
 pub mod convert;
 pub mod info;
@@ -22,6 +23,10 @@ pub struct Cli {
 /// Subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Calibrate intervertebral stiffness from measured kinematics
+    /// (experiment folder): multi-start Levenberg-Marquardt, covariance,
+    /// identifiability, validation; calibrated .osim, JSON and SVG.
+    Calibrate(calibrate::Args),
     /// Summarise a model: bodies, joints, coordinates, forces, muscles, markers, meshes.
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
@@ -46,6 +51,7 @@ pub enum Command {
 pub fn main() -> i32 {
     let cli = Cli::parse();
     let result: anyhow::Result<i32> = match cli.command {
+        Command::Calibrate(a) => calibrate::run(a),
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Base(a) => base::run(a),
