@@ -130,6 +130,9 @@ pub struct Calibration {
     pub n_params: usize,
     /// Residual variance `cost / (m - n)` (weighted units).
     pub s2: f64,
+    /// Residual SD per DoF (rx..tz, SI; NaN when not in the cost), the
+    /// noise level the covariance uses.
+    pub residual_sd: [f64; 6],
     pub estimates: Vec<ParamEstimate>,
     /// Covariance of the log-parameters.
     pub covariance_log: Vec<Vec<f64>>,
@@ -333,21 +336,61 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
     let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(n, n));
     let smax = sv.iter().fold(0.0f64, |a, b| a.max(*b));
     let smin = sv.iter().fold(f64::INFINITY, |a, b| a.min(*b));
-    // covariance: s2 * V S^-2 V^T; directions with tiny singular values have
-    // unbounded variance
+    // Covariance of the log-parameters: the sandwich A+ B A+ with
+    // A = J^T J (weighted Jacobian) and B = sum_i w_i sigma_d(i)^2 J_i^T J_i,
+    // the residual variance sigma_d^2 estimated per DoF from the
+    // unweighted residuals (so that weights that are not 1/variance, e.g.
+    // the default motion-based ones, still give honest intervals). With
+    // w = 1/sigma^2 it reduces to s^2 (J^T J)^-1. Directions with tiny
+    // singular values have unbounded variance.
     let tiny = smax * 1e-10;
-    let mut cov = DMatrix::<f64>::zeros(n, n);
+    let mut a_pinv = DMatrix::<f64>::zeros(n, n);
     for (k, &s) in sv.iter().enumerate() {
-        let inv = if s > tiny {
-            1.0 / (s * s)
-        } else {
-            f64::INFINITY
-        };
+        if s > tiny {
+            for a in 0..n {
+                for b in 0..n {
+                    a_pinv[(a, b)] += vt[(k, a)] * vt[(k, b)] / (s * s);
+                }
+            }
+        }
+    }
+    let mut sigma2 = [0.0f64; 6];
+    let mut count = [0usize; 6];
+    for (ci, c) in pb.cells.iter().enumerate() {
+        if c.sqrt_w > 0.0 {
+            sigma2[c.dof] += (r[ci] / c.sqrt_w).powi(2);
+            count[c.dof] += 1;
+        }
+    }
+    let dof_share = if m > n {
+        (m - n) as f64 / m as f64
+    } else {
+        f64::NAN
+    };
+    for d in 0..6 {
+        if count[d] > 0 {
+            sigma2[d] /= count[d] as f64 * dof_share;
+        }
+    }
+    let mut bmat = DMatrix::<f64>::zeros(n, n);
+    for (ci, c) in pb.cells.iter().enumerate() {
+        let f = c.sqrt_w * c.sqrt_w * sigma2[c.dof];
         for a in 0..n {
+            let ja = j[(ci, a)];
+            if ja == 0.0 {
+                continue;
+            }
             for b in 0..n {
-                let v = vt[(k, a)] * vt[(k, b)];
-                if v != 0.0 {
-                    cov[(a, b)] += s2 * inv * v;
+                bmat[(a, b)] += f * ja * j[(ci, b)];
+            }
+        }
+    }
+    let mut cov = &a_pinv * bmat * &a_pinv;
+    for (k, &s) in sv.iter().enumerate() {
+        if s <= tiny {
+            for a in 0..n {
+                if vt[(k, a)].abs() > 1e-3 {
+                    cov[(a, a)] = f64::INFINITY;
                 }
             }
         }
@@ -445,6 +488,13 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
         n_residuals: m,
         n_params: n,
         s2,
+        residual_sd: std::array::from_fn(|d| {
+            if count[d] > 0 {
+                sigma2[d].sqrt()
+            } else {
+                f64::NAN
+            }
+        }),
         estimates,
         covariance_log: (0..n)
             .map(|a| (0..n).map(|b| cov[(a, b)]).collect())
