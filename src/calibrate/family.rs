@@ -229,7 +229,16 @@ impl StiffnessFamily {
             let Some(m) = sys.bushing_model(i) else {
                 continue;
             };
-            nominal.push(m.stiffness_params());
+            // Only linear (BushingForce) laws have a diagonal to calibrate;
+            // other laws get NaN, refused below when they are a level.
+            let k: [f64; 6] = match m {
+                crate::solver::BushingModel::Linear { .. } => {
+                    let p = m.stiffness_params();
+                    std::array::from_fn(|i| p.get(i).copied().unwrap_or(f64::NAN))
+                }
+                _ => [f64::NAN; 6],
+            };
+            nominal.push(k);
         }
         for l in &levels {
             let k = nominal.get(l.bushing).copied().unwrap_or([0.0; 6]);
