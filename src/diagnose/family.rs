@@ -77,8 +77,12 @@ pub enum Kind {
     AsymmetricBilinear,
     CoupledUniform,
     CoupledPerLevel,
+    /// Coupling at the levels of the family's mask only (a local effect).
+    CoupledLocal,
     JointRotation,
     JointPose,
+    /// Joint pose error at the levels of the mask only.
+    JointLocal,
     Preload,
 }
 
@@ -90,8 +94,10 @@ impl Kind {
             Kind::LevelScalar | Kind::LevelPerDof => Effect::LevelDependentStiffness,
             Kind::NonlinearSinh | Kind::NonlinearCubic => Effect::NonlinearStiffness,
             Kind::AsymmetricBilinear => Effect::AsymmetricStiffness,
-            Kind::CoupledUniform | Kind::CoupledPerLevel => Effect::CoupledStiffness,
-            Kind::JointRotation | Kind::JointPose => Effect::JointPoseError,
+            Kind::CoupledUniform | Kind::CoupledPerLevel | Kind::CoupledLocal => {
+                Effect::CoupledStiffness
+            }
+            Kind::JointRotation | Kind::JointPose | Kind::JointLocal => Effect::JointPoseError,
             Kind::Preload => Effect::PreloadStiffening,
         }
     }
@@ -106,6 +112,8 @@ impl Kind {
             Kind::AsymmetricBilinear => "asymmetric_bilinear",
             Kind::CoupledUniform => "coupled_uniform",
             Kind::CoupledPerLevel => "coupled_per_level",
+            Kind::CoupledLocal => "coupled_local",
+            Kind::JointLocal => "joint_local",
             Kind::JointRotation => "joint_rotation",
             Kind::JointPose => "joint_pose",
             Kind::Preload => "preload",
@@ -119,6 +127,11 @@ const DOF3: [&str; 3] = ["rx", "ry", "rz"];
 #[derive(Debug, Clone)]
 pub struct Family {
     pub kind: Kind,
+    /// Levels that carry per-level parameters (all for the per-level
+    /// kinds; one or a few for the local kinds).
+    pub mask: Vec<bool>,
+    /// Joint offsets (mm) are parameters (pose kinds).
+    pub offsets: bool,
     pub names: Vec<String>,
     pub x0: Vec<f64>,
     pub lo: Vec<f64>,
@@ -154,8 +167,23 @@ impl Family {
     /// global factors (log), used as the start of the global block.
     /// `offsets` says whether joint-centre offsets are part of the pose family.
     pub fn new(kind: Kind, sim: &Sim, start_global: [f64; 3]) -> Family {
+        let all = vec![true; sim.levels.len()];
+        Family::masked(kind, sim, start_global, all, kind == Kind::JointPose)
+    }
+
+    /// Instantiate with per-level parameters at the `mask` levels only, and
+    /// joint offsets when `offsets` (pose kinds).
+    pub fn masked(
+        kind: Kind,
+        sim: &Sim,
+        start_global: [f64; 3],
+        mask: Vec<bool>,
+        offsets: bool,
+    ) -> Family {
         let mut f = Family {
             kind,
+            mask: mask.clone(),
+            offsets,
             names: Vec::new(),
             x0: Vec::new(),
             lo: Vec::new(),
@@ -211,21 +239,21 @@ impl Family {
                     push(&mut f, format!("rho_{n}"), 0.0, -0.8, 0.8);
                 }
             }
-            Kind::CoupledPerLevel => {
-                for l in &sim.levels {
+            Kind::CoupledPerLevel | Kind::CoupledLocal => {
+                for l in sim.levels.iter().zip(&mask).filter(|p| *p.1).map(|p| p.0) {
                     for n in ["xy", "xz", "yz"] {
                         push(&mut f, format!("{}.rho_{n}", l.name), 0.0, -0.8, 0.8);
                     }
                 }
             }
-            Kind::JointRotation | Kind::JointPose => {
-                for l in &sim.levels {
+            Kind::JointRotation | Kind::JointPose | Kind::JointLocal => {
+                for l in sim.levels.iter().zip(&mask).filter(|p| *p.1).map(|p| p.0) {
                     for a in ["x", "y", "z"] {
                         push(&mut f, format!("{}.rot_{a}_rad", l.name), 0.0, -0.4, 0.4);
                     }
-                    if kind == Kind::JointPose {
+                    if offsets {
                         for a in ["x", "y", "z"] {
-                            push(&mut f, format!("{}.offset_{a}_mm", l.name), 0.0, -20.0, 20.0);
+                            push(&mut f, format!("{}.offset_{a}_mm", l.name), 0.0, -10.0, 10.0);
                         }
                     }
                 }
@@ -254,6 +282,15 @@ impl Family {
         let mut laws = Vec::with_capacity(nl);
         let mut frames = vec![None; nl];
         let mut expressions = vec![None; nl];
+        // block index of each masked level
+        let mut block = vec![None; nl];
+        let mut nb = 0;
+        for (li, m) in self.mask.iter().enumerate() {
+            if *m {
+                block[li] = Some(nb);
+                nb += 1;
+            }
+        }
         for li in 0..nl {
             let kn = sim.k_nominal[li];
             let damping = sim.nominal[li].damping();
@@ -316,14 +353,19 @@ impl Family {
                         damping,
                     }
                 }
-                Kind::CoupledUniform | Kind::CoupledPerLevel => {
-                    let off = if self.kind == Kind::CoupledUniform { 3 } else { 3 + 3 * li };
+                Kind::CoupledUniform | Kind::CoupledPerLevel | Kind::CoupledLocal => {
+                    let off = match (self.kind, block[li]) {
+                        (Kind::CoupledUniform, _) => Some(3),
+                        (_, Some(b)) => Some(3 + 3 * b),
+                        _ => None,
+                    };
                     let mut m = Matrix6::zeros();
                     for d in 0..6 {
                         m[(d, d)] = k[d];
                     }
                     for (n, (i, j)) in [(0usize, 1usize), (0, 2), (1, 2)].iter().enumerate() {
-                        let v = get(off + n) * (k[*i] * k[*j]).sqrt();
+                        let rho = off.map(|o| get(o + n)).unwrap_or(0.0);
+                        let v = rho * (k[*i] * k[*j]).sqrt();
                         m[(*i, *j)] = v;
                         m[(*j, *i)] = v;
                     }
@@ -332,19 +374,21 @@ impl Family {
                         damping,
                     }
                 }
-                Kind::JointRotation | Kind::JointPose => {
-                    let per = if self.kind == Kind::JointPose { 6 } else { 3 };
-                    let o = 3 + per * li;
-                    let w = Vector3::new(get(o), get(o + 1), get(o + 2));
-                    let t = if self.kind == Kind::JointPose {
-                        Vector3::new(get(o + 3), get(o + 4), get(o + 5)) * 1e-3
-                    } else {
-                        Vector3::zeros()
-                    };
-                    frames[li] = Some(Isometry3::from_parts(
-                        Translation3::from(t),
-                        UnitQuaternion::from_scaled_axis(w),
-                    ));
+                Kind::JointRotation | Kind::JointPose | Kind::JointLocal => {
+                    let per = if self.offsets { 6 } else { 3 };
+                    if let Some(b) = block[li] {
+                        let o = 3 + per * b;
+                        let w = Vector3::new(get(o), get(o + 1), get(o + 2));
+                        let t = if self.offsets {
+                            Vector3::new(get(o + 3), get(o + 4), get(o + 5)) * 1e-3
+                        } else {
+                            Vector3::zeros()
+                        };
+                        frames[li] = Some(Isometry3::from_parts(
+                            Translation3::from(t),
+                            UnitQuaternion::from_scaled_axis(w),
+                        ));
+                    }
                     linear(k)
                 }
                 Kind::Preload => {

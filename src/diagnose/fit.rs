@@ -125,9 +125,10 @@ pub fn fit(
     })
 }
 
-/// The kinds to try for an experiment: pose offsets only when translations
-/// are measured or follower loads applied; preload only with follower loads.
-pub fn kinds(has_translations: bool, has_follower: bool) -> Vec<Kind> {
+/// The kinds fitted first (in parallel); the pose family with offsets
+/// and the local variants start from their results (see `select`).
+/// Preload only with follower loads.
+pub fn kinds(has_follower: bool) -> Vec<Kind> {
     let mut k = vec![
         Kind::LevelScalar,
         Kind::LevelPerDof,
@@ -136,14 +137,45 @@ pub fn kinds(has_translations: bool, has_follower: bool) -> Vec<Kind> {
         Kind::AsymmetricBilinear,
         Kind::CoupledUniform,
         Kind::CoupledPerLevel,
+        Kind::JointRotation,
     ];
-    if has_translations || has_follower {
-        k.push(Kind::JointPose);
-    } else {
-        k.push(Kind::JointRotation);
-    }
     if has_follower {
         k.push(Kind::Preload);
     }
     k
+}
+
+/// The level whose per-level block matters most in a fitted per-level
+/// family: the one whose block, reset to zero, raises the training sum of
+/// squares most.
+pub fn dominant_level(
+    sim: &Sim,
+    f: &Fitted,
+    train_cells: &[usize],
+    train_cases: &[usize],
+    per: usize,
+) -> Result<usize> {
+    let mut best = (0usize, f64::NEG_INFINITY);
+    let mut warm = sim.warm();
+    for li in 0..sim.levels.len() {
+        let mut x = f.x.clone();
+        for k in 0..per {
+            if let Some(v) = x.get_mut(3 + per * li + k) {
+                *v = 0.0;
+            }
+        }
+        let sys = f.family.system(sim, &x)?;
+        let pred = sim.predict(&sys, train_cases, &mut warm)?;
+        let sse: f64 = train_cells
+            .iter()
+            .map(|&ci| {
+                let c = &sim.cells[ci];
+                (pred[c.row][c.dof] - c.measured).powi(2)
+            })
+            .sum();
+        if sse > best.1 {
+            best = (li, sse);
+        }
+    }
+    Ok(best.0)
 }

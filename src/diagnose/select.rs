@@ -26,7 +26,7 @@
 
 use super::design::{Design, AXIS_NAMES};
 use super::family::{Effect, Family, Kind};
-use super::fit::{fit, kinds, Fitted, Weights};
+use super::fit::{dominant_level, fit, kinds, Fitted, Weights};
 use super::sim::Sim;
 use crate::calibrate::experiment::{Experiment, DOF_NAMES};
 use crate::error::Result;
@@ -156,9 +156,10 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     let ho_cells: Vec<usize> = (0..sim.cells.len()).filter(|&c| !in_train[sim.cells[c].case]).collect();
     let has_trans = sim.cells.iter().any(|c| c.dof >= 3);
     let unit = Weights { rot: 1.0, trans: 1.0 };
-    let kinds = kinds(has_trans, design.has_follower);
+    let kinds = kinds(design.has_follower);
+    let offsets = has_trans || design.has_follower;
     let pb = if opts.progress {
-        let pb = indicatif::ProgressBar::new(kinds.len() as u64 + 1);
+        let pb = indicatif::ProgressBar::new(kinds.len() as u64 + 3 + offsets as u64);
         pb.set_style(
             indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
@@ -179,7 +180,7 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     pb.inc(1);
     pb.set_message("candidates");
     let g = [baseline.x[0], baseline.x[1], baseline.x[2]];
-    let fits: Vec<Fitted> = kinds
+    let mut fits: Vec<Fitted> = kinds
         .par_iter()
         .map(|&k| {
             let r = fit(&sim, Family::new(k, &sim, g), &train_cells, &design.train, unit, opts.max_iterations);
@@ -189,6 +190,64 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         .collect::<Vec<Result<Fitted>>>()
         .into_iter()
         .collect::<Result<Vec<_>>>()?;
+    // second stage: pose with offsets from the rotation-only pose fit, and
+    // the local (one-level) coupling and pose variants at the level that
+    // carries most of the per-level fit
+    pb.set_message("pose offsets, local variants");
+    let find = |fits: &[Fitted], k: Kind| fits.iter().position(|f| f.family.kind == k);
+    let nl = sim.levels.len();
+    let mut stage2: Vec<Family> = Vec::new();
+    if let Some(i) = find(&fits, Kind::JointRotation) {
+        let rot = &fits[i];
+        let lj = dominant_level(&sim, rot, &train_cells, &design.train, 3)?;
+        let mut mask = vec![false; nl];
+        mask[lj] = true;
+        let mut loc = Family::masked(Kind::JointLocal, &sim, g, mask, offsets);
+        if let Some(x) = loc.x0.get_mut(..3) {
+            x.copy_from_slice(&rot.x[..3]);
+        }
+        for k in 0..3 {
+            if let (Some(v), Some(r)) = (loc.x0.get_mut(3 + k), rot.x.get(3 + 3 * lj + k)) {
+                *v = *r;
+            }
+        }
+        stage2.push(loc);
+        if offsets {
+            let mut pose = Family::new(Kind::JointPose, &sim, g);
+            pose.x0[..3].copy_from_slice(&rot.x[..3]);
+            for li in 0..nl {
+                for k in 0..3 {
+                    pose.x0[3 + 6 * li + k] = rot.x[3 + 3 * li + k];
+                }
+            }
+            stage2.push(pose);
+        }
+    }
+    if let Some(i) = find(&fits, Kind::CoupledPerLevel) {
+        let cp = &fits[i];
+        let lc = dominant_level(&sim, cp, &train_cells, &design.train, 3)?;
+        let mut mask = vec![false; nl];
+        mask[lc] = true;
+        let mut loc = Family::masked(Kind::CoupledLocal, &sim, g, mask, false);
+        for k in 0..6 {
+            let src = if k < 3 { k } else { 3 + 3 * lc + (k - 3) };
+            if let (Some(v), Some(r)) = (loc.x0.get_mut(k), cp.x.get(src)) {
+                *v = *r;
+            }
+        }
+        stage2.push(loc);
+    }
+    let more = stage2
+        .into_par_iter()
+        .map(|f| {
+            let r = fit(&sim, f, &train_cells, &design.train, unit, opts.max_iterations);
+            pb.inc(1);
+            r
+        })
+        .collect::<Vec<Result<Fitted>>>()
+        .into_iter()
+        .collect::<Result<Vec<_>>>()?;
+    fits.extend(more);
     pb.finish_and_clear();
 
     // noise from the best-fitting family

@@ -50,8 +50,13 @@ pub struct Sim {
     pub k_nominal: Vec<[f64; 6]>,
     /// Nominal bushing frames of each level.
     pub frames: Vec<(Isometry3<f64>, Isometry3<f64>)>,
-    /// Loads of every case (not yet prepared: joint frames may move).
+    /// Loads of every case.
     pub loads: Vec<Vec<Load>>,
+    /// The loads resolved on the nominal system. Follower-load guide points
+    /// are fixed in the bodies where the nominal joint centres are: the
+    /// rig places its cable guides on the anatomy, so a misplaced joint
+    /// centre (joint_pose_error) does not carry the guides with it.
+    pub prepared: Vec<LoadSet>,
     /// `(upper, lower)` body indices of each row.
     pub row_bodies: Vec<(usize, usize)>,
     /// Rows of each case.
@@ -143,11 +148,15 @@ impl Sim {
             .iter()
             .map(|c| c.loads(Some(&exp.fixed_body)))
             .collect::<Result<Vec<_>>>()?;
-        // loads must be preparable on the nominal system (names, follower path)
-        for (c, l) in exp.cases.iter().zip(&loads) {
-            base.prepare_loads(l)
-                .map_err(|e| Error::invalid(format!("{ctx}: case '{}'", c.id), e.to_string()))?;
-        }
+        let prepared = exp
+            .cases
+            .iter()
+            .zip(&loads)
+            .map(|(c, l)| {
+                base.prepare_loads(l)
+                    .map_err(|e| Error::invalid(format!("{ctx}: case '{}'", c.id), e.to_string()))
+            })
+            .collect::<Result<Vec<_>>>()?;
         let mut row_bodies = Vec::new();
         let mut case_rows = vec![Vec::new(); exp.cases.len()];
         let mut cells = Vec::new();
@@ -199,6 +208,7 @@ impl Sim {
             k_nominal,
             frames,
             loads,
+            prepared,
             row_bodies,
             case_rows,
             cells,
@@ -237,13 +247,12 @@ impl Sim {
         warm.q0 = q0;
         let mut out = vec![[0.0; 6]; self.row_bodies.len()];
         for &ci in cases {
-            let (Some(loads), Some(rows), Some(start)) =
-                (self.loads.get(ci), self.case_rows.get(ci), warm.q1.get(ci))
+            let (Some(ls), Some(rows), Some(start)) =
+                (self.prepared.get(ci), self.case_rows.get(ci), warm.q1.get(ci))
             else {
                 continue;
             };
-            let ls = sys.prepare_loads(loads)?;
-            let q1 = solve(&ls, start, &mut ws)
+            let q1 = solve(ls, start, &mut ws)
                 .map_err(|e| Error::numerical(format!("case {ci}"), format!("no equilibrium: {e}")))?;
             kb.q.copy_from_slice(q1.as_slice());
             kinematics::forward(sys, &mut kb);
