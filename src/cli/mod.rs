@@ -7,6 +7,7 @@ pub mod base;
 pub mod calibrate;
 pub mod check;
 pub mod convert;
+pub mod diagnose;
 pub mod info;
 pub mod mean_shape;
 pub mod simulate;
@@ -28,6 +29,10 @@ pub enum Command {
     /// (experiment folder): multi-start Levenberg-Marquardt, covariance,
     /// identifiability, validation; calibrated .osim, JSON and SVG.
     Calibrate(calibrate::Args),
+    /// Diagnose the sim-to-real gap of an experiment: baseline re-fit,
+    /// held-out design, candidate effects, verdict, held-out shrink;
+    /// diagnosis.json, report.md, SVG figures, improved .osim.
+    Diagnose(diagnose::Args),
     /// Summarise a model: bodies, joints, coordinates, forces, muscles, markers, meshes.
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
@@ -57,6 +62,7 @@ pub fn main() -> i32 {
     let cli = Cli::parse();
     let result: anyhow::Result<i32> = match cli.command {
         Command::Calibrate(a) => calibrate::run(a),
+        Command::Diagnose(a) => diagnose::run(a),
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Base(a) => base::run(a),
