@@ -121,10 +121,16 @@ impl IdStyle {
             neg: "neg".into(),
         };
         for c in cases {
-            let (Some(a), true) = (c.axis, c.follower == 0.0) else { continue };
+            let (Some(a), true) = (c.axis, c.follower == 0.0) else {
+                continue;
+            };
             let parts: Vec<&str> = c.id.split('_').collect();
             if let [ax, sg, mag] = parts.as_slice() {
-                if mag.parse::<f64>().map(|m| same(m, c.magnitude)).unwrap_or(false) {
+                if mag
+                    .parse::<f64>()
+                    .map(|m| same(m, c.magnitude))
+                    .unwrap_or(false)
+                {
                     s.axis[a] = ax.to_string();
                     if c.sign > 0 {
                         s.pos = sg.to_string();
@@ -195,7 +201,10 @@ impl Design {
         if !nonlinear_gaps.is_empty() {
             untestable.push((
                 "nonlinear_stiffness".to_string(),
-                format!("a single moment magnitude about {}", nonlinear_gaps.join(", ")),
+                format!(
+                    "a single moment magnitude about {}",
+                    nonlinear_gaps.join(", ")
+                ),
             ));
         }
         if !sign_gaps.is_empty() {
@@ -214,7 +223,9 @@ impl Design {
         let mut held = vec![false; info.len()];
         let mut rules = Vec::new();
         for a in 0..3 {
-            let on: Vec<usize> = (0..info.len()).filter(|&i| info[i].axis == Some(a)).collect();
+            let on: Vec<usize> = (0..info.len())
+                .filter(|&i| info[i].axis == Some(a))
+                .collect();
             let mags = distinct(on.iter().map(|&i| info[i].magnitude));
             if mags.len() >= 2 {
                 let top = mags[mags.len() - 1];
@@ -234,12 +245,16 @@ impl Design {
                     held[i] = true;
                 }
             }
-            rules.push(format!("every case under the {} N follower load", fmt_num(top)));
+            rules.push(format!(
+                "every case under the {} N follower load",
+                fmt_num(top)
+            ));
         }
         let mut train: Vec<usize> = (0..info.len()).filter(|&i| !held[i]).collect();
         // every loaded axis must stay in the training set
         let axis_ok = (0..3).all(|a| {
-            !info.iter().any(|c| c.axis == Some(a)) || train.iter().any(|&i| info[i].axis == Some(a))
+            !info.iter().any(|c| c.axis == Some(a))
+                || train.iter().any(|&i| info[i].axis == Some(a))
         });
         let rule;
         if rules.is_empty() || !axis_ok || train.is_empty() {
@@ -333,7 +348,10 @@ mod tests {
         assert!(d.is_untestable("asymmetric_stiffness"));
         assert!(d.is_untestable("preload_stiffening"));
         let names: Vec<&str> = d.missing.iter().map(|m| m.case.as_str()).collect();
-        assert!(names.contains(&"FE_pos_2.5") && names.contains(&"FE_neg_10"), "{names:?}");
+        assert!(
+            names.contains(&"FE_pos_2.5") && names.contains(&"FE_neg_10"),
+            "{names:?}"
+        );
         assert!(names.contains(&"LB_neg_5"), "{names:?}");
         assert!(!d.heldout.is_empty() && !d.train.is_empty());
     }

@@ -212,7 +212,13 @@ impl Family {
             Kind::LevelPerDof => {
                 for l in &sim.levels {
                     for (d, g) in start_global.iter().enumerate() {
-                        push(&mut f, format!("{}.log_k_{}", l.name, DOF3[d]), *g, -gbox, gbox);
+                        push(
+                            &mut f,
+                            format!("{}.log_k_{}", l.name, DOF3[d]),
+                            *g,
+                            -gbox,
+                            gbox,
+                        );
                     }
                 }
             }
@@ -220,18 +226,36 @@ impl Family {
                 // lambda = 1/a; start where the curve stiffens by ~20% at the largest rotation
                 for d in 0..3 {
                     let l0 = (1.0 / scale[d]).ln();
-                    push(&mut f, format!("log_lambda_{}", DOF3[d]), l0, l0 - 6.0, l0 + 3.0);
+                    push(
+                        &mut f,
+                        format!("log_lambda_{}", DOF3[d]),
+                        l0,
+                        l0 - 6.0,
+                        l0 + 3.0,
+                    );
                 }
             }
             Kind::NonlinearCubic => {
                 // c = k exp(s) / scale^2: start at ~10% extra stiffness at the largest rotation
                 for d in 0..3 {
-                    push(&mut f, format!("log_c_{}", DOF3[d]), (0.1f64).ln(), -12.0, 5.0);
+                    push(
+                        &mut f,
+                        format!("log_c_{}", DOF3[d]),
+                        (0.1f64).ln(),
+                        -12.0,
+                        5.0,
+                    );
                 }
             }
             Kind::AsymmetricBilinear => {
                 for d in 0..3 {
-                    push(&mut f, format!("log_kpos_over_kneg_{}", DOF3[d]), 0.0, -3.0, 3.0);
+                    push(
+                        &mut f,
+                        format!("log_kpos_over_kneg_{}", DOF3[d]),
+                        0.0,
+                        -3.0,
+                        3.0,
+                    );
                 }
             }
             Kind::CoupledUniform => {
@@ -253,17 +277,33 @@ impl Family {
                     }
                     if offsets {
                         for a in ["x", "y", "z"] {
-                            push(&mut f, format!("{}.offset_{a}_mm", l.name), 0.0, -10.0, 10.0);
+                            push(
+                                &mut f,
+                                format!("{}.offset_{a}_mm", l.name),
+                                0.0,
+                                -10.0,
+                                10.0,
+                            );
                         }
                     }
                 }
             }
             Kind::Preload => {
                 // beta * (largest axial compression) starts at 0.2
-                let k_ty = sim.k_nominal.iter().map(|k| k[4]).fold(f64::INFINITY, f64::min);
+                let k_ty = sim
+                    .k_nominal
+                    .iter()
+                    .map(|k| k[4])
+                    .fold(f64::INFINITY, f64::min);
                 let fmax = max_follower(sim);
                 let dy = (fmax / k_ty).max(1e-7);
-                push(&mut f, "log_beta_per_m".into(), (0.2 / dy).ln(), (1e-3 / dy).ln(), (20.0 / dy).ln());
+                push(
+                    &mut f,
+                    "log_beta_per_m".into(),
+                    (0.2 / dy).ln(),
+                    (1e-3 / dy).ln(),
+                    (20.0 / dy).ln(),
+                );
             }
         }
         f

@@ -37,7 +37,10 @@ pub fn outputs(exp: &Experiment, o: &select::Outcome) -> Result<Vec<(String, Vec
     Ok(vec![
         ("diagnosis.json".into(), text.into_bytes()),
         ("report.md".into(), md.into_bytes()),
-        ("residual_map.svg".into(), report::residual_map_svg(o, exp).into_bytes()),
+        (
+            "residual_map.svg".into(),
+            report::residual_map_svg(o, exp).into_bytes(),
+        ),
         ("curves.svg".into(), report::curves_svg(o, exp).into_bytes()),
         (model_name.into(), doc.to_xml_string().into_bytes()),
     ])

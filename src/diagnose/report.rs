@@ -68,8 +68,18 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
     }
     let (b, a) = o.heldout_rmse();
     let shrink = if b > 0.0 { 1.0 - a / b } else { 0.0 };
-    let held: Vec<&str> = o.design.heldout.iter().map(|&i| o.design.cases[i].id.as_str()).collect();
-    let train: Vec<&str> = o.design.train.iter().map(|&i| o.design.cases[i].id.as_str()).collect();
+    let held: Vec<&str> = o
+        .design
+        .heldout
+        .iter()
+        .map(|&i| o.design.cases[i].id.as_str())
+        .collect();
+    let train: Vec<&str> = o
+        .design
+        .train
+        .iter()
+        .map(|&i| o.design.cases[i].id.as_str())
+        .collect();
     let per: Vec<Value> = o
         .per_level_dof()
         .iter()
@@ -84,7 +94,11 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
         .map(|(k, v)| {
             (
                 k,
-                Value::Array(v.iter().map(|s| json!({"key": s.key, "share": r4(s.share)})).collect()),
+                Value::Array(
+                    v.iter()
+                        .map(|s| json!({"key": s.key, "share": r4(s.share)}))
+                        .collect(),
+                ),
             )
         })
         .collect();
@@ -198,10 +212,16 @@ fn move_socket_frame(doc: &mut Document, socket: &str, t: &Isometry3<f64>) -> Re
     let file = doc.path().display().to_string();
     let parts: Vec<&str> = socket.trim_start_matches('/').split('/').collect();
     let [set, joint, frame] = parts.as_slice() else {
-        return Err(Error::invalid(file, format!("bushing socket '{socket}' is not /jointset/JOINT/FRAME")));
+        return Err(Error::invalid(
+            file,
+            format!("bushing socket '{socket}' is not /jointset/JOINT/FRAME"),
+        ));
     };
     if *set != "jointset" {
-        return Err(Error::invalid(file, format!("bushing socket '{socket}' is not a joint frame")));
+        return Err(Error::invalid(
+            file,
+            format!("bushing socket '{socket}' is not a joint frame"),
+        ));
     }
     let j = doc
         .component_mut("JointSet", joint)
@@ -212,7 +232,12 @@ fn move_socket_frame(doc: &mut Document, socket: &str, t: &Isometry3<f64>) -> Re
     let f = frames
         .elements_mut()
         .find(|e| e.name_attr() == *frame)
-        .ok_or_else(|| Error::invalid(file.clone(), format!("frame '{frame}' of joint '{joint}' not found")))?;
+        .ok_or_else(|| {
+            Error::invalid(
+                file.clone(),
+                format!("frame '{frame}' of joint '{joint}' not found"),
+            )
+        })?;
     let nums = |s: Option<String>| -> Vector3<f64> {
         let v: Vec<f64> = s
             .unwrap_or_default()
@@ -244,7 +269,12 @@ pub fn improved_model(sim: &Sim, exp: &Experiment, v: &Variant) -> Result<Docume
     let levels = personalise::levels(&doc)?;
     let mut laws = Vec::new();
     for (li, l) in sim.levels.iter().enumerate() {
-        let bname = sim.base.bushing_names().nth(l.bushing).unwrap_or("").to_string();
+        let bname = sim
+            .base
+            .bushing_names()
+            .nth(l.bushing)
+            .unwrap_or("")
+            .to_string();
         let Some(pl) = levels.iter().find(|x| x.bushing == bname) else {
             return Err(Error::invalid(
                 exp.model_path.display().to_string(),
@@ -256,9 +286,12 @@ pub fn improved_model(sim: &Sim, exp: &Experiment, v: &Variant) -> Result<Docume
             laws.push((pl.clone(), level_law(m, e)));
         }
         if let Some(Some(t)) = v.frames.get(li) {
-            let e = doc
-                .component("ForceSet", &bname)
-                .ok_or_else(|| Error::invalid(exp.model_path.display().to_string(), format!("bushing '{bname}' not found")))?;
+            let e = doc.component("ForceSet", &bname).ok_or_else(|| {
+                Error::invalid(
+                    exp.model_path.display().to_string(),
+                    format!("bushing '{bname}' not found"),
+                )
+            })?;
             let s1 = e.child_text("socket_frame1").unwrap_or_default();
             let s2 = e.child_text("socket_frame2").unwrap_or_default();
             move_socket_frame(&mut doc, s1.trim(), t)?;
@@ -281,7 +314,9 @@ fn color(v: f64) -> String {
 }
 
 fn esc(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
 }
 
 /// Residual map (levels x (case, DoF)) of the baseline and the augmented
@@ -289,7 +324,9 @@ fn esc(s: &str) -> String {
 /// largest baseline residual of each DoF class.
 pub fn residual_map_svg(o: &Outcome, exp: &Experiment) -> String {
     let sim = &o.sim;
-    let dofs: Vec<usize> = (0..6).filter(|d| sim.cells.iter().any(|c| c.dof == *d)).collect();
+    let dofs: Vec<usize> = (0..6)
+        .filter(|d| sim.cells.iter().any(|c| c.dof == *d))
+        .collect();
     let nc = exp.cases.len();
     let nl = sim.levels.len();
     let cw = 6.0;
@@ -309,34 +346,59 @@ pub fn residual_map_svg(o: &Outcome, exp: &Experiment) -> String {
     };
     let (sr, st) = (scale(true), scale(false));
     let mut s = String::new();
-    let _ = write!(s, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w:.0}" height="{h:.0}" font-family="sans-serif" font-size="10">"#);
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w:.0}" height="{h:.0}" font-family="sans-serif" font-size="10">"#
+    );
     let _ = write!(s, r#"<rect width="100%" height="100%" fill="white"/>"#);
     let held: Vec<bool> = (0..nc).map(|i| o.design.heldout.contains(&i)).collect();
-    for (pi, (title, fit)) in [("baseline", &o.baseline), ("augmented", o.augmented())].iter().enumerate() {
+    for (pi, (title, fit)) in [("baseline", &o.baseline), ("augmented", o.augmented())]
+        .iter()
+        .enumerate()
+    {
         let y0 = 30.0 + pi as f64 * (panel_h + 50.0);
         let _ = write!(
             s,
             r#"<text x="{left}" y="{:.1}">{} residual (predicted - measured), columns: case x DoF ({}), scale +-{:.3} deg / +-{:.3} mm; held-out cases underlined</text>"#,
             y0 - 8.0,
             title,
-            dofs.iter().map(|d| DOF_NAMES[*d]).collect::<Vec<_>>().join(","),
+            dofs.iter()
+                .map(|d| DOF_NAMES[*d])
+                .collect::<Vec<_>>()
+                .join(","),
             sr,
             st
         );
         for (li, l) in sim.levels.iter().enumerate() {
-            let _ = write!(s, r#"<text x="4" y="{:.1}">{}</text>"#, y0 + ch * (li as f64 + 0.75), esc(&l.name));
+            let _ = write!(
+                s,
+                r#"<text x="4" y="{:.1}">{}</text>"#,
+                y0 + ch * (li as f64 + 0.75),
+                esc(&l.name)
+            );
         }
         for (ci, c) in sim.cells.iter().enumerate() {
-            let Some(dk) = dofs.iter().position(|d| *d == c.dof) else { continue };
+            let Some(dk) = dofs.iter().position(|d| *d == c.dof) else {
+                continue;
+            };
             let x = left + cw * (c.case * dofs.len() + dk) as f64;
             let y = y0 + ch * c.level as f64;
             let r = fit.residual(sim, ci) / if c.dof < 3 { sr } else { st };
-            let _ = write!(s, r#"<rect x="{x:.1}" y="{y:.1}" width="{cw}" height="{ch}" fill="{}"/>"#, color(r));
+            let _ = write!(
+                s,
+                r#"<rect x="{x:.1}" y="{y:.1}" width="{cw}" height="{ch}" fill="{}"/>"#,
+                color(r)
+            );
         }
         for (i, hd) in held.iter().enumerate() {
             if *hd {
                 let x = left + cw * (i * dofs.len()) as f64;
-                let _ = write!(s, r#"<rect x="{x:.1}" y="{:.1}" width="{:.1}" height="3" fill="black"/>"#, y0 + panel_h + 2.0, cw * dofs.len() as f64);
+                let _ = write!(
+                    s,
+                    r#"<rect x="{x:.1}" y="{:.1}" width="{:.1}" height="3" fill="black"/>"#,
+                    y0 + panel_h + 2.0,
+                    cw * dofs.len() as f64
+                );
             }
         }
     }
@@ -353,9 +415,18 @@ pub fn curves_svg(o: &Outcome, _exp: &Experiment) -> String {
     let pw = 260.0;
     let ph = 200.0;
     let mut s = String::new();
-    let _ = write!(s, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{:.0}" height="{:.0}" font-family="sans-serif" font-size="10">"#, 3.0 * (pw + 40.0) + 20.0, ph + 80.0);
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{:.0}" height="{:.0}" font-family="sans-serif" font-size="10">"#,
+        3.0 * (pw + 40.0) + 20.0,
+        ph + 80.0
+    );
     let _ = write!(s, r#"<rect width="100%" height="100%" fill="white"/>"#);
-    let fits = [("measured", None, "black"), ("baseline", Some(&o.baseline), "#1f77b4"), ("augmented", Some(o.augmented()), "#d62728")];
+    let fits = [
+        ("measured", None, "black"),
+        ("baseline", Some(&o.baseline), "#1f77b4"),
+        ("augmented", Some(o.augmented()), "#d62728"),
+    ];
     for a in 0..3 {
         let x0 = 40.0 + a as f64 * (pw + 40.0);
         let y0 = 30.0;
@@ -384,15 +455,31 @@ pub fn curves_svg(o: &Outcome, _exp: &Experiment) -> String {
         let my = pts.iter().flatten().map(|p| p.2.abs()).fold(1e-9, f64::max);
         let px = |m: f64| x0 + pw * (0.5 + 0.5 * m / mx);
         let py = |v: f64| y0 + ph * (0.5 - 0.5 * v / my);
-        let _ = write!(s, r#"<rect x="{x0}" y="{y0}" width="{pw}" height="{ph}" fill="none" stroke="gray"/>"#);
-        let _ = write!(s, r#"<text x="{x0}" y="{:.0}">{} moment (N m, +-{:.1}) vs total {} (deg, +-{:.2})</text>"#, y0 - 8.0, super::design::AXIS_NAMES[a], mx, DOF_NAMES[a], my);
+        let _ = write!(
+            s,
+            r#"<rect x="{x0}" y="{y0}" width="{pw}" height="{ph}" fill="none" stroke="gray"/>"#
+        );
+        let _ = write!(
+            s,
+            r#"<text x="{x0}" y="{:.0}">{} moment (N m, +-{:.1}) vs total {} (deg, +-{:.2})</text>"#,
+            y0 - 8.0,
+            super::design::AXIS_NAMES[a],
+            mx,
+            DOF_NAMES[a],
+            my
+        );
         for (k, (_, _, col)) in fits.iter().enumerate() {
             let mut series = pts[k].clone();
             series.sort_by(|p, q| p.1.total_cmp(&q.1).then(p.0.total_cmp(&q.0)));
             if k == 0 {
                 for p in &series {
                     let r = if p.3 { 3.5 } else { 2.0 };
-                    let _ = write!(s, r#"<circle cx="{:.1}" cy="{:.1}" r="{r}" fill="{col}"/>"#, px(p.0), py(p.2));
+                    let _ = write!(
+                        s,
+                        r#"<circle cx="{:.1}" cy="{:.1}" r="{r}" fill="{col}"/>"#,
+                        px(p.0),
+                        py(p.2)
+                    );
                 }
             } else {
                 let mut fl = f64::NAN;
@@ -406,7 +493,15 @@ pub fn curves_svg(o: &Outcome, _exp: &Experiment) -> String {
             }
         }
     }
-    let _ = write!(s, r##"<text x="40" y="{:.0}">black dots: measured (large: held out); blue: baseline; red: augmented ({})</text>"##, ph + 60.0, esc(o.chosen.map(|i| o.stats[i].family.label()).unwrap_or("none")));
+    let _ = write!(
+        s,
+        r##"<text x="40" y="{:.0}">black dots: measured (large: held out); blue: baseline; red: augmented ({})</text>"##,
+        ph + 60.0,
+        esc(o
+            .chosen
+            .map(|i| o.stats[i].family.label())
+            .unwrap_or("none"))
+    );
     s.push_str("</svg>\n");
     s
 }
@@ -415,12 +510,21 @@ pub fn curves_svg(o: &Outcome, _exp: &Experiment) -> String {
 pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
     let mut m = String::new();
     let _ = writeln!(m, "# Sim-to-real gap diagnosis: {}\n", exp.name);
-    let _ = writeln!(m, "**Verdict: `{}`** (confidence {:.2})\n", o.verdict, o.confidence);
+    let _ = writeln!(
+        m,
+        "**Verdict: `{}`** (confidence {:.2})\n",
+        o.verdict, o.confidence
+    );
     for r in &o.reasons {
         let _ = writeln!(m, "- {r}");
     }
     let _ = writeln!(m, "\n## Design\n\n{}\n", o.design.rule);
-    let _ = writeln!(m, "Training cases: {}; held-out cases: {}.\n", o.design.train.len(), o.design.heldout.len());
+    let _ = writeln!(
+        m,
+        "Training cases: {}; held-out cases: {}.\n",
+        o.design.train.len(),
+        o.design.heldout.len()
+    );
     if !o.design.untestable.is_empty() {
         let _ = writeln!(m, "Untestable by design:\n");
         for (e, w) in &o.design.untestable {
@@ -428,33 +532,76 @@ pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
         }
         let _ = writeln!(m);
     }
-    let _ = writeln!(m, "Noise estimate: {:.4} deg (rotations), {:.4} mm (translations).\n", 1.0 / o.noise.rot, 1.0 / o.noise.trans);
+    let _ = writeln!(
+        m,
+        "Noise estimate: {:.4} deg (rotations), {:.4} mm (translations).\n",
+        1.0 / o.noise.rot,
+        1.0 / o.noise.trans
+    );
     let _ = writeln!(m, "## Candidates\n\n| family | effect | params | dchi2 train | p train | dchi2 held-out | score | earns |\n|---|---|---|---|---|---|---|---|");
     for &i in &o.ranked {
         let s = &o.stats[i];
-        let _ = writeln!(m, "| {} | {} | {} | {:.1} | {:.2e} | {:.1} | {:.1} | {} |", s.family.label(), s.effect.name(), s.n_params, s.dchi2_train, s.p_train, s.dchi2_heldout, s.score, if s.earns { "yes" } else { "no" });
+        let _ = writeln!(
+            m,
+            "| {} | {} | {} | {:.1} | {:.2e} | {:.1} | {:.1} | {} |",
+            s.family.label(),
+            s.effect.name(),
+            s.n_params,
+            s.dchi2_train,
+            s.p_train,
+            s.dchi2_heldout,
+            s.score,
+            if s.earns { "yes" } else { "no" }
+        );
     }
     let (b, a) = o.heldout_rmse();
     let _ = writeln!(m, "\n## How far: held-out rotation RMSE\n\nbaseline {:.4} deg, augmented {:.4} deg, shrink {:.3}.\n", b, a, if b > 0.0 { 1.0 - a / b } else { 0.0 });
-    let _ = writeln!(m, "| level | DoF | baseline | augmented | shrink |\n|---|---|---|---|---|");
+    let _ = writeln!(
+        m,
+        "| level | DoF | baseline | augmented | shrink |\n|---|---|---|---|---|"
+    );
     for r in o.per_level_dof() {
-        let _ = writeln!(m, "| {} | {} | {:.4} | {:.4} | {:.2} |", r.level, r.dof, r.baseline_rmse, r.augmented_rmse, r.shrink);
+        let _ = writeln!(
+            m,
+            "| {} | {} | {:.4} | {:.4} | {:.2} |",
+            r.level, r.dof, r.baseline_rmse, r.augmented_rmse, r.shrink
+        );
     }
     let _ = writeln!(m, "\n## Where: cells carrying the held-out gap (baseline)\n\n| level | DoF | case | share | residual |\n|---|---|---|---|---|");
     for g in o.gap_cells(exp).iter().take(TOP_CELLS) {
-        let _ = writeln!(m, "| {} | {} | {} | {:.3} | {:.4} |", g.level, g.dof, g.case, g.share, g.residual);
+        let _ = writeln!(
+            m,
+            "| {} | {} | {} | {:.3} | {:.4} |",
+            g.level, g.dof, g.case, g.share, g.residual
+        );
     }
     for (name, rows) in o.gap_tables() {
-        let _ = writeln!(m, "\n**{name}**: {}", rows.iter().map(|r| format!("{} {:.2}", r.key, r.share)).collect::<Vec<_>>().join(", "));
+        let _ = writeln!(
+            m,
+            "\n**{name}**: {}",
+            rows.iter()
+                .map(|r| format!("{} {:.2}", r.key, r.share))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
     if o.verdict == "unidentifiable" {
         let _ = writeln!(m, "\n## Load cases that would separate the candidates\n");
         if let Some(Value::Array(w)) = json.get("where") {
             for x in w {
-                let _ = writeln!(m, "- `{}` ({}): {}", x["case"].as_str().unwrap_or(""), x["effect"].as_str().unwrap_or(""), x["reason"].as_str().unwrap_or(""));
+                let _ = writeln!(
+                    m,
+                    "- `{}` ({}): {}",
+                    x["case"].as_str().unwrap_or(""),
+                    x["effect"].as_str().unwrap_or(""),
+                    x["reason"].as_str().unwrap_or("")
+                );
             }
         }
     }
-    let _ = writeln!(m, "\n## Figures\n\n![residual map](residual_map.svg)\n\n![curves](curves.svg)\n");
+    let _ = writeln!(
+        m,
+        "\n## Figures\n\n![residual map](residual_map.svg)\n\n![curves](curves.svg)\n"
+    );
     m
 }

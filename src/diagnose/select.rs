@@ -21,7 +21,8 @@
 //! **Unidentifiable.** (a) design: an effect the design cannot test
 //! (single magnitude, single direction; not the absence of follower loads,
 //! which only makes preload stiffening untestable and is reported in
-//! `untestable`) and no effect earning its parameters; (b) data: the
+//! `untestable`) and no effect earning its parameters, or the winner
+//! closing less than [`DECISIVE_SHRINK`] of the held-out gap; (b) data: the
 //! runner-up's score within [`INDISTINGUISHABLE`] of the winner's.
 
 use super::design::{Design, AXIS_NAMES};
@@ -41,6 +42,10 @@ pub const ALPHA: f64 = 1e-4;
 pub const HELDOUT_MIN: f64 = 3.84;
 /// Score margin under which the two best effects are indistinguishable.
 pub const INDISTINGUISHABLE: f64 = 6.0;
+
+/// Held-out shrink a candidate needs to be reported while some effect is
+/// untestable by design.
+pub const DECISIVE_SHRINK: f64 = 0.5;
 
 /// Options.
 #[derive(Debug, Clone)]
@@ -144,18 +149,32 @@ fn rmse(sim: &Sim, f: &Fitted, cells: &[usize]) -> f64 {
     if cells.is_empty() {
         return f64::NAN;
     }
-    (cells.iter().map(|&c| f.residual(sim, c).powi(2)).sum::<f64>() / cells.len() as f64).sqrt()
+    (cells
+        .iter()
+        .map(|&c| f.residual(sim, c).powi(2))
+        .sum::<f64>()
+        / cells.len() as f64)
+        .sqrt()
 }
 
 /// Run the diagnosis on an experiment.
 pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     let sim = Sim::new(exp)?;
     let design = Design::new(&exp.cases);
-    let in_train: Vec<bool> = (0..exp.cases.len()).map(|i| design.train.contains(&i)).collect();
-    let train_cells: Vec<usize> = (0..sim.cells.len()).filter(|&c| in_train[sim.cells[c].case]).collect();
-    let ho_cells: Vec<usize> = (0..sim.cells.len()).filter(|&c| !in_train[sim.cells[c].case]).collect();
+    let in_train: Vec<bool> = (0..exp.cases.len())
+        .map(|i| design.train.contains(&i))
+        .collect();
+    let train_cells: Vec<usize> = (0..sim.cells.len())
+        .filter(|&c| in_train[sim.cells[c].case])
+        .collect();
+    let ho_cells: Vec<usize> = (0..sim.cells.len())
+        .filter(|&c| !in_train[sim.cells[c].case])
+        .collect();
     let has_trans = sim.cells.iter().any(|c| c.dof >= 3);
-    let unit = Weights { rot: 1.0, trans: 1.0 };
+    let unit = Weights {
+        rot: 1.0,
+        trans: 1.0,
+    };
     let kinds = kinds(design.has_follower);
     let offsets = has_trans || design.has_follower;
     let pb = if opts.progress {
@@ -183,7 +202,14 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     let mut fits: Vec<Fitted> = kinds
         .par_iter()
         .map(|&k| {
-            let r = fit(&sim, Family::new(k, &sim, g), &train_cells, &design.train, unit, opts.max_iterations);
+            let r = fit(
+                &sim,
+                Family::new(k, &sim, g),
+                &train_cells,
+                &design.train,
+                unit,
+                opts.max_iterations,
+            );
             pb.inc(1);
             r
         })
@@ -240,7 +266,14 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     let more = stage2
         .into_par_iter()
         .map(|f| {
-            let r = fit(&sim, f, &train_cells, &design.train, unit, opts.max_iterations);
+            let r = fit(
+                &sim,
+                f,
+                &train_cells,
+                &design.train,
+                unit,
+                opts.max_iterations,
+            );
             pb.inc(1);
             r
         })
@@ -264,8 +297,14 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         .iter()
         .chain(std::iter::once(&baseline))
         .min_by(|a, b| {
-            let sa: f64 = train_cells.iter().map(|&c| a.residual(&sim, c).powi(2)).sum();
-            let sb: f64 = train_cells.iter().map(|&c| b.residual(&sim, c).powi(2)).sum();
+            let sa: f64 = train_cells
+                .iter()
+                .map(|&c| a.residual(&sim, c).powi(2))
+                .sum();
+            let sb: f64 = train_cells
+                .iter()
+                .map(|&c| b.residual(&sim, c).powi(2))
+                .sum();
             sa.total_cmp(&sb)
         })
         .unwrap_or(&baseline);
@@ -283,7 +322,11 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     };
     let chi_b_tr = chi2_of(&sim, &baseline, &train_cells, noise);
     let chi_b_ho = chi2_of(&sim, &baseline, &ho_cells, noise);
-    let ho_rot: Vec<usize> = ho_cells.iter().copied().filter(|&c| sim.cells[c].dof < 3).collect();
+    let ho_rot: Vec<usize> = ho_cells
+        .iter()
+        .copied()
+        .filter(|&c| sim.cells[c].dof < 3)
+        .collect();
     let p0 = baseline.x.len();
     let mut stats = Vec::new();
     for f in &fits {
@@ -314,7 +357,13 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
             score: d_ho + dbic,
             earns,
             iterations: f.iterations,
-            params: f.family.names.iter().cloned().zip(f.x.iter().copied()).collect(),
+            params: f
+                .family
+                .names
+                .iter()
+                .cloned()
+                .zip(f.x.iter().copied())
+                .collect(),
         });
     }
     // best variant per effect: lowest training BIC
@@ -356,6 +405,30 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
                 ));
             }
         }
+        // an effect the design cannot test could carry the gap too: only a
+        // candidate that closes most of the held-out gap excludes it
+        let (b_rot, top_rot) = {
+            let hr: Vec<usize> = ho_cells
+                .iter()
+                .copied()
+                .filter(|&c| sim.cells[c].dof < 3)
+                .collect();
+            (rmse(&sim, &baseline, &hr), stats[top].heldout_rot_rmse)
+        };
+        let top_shrink = if b_rot > 0.0 {
+            1.0 - top_rot / b_rot
+        } else {
+            0.0
+        };
+        if !design_gaps.is_empty() && top_shrink < DECISIVE_SHRINK {
+            for (e, why) in &design_gaps {
+                reasons.push(format!(
+                    "{e} cannot be tested ({why}) and {} closes only {:.0}% of the held-out gap",
+                    stats[top].effect.name(),
+                    100.0 * top_shrink
+                ));
+            }
+        }
         verdict = if reasons.is_empty() {
             stats[top].effect.name().to_string()
         } else {
@@ -366,7 +439,10 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         if design_gaps.is_empty() {
             verdict = "none".to_string();
             // none's tempered weight against every candidate
-            let z: f64 = ranked.iter().map(|&i| (stats[i].score / 2.0).min(50.0).exp()).sum();
+            let z: f64 = ranked
+                .iter()
+                .map(|&i| (stats[i].score / 2.0).min(50.0).exp())
+                .sum();
             confidence = 1.0 / (1.0 + z);
         } else {
             verdict = "unidentifiable".to_string();
@@ -397,12 +473,16 @@ impl Outcome {
         let held: Vec<bool> = (0..self.sim.loads.len())
             .map(|i| self.design.heldout.contains(&i))
             .collect();
-        (0..self.sim.cells.len()).filter(|&c| held[self.sim.cells[c].case]).collect()
+        (0..self.sim.cells.len())
+            .filter(|&c| held[self.sim.cells[c].case])
+            .collect()
     }
 
     /// The augmented fit (the baseline when nothing is chosen).
     pub fn augmented(&self) -> &Fitted {
-        self.chosen.and_then(|i| self.fits.get(i)).unwrap_or(&self.baseline)
+        self.chosen
+            .and_then(|i| self.fits.get(i))
+            .unwrap_or(&self.baseline)
     }
 
     /// Held-out rotation RMSE (deg) of the baseline and the augmented model.
@@ -412,7 +492,10 @@ impl Outcome {
             .into_iter()
             .filter(|&c| self.sim.cells[c].dof < 3)
             .collect();
-        (rmse(&self.sim, &self.baseline, &rot), rmse(&self.sim, self.augmented(), &rot))
+        (
+            rmse(&self.sim, &self.baseline, &rot),
+            rmse(&self.sim, self.augmented(), &rot),
+        )
     }
 
     /// Held-out translation RMSE (mm), when measured.
@@ -425,7 +508,10 @@ impl Outcome {
         if tr.is_empty() {
             return None;
         }
-        Some((rmse(&self.sim, &self.baseline, &tr), rmse(&self.sim, self.augmented(), &tr)))
+        Some((
+            rmse(&self.sim, &self.baseline, &tr),
+            rmse(&self.sim, self.augmented(), &tr),
+        ))
     }
 
     /// Cells of the baseline's held-out gap, by share of its chi-square.
@@ -447,8 +533,16 @@ impl Outcome {
                     lower: l.lower_name.clone(),
                     level: l.name.clone(),
                     dof: DOF_NAMES[cell.dof].to_string(),
-                    case: exp.cases.get(cell.case).map(|c| c.id.clone()).unwrap_or_default(),
-                    share: if total > 0.0 { (r * w.of(cell.dof)).powi(2) / total } else { 0.0 },
+                    case: exp
+                        .cases
+                        .get(cell.case)
+                        .map(|c| c.id.clone())
+                        .unwrap_or_default(),
+                    share: if total > 0.0 {
+                        (r * w.of(cell.dof)).powi(2) / total
+                    } else {
+                        0.0
+                    },
                     residual: r,
                 }
             })
@@ -463,7 +557,8 @@ impl Outcome {
     pub fn gap_tables(&self) -> BTreeMap<String, Vec<Share>> {
         let cells = self.heldout_cells();
         let w = self.noise;
-        let sq = |c: usize| (self.baseline.residual(&self.sim, c) * w.of(self.sim.cells[c].dof)).powi(2);
+        let sq =
+            |c: usize| (self.baseline.residual(&self.sim, c) * w.of(self.sim.cells[c].dof)).powi(2);
         let total: f64 = cells.iter().map(|&c| sq(c)).sum::<f64>().max(1e-300);
         let mut tables = BTreeMap::new();
         let mut agg = |name: &str, key: &dyn Fn(usize) -> String| {
@@ -471,7 +566,10 @@ impl Outcome {
             for &c in &cells {
                 *m.entry(key(c)).or_insert(0.0) += sq(c) / total;
             }
-            let mut v: Vec<Share> = m.into_iter().map(|(key, share)| Share { key, share }).collect();
+            let mut v: Vec<Share> = m
+                .into_iter()
+                .map(|(key, share)| Share { key, share })
+                .collect();
             v.sort_by(|a, b| b.share.total_cmp(&a.share).then(a.key.cmp(&b.key)));
             tables.insert(name.to_string(), v);
         };
@@ -480,7 +578,10 @@ impl Outcome {
         agg("by_level", &|c| sim.levels[sim.cells[c].level].name.clone());
         agg("by_dof", &|c| DOF_NAMES[sim.cells[c].dof].to_string());
         agg("by_load_axis", &|c| {
-            info[sim.cells[c].case].axis.map(|a| AXIS_NAMES[a].to_string()).unwrap_or_else(|| "none".into())
+            info[sim.cells[c].case]
+                .axis
+                .map(|a| AXIS_NAMES[a].to_string())
+                .unwrap_or_else(|| "none".into())
         });
         agg("by_magnitude", &|c| {
             let i = &info[sim.cells[c].case];
@@ -523,9 +624,18 @@ impl Outcome {
         tables.insert(
             "by_sign_parity".to_string(),
             vec![
-                Share { key: "odd".into(), share: odd },
-                Share { key: "even".into(), share: even },
-                Share { key: "unpaired".into(), share: unpaired },
+                Share {
+                    key: "odd".into(),
+                    share: odd,
+                },
+                Share {
+                    key: "even".into(),
+                    share: even,
+                },
+                Share {
+                    key: "unpaired".into(),
+                    share: unpaired,
+                },
             ],
         );
         tables

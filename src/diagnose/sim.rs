@@ -161,13 +161,19 @@ impl Sim {
         let mut case_rows = vec![Vec::new(); exp.cases.len()];
         let mut cells = Vec::new();
         for (ri, r) in exp.rows.iter().enumerate() {
-            let here = || format!("{}: line {}", exp.dir.join("kinematics.csv").display(), r.line);
-            let u = base
-                .body_index(&r.upper)
-                .ok_or_else(|| Error::invalid(here(), format!("body '{}' is not in the model", r.upper)))?;
-            let lo = base
-                .body_index(&r.lower)
-                .ok_or_else(|| Error::invalid(here(), format!("body '{}' is not in the model", r.lower)))?;
+            let here = || {
+                format!(
+                    "{}: line {}",
+                    exp.dir.join("kinematics.csv").display(),
+                    r.line
+                )
+            };
+            let u = base.body_index(&r.upper).ok_or_else(|| {
+                Error::invalid(here(), format!("body '{}' is not in the model", r.upper))
+            })?;
+            let lo = base.body_index(&r.lower).ok_or_else(|| {
+                Error::invalid(here(), format!("body '{}' is not in the model", r.lower))
+            })?;
             let li = levels
                 .iter()
                 .position(|l| l.upper == u && l.lower == lo)
@@ -231,13 +237,13 @@ impl Sim {
         let mut ws = Workspace::new(sys);
         let mut kb = KinBuf::<f64>::new(sys);
         let opts = StaticOptions::default();
-        let solve = |loads: &LoadSet, start: &DVector<f64>, ws: &mut Workspace| {
-            match sys.solve_static(loads, start.as_slice(), ws, &opts) {
-                Ok(s) => Ok(s.q),
-                Err(_) => sys
-                    .solve_static(loads, sys.default_q().as_slice(), ws, &opts)
-                    .map(|s| s.q),
-            }
+        let solve = |loads: &LoadSet, start: &DVector<f64>, ws: &mut Workspace| match sys
+            .solve_static(loads, start.as_slice(), ws, &opts)
+        {
+            Ok(s) => Ok(s.q),
+            Err(_) => sys
+                .solve_static(loads, sys.default_q().as_slice(), ws, &opts)
+                .map(|s| s.q),
         };
         let q0 = solve(&LoadSet::empty(), &warm.q0, &mut ws)
             .map_err(|e| Error::numerical("unloaded equilibrium", e.to_string()))?;
@@ -247,13 +253,16 @@ impl Sim {
         warm.q0 = q0;
         let mut out = vec![[0.0; 6]; self.row_bodies.len()];
         for &ci in cases {
-            let (Some(ls), Some(rows), Some(start)) =
-                (self.prepared.get(ci), self.case_rows.get(ci), warm.q1.get(ci))
-            else {
+            let (Some(ls), Some(rows), Some(start)) = (
+                self.prepared.get(ci),
+                self.case_rows.get(ci),
+                warm.q1.get(ci),
+            ) else {
                 continue;
             };
-            let q1 = solve(ls, start, &mut ws)
-                .map_err(|e| Error::numerical(format!("case {ci}"), format!("no equilibrium: {e}")))?;
+            let q1 = solve(ls, start, &mut ws).map_err(|e| {
+                Error::numerical(format!("case {ci}"), format!("no equilibrium: {e}"))
+            })?;
             kb.q.copy_from_slice(q1.as_slice());
             kinematics::forward(sys, &mut kb);
             for &ri in rows {

@@ -888,10 +888,18 @@ impl System {
             ));
         };
         let (p1, p2) = (Pose::from_isometry(x1), Pose::from_isometry(x2));
-        if !(p1.r.iter().chain(p1.p.iter()).chain(p2.r.iter()).chain(p2.p.iter()))
-            .all(|v| v.is_finite())
+        if !(p1
+            .r
+            .iter()
+            .chain(p1.p.iter())
+            .chain(p2.r.iter())
+            .chain(p2.p.iter()))
+        .all(|v| v.is_finite())
         {
-            return Err(Error::invalid(format!("bushing '{}'", b.name), "frames must be finite"));
+            return Err(Error::invalid(
+                format!("bushing '{}'", b.name),
+                "frames must be finite",
+            ));
         }
         b.x_b1 = p1;
         b.x_b2 = p2;
