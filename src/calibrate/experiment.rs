@@ -1,13 +1,16 @@
-//! Load cases of the experiment format (`../shared/formats/experiment.md`):
-//! the `[[case]]` tables, parsed with serde and validated with messages that
-//! name the file and the case. Used by `osim-spine simulate` (a load file of
-//! `[[case]]` tables) and by calibration (the cases of `experiment.toml`).
+//! The experiment format (`../shared/formats/experiment.md`): load cases
+//! (`[[case]]` tables, also used by `osim-spine simulate` as a load file) and
+//! whole experiment folders ([`Experiment::read`]: `experiment.toml`,
+//! `kinematics.csv` and the nominal model), converted to SI at the edge and
+//! validated with messages that name the file and the case, row or element.
 
 use crate::error::{Error, Result};
-use crate::solver::{Load, LoadFrame};
+use crate::osim::Document;
+use crate::solver::{Load, LoadFrame, System, SystemSpec};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
 
 /// Axes a load vector is given in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -167,6 +170,494 @@ pub fn parse_cases(text: &str, file: &Path) -> Result<Vec<LoadCase>> {
 pub fn read_cases(path: &Path) -> Result<Vec<LoadCase>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     parse_cases(&text, path)
+}
+
+/// Names of the six measured degrees of freedom, in column order.
+pub const DOF_NAMES: [&str; 6] = ["rx", "ry", "rz", "tx", "ty", "tz"];
+
+/// Index (0..6) of a DoF name (`rx` .. `tz`).
+pub fn dof_index(name: &str) -> Option<usize> {
+    DOF_NAMES.iter().position(|d| *d == name)
+}
+
+/// Units of `kinematics.csv` (`[units]`), as factors to SI.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Units {
+    /// "deg" or "rad".
+    pub angle: &'static str,
+    /// "mm" or "m".
+    pub length: &'static str,
+}
+
+impl Units {
+    /// Factor from the file's angle unit to rad.
+    pub fn angle_to_si(&self) -> f64 {
+        if self.angle == "deg" {
+            std::f64::consts::PI / 180.0
+        } else {
+            1.0
+        }
+    }
+    /// Factor from the file's length unit to m.
+    pub fn length_to_si(&self) -> f64 {
+        if self.length == "mm" {
+            1e-3
+        } else {
+            1.0
+        }
+    }
+    /// Factor from SI to the file's unit for DoF `d` (0..6).
+    pub fn from_si(&self, d: usize) -> f64 {
+        if d < 3 {
+            1.0 / self.angle_to_si()
+        } else {
+            1.0 / self.length_to_si()
+        }
+    }
+}
+
+/// One row of `kinematics.csv`, in SI (rad, m).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Measurement {
+    /// Index into [`Experiment::cases`].
+    pub case: usize,
+    /// Cranial body.
+    pub upper: String,
+    /// Caudal body.
+    pub lower: String,
+    /// rx, ry, rz (rad), tx, ty, tz (m); `None` = not measured.
+    pub values: [Option<f64>; 6],
+    /// Line in kinematics.csv (for messages).
+    pub line: u64,
+}
+
+/// An experiment folder, read and validated.
+#[derive(Debug, Clone)]
+pub struct Experiment {
+    /// The folder.
+    pub dir: PathBuf,
+    /// A short name (the folder's name).
+    pub name: String,
+    /// The nominal model file.
+    pub model_path: PathBuf,
+    /// The nominal model document (for writing calibrated copies).
+    pub doc: Document,
+    /// Solver description: the fixed body's coordinates locked, gravity as
+    /// `[specimen].gravity` says.
+    pub spec: SystemSpec,
+    /// The body the rig holds.
+    pub fixed_body: String,
+    /// Gravity on during the test.
+    pub gravity: bool,
+    /// Units of kinematics.csv.
+    pub units: Units,
+    /// The load cases, in file order.
+    pub cases: Vec<LoadCase>,
+    /// The measured rows, in file order.
+    pub rows: Vec<Measurement>,
+    /// Non-fatal findings (cases without rows, ...).
+    pub warnings: Vec<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SpecimenToml {
+    model: String,
+    fixed_body: String,
+    gravity: bool,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct UnitsToml {
+    angle: String,
+    length: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ExperimentToml {
+    specimen: SpecimenToml,
+    units: UnitsToml,
+    #[serde(default)]
+    case: Vec<LoadCase>,
+}
+
+fn toml_error(text: &str, file: &Path, e: toml::de::Error) -> Error {
+    let location = match e.span() {
+        Some(s) => format!(
+            "line {}",
+            text[..s.start.min(text.len())].lines().count().max(1)
+        ),
+        None => "file".to_string(),
+    };
+    Error::parse(file, location, e.message().to_string())
+}
+
+impl Experiment {
+    /// Read `dir/experiment.toml`, the model it names and `dir/kinematics.csv`.
+    pub fn read(dir: impl AsRef<Path>) -> Result<Experiment> {
+        let dir = dir.as_ref().to_path_buf();
+        let toml_path = dir.join("experiment.toml");
+        let text = std::fs::read_to_string(&toml_path).map_err(|e| Error::io(&toml_path, e))?;
+        let raw: ExperimentToml =
+            toml::from_str(&text).map_err(|e| toml_error(&text, &toml_path, e))?;
+        let units = Units {
+            angle: match raw.units.angle.as_str() {
+                "deg" => "deg",
+                "rad" => "rad",
+                other => {
+                    return Err(Error::parse(
+                        &toml_path,
+                        "[units] angle",
+                        format!("expected \"deg\" or \"rad\", got \"{other}\""),
+                    ))
+                }
+            },
+            length: match raw.units.length.as_str() {
+                "mm" => "mm",
+                "m" => "m",
+                other => {
+                    return Err(Error::parse(
+                        &toml_path,
+                        "[units] length",
+                        format!("expected \"mm\" or \"m\", got \"{other}\""),
+                    ))
+                }
+            },
+        };
+        if raw.case.is_empty() {
+            return Err(Error::parse(
+                &toml_path,
+                "file",
+                "no [[case]] table: an experiment needs at least one load case",
+            ));
+        }
+        let mut seen = BTreeSet::new();
+        for (i, c) in raw.case.iter().enumerate() {
+            c.validate(&toml_path, i)?;
+            if !seen.insert(c.id.clone()) {
+                return Err(Error::parse(
+                    &toml_path,
+                    format!("[[case]] #{}", i + 1),
+                    format!("duplicate case id '{}'", c.id),
+                ));
+            }
+        }
+        let model_path = dir.join(&raw.specimen.model);
+        let doc = Document::read(&model_path)?;
+        let model = doc.model()?;
+        let mut spec = SystemSpec::from_model(&model)?;
+        let bodies: Vec<String> = spec.bodies.iter().map(|b| b.name.clone()).collect();
+        let known = |n: &str| bodies.iter().any(|b| b == n);
+        let fixed = raw.specimen.fixed_body.clone();
+        if !known(&fixed) {
+            return Err(Error::parse(
+                &toml_path,
+                "[specimen] fixed_body",
+                format!(
+                    "no body named '{fixed}' in {} (bodies: {})",
+                    model_path.display(),
+                    bodies.join(", ")
+                ),
+            ));
+        }
+        for (i, c) in raw.case.iter().enumerate() {
+            if !known(&c.body) {
+                return Err(Error::parse(
+                    &toml_path,
+                    format!("[[case]] #{} (id '{}')", i + 1, c.id),
+                    format!(
+                        "unknown body '{}': not in {} (bodies: {})",
+                        c.body,
+                        model_path.display(),
+                        bodies.join(", ")
+                    ),
+                ));
+            }
+            if c.body == fixed {
+                return Err(Error::parse(
+                    &toml_path,
+                    format!("[[case]] #{} (id '{}')", i + 1, c.id),
+                    format!("the load is on the fixed body '{fixed}': it cannot move anything"),
+                ));
+            }
+        }
+        if !raw.specimen.gravity {
+            spec.gravity = Vector3::zeros();
+        }
+        spec = System::with_body_fixed(&spec, &fixed)?;
+        // adjacency: upper's joint has lower as parent
+        let parent_of: BTreeMap<&str, Option<&str>> = spec
+            .joints
+            .iter()
+            .filter_map(|j| {
+                let child = spec.bodies.get(j.child)?.name.as_str();
+                let parent = j
+                    .parent
+                    .and_then(|p| spec.bodies.get(p))
+                    .map(|b| b.name.as_str());
+                Some((child, parent))
+            })
+            .collect();
+        let csv_path = dir.join("kinematics.csv");
+        let rows = read_kinematics(&csv_path, &raw.case, &units, &|u, l| {
+            if !known(u) {
+                return Err(format!(
+                    "unknown body '{u}' in column upper (bodies: {})",
+                    bodies.join(", ")
+                ));
+            }
+            if !known(l) {
+                return Err(format!(
+                    "unknown body '{l}' in column lower (bodies: {})",
+                    bodies.join(", ")
+                ));
+            }
+            match parent_of.get(u) {
+                Some(Some(p)) if *p == l => Ok(()),
+                Some(Some(p)) => Err(format!(
+                    "'{u}' and '{l}' are not an adjacent pair: the joint of '{u}' connects it to '{p}'"
+                )),
+                _ => Err(format!(
+                    "'{u}' and '{l}' are not an adjacent pair: '{u}' hangs on ground"
+                )),
+            }
+        })?;
+        let mut warnings = Vec::new();
+        for (i, c) in raw.case.iter().enumerate() {
+            if !rows.iter().any(|r| r.case == i) {
+                warnings.push(format!(
+                    "case '{}' has no row in kinematics.csv: it is not used",
+                    c.id
+                ));
+            }
+        }
+        let name = dir
+            .canonicalize()
+            .ok()
+            .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .unwrap_or_else(|| dir.display().to_string());
+        Ok(Experiment {
+            dir,
+            name,
+            model_path,
+            doc,
+            spec,
+            fixed_body: fixed,
+            gravity: raw.specimen.gravity,
+            units,
+            cases: raw.case,
+            rows,
+            warnings,
+        })
+    }
+
+    /// Index of a case by id.
+    pub fn case_index(&self, id: &str) -> Option<usize> {
+        self.cases.iter().position(|c| c.id == id)
+    }
+
+    /// DoFs (0..6) with at least one measured cell.
+    pub fn measured_dofs(&self) -> Vec<usize> {
+        (0..6)
+            .filter(|&d| self.rows.iter().any(|r| r.values[d].is_some()))
+            .collect()
+    }
+
+    /// The same experiment restricted to the cases whose index `keep` accepts
+    /// (rows of the others dropped; case indices renumbered).
+    pub fn subset(&self, keep: impl Fn(usize) -> bool) -> Experiment {
+        let mut map = vec![None; self.cases.len()];
+        let mut cases = Vec::new();
+        for (i, c) in self.cases.iter().enumerate() {
+            if keep(i) {
+                map[i] = Some(cases.len());
+                cases.push(c.clone());
+            }
+        }
+        let rows = self
+            .rows
+            .iter()
+            .filter_map(|r| {
+                let ci = map.get(r.case).copied().flatten()?;
+                Some(Measurement {
+                    case: ci,
+                    ..r.clone()
+                })
+            })
+            .collect();
+        Experiment {
+            cases,
+            rows,
+            warnings: Vec::new(),
+            ..self.clone()
+        }
+    }
+}
+
+/// Largest plausible measured angle (rad) and translation (m) for an
+/// increment between adjacent vertebrae: beyond these the file's units are
+/// almost certainly not what `[units]` says.
+const MAX_ANGLE_RAD: f64 = 1.0;
+const MAX_TRANSLATION_M: f64 = 0.05;
+
+type PairCheck<'a> = dyn Fn(&str, &str) -> std::result::Result<(), String> + 'a;
+
+fn read_kinematics(
+    path: &Path,
+    cases: &[LoadCase],
+    units: &Units,
+    check_pair: &PairCheck,
+) -> Result<Vec<Measurement>> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .flexible(false)
+        .trim(csv::Trim::All)
+        .from_reader(file);
+    let headers = rdr
+        .headers()
+        .map_err(|e| Error::parse(path, "line 1", format!("cannot read the header: {e}")))?
+        .clone();
+    let mut col = [0usize; 9];
+    for (k, name) in ["case", "upper", "lower"]
+        .iter()
+        .chain(DOF_NAMES.iter())
+        .enumerate()
+    {
+        let hits: Vec<usize> = headers
+            .iter()
+            .enumerate()
+            .filter(|(_, h)| h == name)
+            .map(|(i, _)| i)
+            .collect();
+        match hits.as_slice() {
+            [one] => col[k] = *one,
+            [] => {
+                return Err(Error::parse(
+                    path,
+                    "line 1",
+                    format!(
+                        "missing column '{name}' (expected case,upper,lower,rx,ry,rz,tx,ty,tz)"
+                    ),
+                ))
+            }
+            _ => {
+                return Err(Error::parse(
+                    path,
+                    "line 1",
+                    format!("column '{name}' appears more than once"),
+                ))
+            }
+        }
+    }
+    let case_idx: BTreeMap<&str, usize> = cases
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (c.id.as_str(), i))
+        .collect();
+    let mut out = Vec::new();
+    let mut seen: BTreeMap<(usize, String, String), u64> = BTreeMap::new();
+    for rec in rdr.records() {
+        let rec = rec.map_err(|e| {
+            let at = e
+                .position()
+                .map(|p| format!("line {}", p.line()))
+                .unwrap_or_else(|| "file".into());
+            Error::parse(path, at, e.to_string())
+        })?;
+        let line = rec.position().map(|p| p.line()).unwrap_or(0);
+        let at = format!("line {line}");
+        let field = |k: usize| rec.get(col[k]).unwrap_or("");
+        let id = field(0);
+        let Some(&ci) = case_idx.get(id) else {
+            return Err(Error::parse(
+                path,
+                at,
+                format!("case '{id}' is not a [[case]] of experiment.toml"),
+            ));
+        };
+        let upper = field(1).to_string();
+        let lower = field(2).to_string();
+        check_pair(&upper, &lower).map_err(|m| Error::parse(path, at.clone(), m))?;
+        let mut values = [None; 6];
+        for (d, v) in values.iter_mut().enumerate() {
+            let s = field(3 + d);
+            if s.is_empty() {
+                continue;
+            }
+            let x: f64 = s.parse().map_err(|_| {
+                Error::parse(
+                    path,
+                    at.clone(),
+                    format!(
+                        "column {}: '{s}' is not a number (leave the cell empty when not measured)",
+                        DOF_NAMES[d]
+                    ),
+                )
+            })?;
+            if !x.is_finite() {
+                return Err(Error::parse(
+                    path,
+                    at.clone(),
+                    format!("column {}: value must be finite", DOF_NAMES[d]),
+                ));
+            }
+            let si = if d < 3 {
+                x * units.angle_to_si()
+            } else {
+                x * units.length_to_si()
+            };
+            let (limit, unit, other) = if d < 3 {
+                (
+                    MAX_ANGLE_RAD,
+                    units.angle,
+                    if units.angle == "rad" { "deg" } else { "?" },
+                )
+            } else {
+                (
+                    MAX_TRANSLATION_M,
+                    units.length,
+                    if units.length == "m" { "mm" } else { "?" },
+                )
+            };
+            if si.abs() > limit {
+                return Err(Error::parse(
+                    path,
+                    at.clone(),
+                    format!(
+                        "column {}: {x} {unit} is implausibly large for an increment between adjacent vertebrae \
+                         (more than {limit} {}): inconsistent units? ([units] says {unit}{})",
+                        DOF_NAMES[d],
+                        if d < 3 { "rad" } else { "m" },
+                        if other != "?" { format!("; the values look like {other}") } else { String::new() }
+                    ),
+                ));
+            }
+            *v = Some(si);
+        }
+        if let Some(prev) = seen.insert((ci, upper.clone(), lower.clone()), line) {
+            return Err(Error::parse(
+                path,
+                at,
+                format!(
+                    "duplicate row for case '{id}', pair {upper}/{lower} (first on line {prev})"
+                ),
+            ));
+        }
+        out.push(Measurement {
+            case: ci,
+            upper,
+            lower,
+            values,
+            line,
+        });
+    }
+    if out.is_empty() {
+        return Err(Error::parse(path, "file", "no data rows"));
+    }
+    Ok(out)
 }
 
 #[cfg(test)]

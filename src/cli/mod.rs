@@ -4,8 +4,10 @@
 use clap::{Parser, Subcommand};
 
 pub mod base;
+pub mod calibrate;
 pub mod check;
 pub mod convert;
+pub mod diagnose;
 pub mod evaluate;
 pub mod generate;
 pub mod info;
@@ -25,6 +27,14 @@ pub struct Cli {
 /// Subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Calibrate intervertebral stiffness from measured kinematics
+    /// (experiment folder): multi-start Levenberg-Marquardt, covariance,
+    /// identifiability, validation; calibrated .osim, JSON and SVG.
+    Calibrate(calibrate::Args),
+    /// Diagnose the sim-to-real gap of an experiment: baseline re-fit,
+    /// held-out design, candidate effects, verdict, held-out shrink;
+    /// diagnosis.json, report.md, SVG figures, improved .osim.
+    Diagnose(diagnose::Args),
     /// Summarise a model: bodies, joints, coordinates, forces, muscles, markers, meshes.
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
@@ -60,6 +70,8 @@ pub enum Command {
 pub fn main() -> i32 {
     let cli = Cli::parse();
     let result: anyhow::Result<i32> = match cli.command {
+        Command::Calibrate(a) => calibrate::run(a),
+        Command::Diagnose(a) => diagnose::run(a),
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Base(a) => base::run(a),

@@ -1,1 +1,59 @@
-//! Sim-to-real gap diagnosis.
+//! Sim-to-real gap diagnosis (`osim-spine diagnose EXPERIMENT --out DIR`):
+//! where a re-fitted nominal model still disagrees with measured
+//! kinematics, which unmodelled effect causes it, and how far the gap
+//! shrinks on held-out load cases once that effect is added.
+//!
+//! | file | what lives there |
+//! |---|---|
+//! | `sim` | [`sim::Sim`]: the experiment as simulated (levels, prepared loads, measured cells), predictions of a model variant |
+//! | `family` | [`family::Family`]: baseline and candidate effects as parametric extensions (laws, joint frames) |
+//! | `fit` | weighted least squares of a family on the training cells (LM, finite-difference Jacobian) |
+//! | `design` | [`design::Design`]: case structure, held-out split, effects the design cannot test |
+//! | `select` | [`select::diagnose`]: the procedure, noise estimate, criterion, verdict, gap decomposition |
+//! | `report` | `diagnosis.json`, Markdown, SVG figures, the improved `.osim` |
+
+pub mod design;
+pub mod family;
+pub mod fit;
+pub mod report;
+pub mod select;
+pub mod sim;
+
+use crate::calibrate::experiment::Experiment;
+use crate::error::Result;
+use std::path::Path;
+
+/// Everything a diagnosis writes, computed in memory (file name, bytes).
+pub fn outputs(exp: &Experiment, o: &select::Outcome) -> Result<Vec<(String, Vec<u8>)>> {
+    let aug = o.augmented();
+    let variant = aug.family.variant(&o.sim, &aug.x)?;
+    let doc = report::improved_model(&o.sim, exp, &variant)?;
+    let model_name = "improved.osim";
+    let json = report::diagnosis_json(o, exp, Some(model_name));
+    let md = report::markdown(o, exp, &json);
+    let mut text = serde_json::to_string_pretty(&json)
+        .map_err(|e| crate::Error::invalid("diagnosis.json", e.to_string()))?;
+    text.push('\n');
+    Ok(vec![
+        ("diagnosis.json".into(), text.into_bytes()),
+        ("report.md".into(), md.into_bytes()),
+        (
+            "residual_map.svg".into(),
+            report::residual_map_svg(o, exp).into_bytes(),
+        ),
+        ("curves.svg".into(), report::curves_svg(o, exp).into_bytes()),
+        (model_name.into(), doc.to_xml_string().into_bytes()),
+    ])
+}
+
+/// Read, diagnose and write `out/` (all outputs computed before any is written).
+pub fn run(experiment: &Path, out: &Path, opts: &select::Options) -> Result<select::Outcome> {
+    let exp = Experiment::read(experiment)?;
+    let o = select::diagnose(&exp, opts)?;
+    let files = outputs(&exp, &o)?;
+    std::fs::create_dir_all(out).map_err(|e| crate::Error::io(out, e))?;
+    for (name, bytes) in files {
+        crate::util::write_atomic(&out.join(name), &bytes)?;
+    }
+    Ok(o)
+}

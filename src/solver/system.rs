@@ -820,3 +820,142 @@ impl Workspace {
         self.factored == Factored::Tree
     }
 }
+
+impl System {
+    /// Replace the diagonal stiffness `(rx, ry, rz, tx, ty, tz)` of a linear
+    /// bushing without rebuilding the system (calibration changes stiffness
+    /// parameters thousands of times). Values must be finite.
+    pub fn set_bushing_stiffness(&mut self, i: usize, k: [f64; 6]) -> Result<()> {
+        let n = self.bushings.len();
+        let Some(b) = self.bushings.get_mut(i) else {
+            return Err(Error::invalid(
+                "solver",
+                format!("bushing index {i} out of range ({n} bushings)"),
+            ));
+        };
+        if !k.iter().all(|v| v.is_finite()) {
+            return Err(Error::invalid(
+                format!("bushing '{}'", b.name),
+                "stiffness must be finite",
+            ));
+        }
+        match &mut b.model {
+            BushingModel::Linear {
+                rot_stiffness,
+                trans_stiffness,
+                ..
+            } => {
+                *rot_stiffness = Vector3::new(k[0], k[1], k[2]);
+                *trans_stiffness = Vector3::new(k[3], k[4], k[5]);
+            }
+            _ => {
+                return Err(Error::invalid(
+                    format!("bushing '{}'", b.name),
+                    "set_bushing_stiffness needs a linear (BushingForce) law",
+                ))
+            }
+        }
+        b.law = Law::from_model(&b.model);
+        Ok(())
+    }
+
+    /// Replace the force law of bushing `i` (any [`BushingModel`]) without
+    /// rebuilding the system; the damping is taken from the new law. The
+    /// law is validated first.
+    pub fn set_bushing_model(&mut self, i: usize, model: BushingModel) -> Result<()> {
+        let n = self.bushings.len();
+        let Some(b) = self.bushings.get_mut(i) else {
+            return Err(Error::invalid(
+                "solver",
+                format!("bushing index {i} out of range ({n} bushings)"),
+            ));
+        };
+        model
+            .validate()
+            .map_err(|m| Error::invalid(format!("bushing '{}'", b.name), m))?;
+        b.law = Law::from_model(&model);
+        b.c = model.damping();
+        b.model = model;
+        Ok(())
+    }
+
+    /// Poses `(X_B1F, X_B2M)` of bushing `i`'s two frames in their bodies.
+    pub fn bushing_frames(&self, i: usize) -> Option<(Isometry3<f64>, Isometry3<f64>)> {
+        let b = self.bushings.get(i)?;
+        Some((pose_to_isometry(&b.x_b1), pose_to_isometry(&b.x_b2)))
+    }
+
+    /// True when bushing `i` sits on the two offset frames of the joint of
+    /// its second body, with the joint's axes the identity functions of its
+    /// six dofs (the intervertebral layout; see `Bushing::fast`).
+    pub fn bushing_on_joint_frames(&self, i: usize) -> bool {
+        self.bushings.get(i).is_some_and(|b| b.fast.is_some())
+    }
+
+    /// Move bushing `i`'s two frames to `x1` (in body 1) and `x2` (in body
+    /// 2), together with the joint frames they sit on (the joint of body 2),
+    /// so that the joint centre and axes move with the bushing. Only for
+    /// bushings on their joint's frames ([`System::bushing_on_joint_frames`]).
+    /// Loads prepared before (follower-load guide points) must be prepared again.
+    pub fn set_bushing_joint_frames(
+        &mut self,
+        i: usize,
+        x1: &Isometry3<f64>,
+        x2: &Isometry3<f64>,
+    ) -> Result<()> {
+        let n = self.bushings.len();
+        let Some(b) = self.bushings.get_mut(i) else {
+            return Err(Error::invalid(
+                "solver",
+                format!("bushing index {i} out of range ({n} bushings)"),
+            ));
+        };
+        let (Some(_), Some(c2)) = (b.fast, b.body2) else {
+            return Err(Error::invalid(
+                format!("bushing '{}'", b.name),
+                "its frames are not the offset frames of a 6-dof joint: joint frames cannot move with it",
+            ));
+        };
+        let (p1, p2) = (Pose::from_isometry(x1), Pose::from_isometry(x2));
+        if !(p1
+            .r
+            .iter()
+            .chain(p1.p.iter())
+            .chain(p2.r.iter())
+            .chain(p2.p.iter()))
+        .all(|v| v.is_finite())
+        {
+            return Err(Error::invalid(
+                format!("bushing '{}'", b.name),
+                "frames must be finite",
+            ));
+        }
+        b.x_b1 = p1;
+        b.x_b2 = p2;
+        let Some(body) = self.bodies.get_mut(c2) else {
+            return Err(Error::invalid("solver", "bushing body out of range"));
+        };
+        body.joint.x_pf = p1;
+        body.joint.x_mb = p2.inverse();
+        body.joint.x_bm = p2;
+        Ok(())
+    }
+
+    /// The two bodies (system indices, None = ground) a bushing connects.
+    pub fn bushing_bodies(&self, i: usize) -> Option<(Option<usize>, Option<usize>)> {
+        self.bushings.get(i).map(|b| (b.body1, b.body2))
+    }
+
+    /// Parent body (system index) of body `i` (None = ground or out of range).
+    pub fn parent_of(&self, i: usize) -> Option<usize> {
+        self.bodies.get(i).and_then(|b| b.parent)
+    }
+}
+
+fn pose_to_isometry(x: &Pose<f64>) -> Isometry3<f64> {
+    let rot = nalgebra::Rotation3::from_matrix_unchecked(x.r);
+    Isometry3::from_parts(
+        nalgebra::Translation3::from(x.p),
+        nalgebra::UnitQuaternion::from_rotation_matrix(&rot),
+    )
+}

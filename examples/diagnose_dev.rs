@@ -1,0 +1,101 @@
+//! Run the diagnosis on every labelled development experiment and print
+//! the confusion matrix, top-1 accuracy, false claims on `none` cases and
+//! the median held-out shrink. `cargo run --release --example diagnose_dev [DIR]`
+use osim_spine::calibrate::experiment::Experiment;
+use osim_spine::diagnose::select::{diagnose, Options};
+fn main() {
+    let dir = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "../shared/diagnose-dev".into());
+    let only = std::env::args().nth(2);
+    let mut dirs: Vec<_> = std::fs::read_dir(&dir)
+        .expect("dev dir")
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.join("truth.toml").exists())
+        .collect();
+    dirs.sort();
+    let mut rows = Vec::new();
+    for d in dirs {
+        let name = d.file_name().unwrap().to_string_lossy().to_string();
+        if let Some(o) = &only {
+            if !name.contains(o.as_str()) {
+                continue;
+            }
+        }
+        let truth: toml::Value =
+            toml::from_str(&std::fs::read_to_string(d.join("truth.toml")).unwrap()).unwrap();
+        let truth = truth["effect"].as_str().unwrap().to_string();
+        let t = std::time::Instant::now();
+        let exp = Experiment::read(&d).unwrap();
+        let o = diagnose(
+            &exp,
+            &Options {
+                progress: false,
+                ..Options::default()
+            },
+        )
+        .unwrap();
+        let (b, a) = o.heldout_rmse();
+        let shrink = if b > 0.0 { 1.0 - a / b } else { 0.0 };
+        let top: Vec<String> = o
+            .ranked
+            .iter()
+            .take(4)
+            .map(|&i| {
+                let s = &o.stats[i];
+                format!(
+                    "{}:{:.0}{}(tr{:.0},ho{:.0})",
+                    s.family.label(),
+                    s.score,
+                    if s.earns { "*" } else { "" },
+                    s.dchi2_train,
+                    s.dchi2_heldout
+                )
+            })
+            .collect();
+        println!("{name} truth={truth} verdict={} conf={:.2} shrink={shrink:.2} [{}] sigma=({:.3},{:.3}) {:.1}s {}", o.verdict, o.confidence, top.join(" "), 1.0/o.noise.rot, 1.0/o.noise.trans, t.elapsed().as_secs_f64(), o.reasons.join("; "));
+        rows.push((truth, o.verdict.clone(), shrink));
+    }
+    let names = [
+        "none",
+        "level_dependent_stiffness",
+        "nonlinear_stiffness",
+        "asymmetric_stiffness",
+        "coupled_stiffness",
+        "joint_pose_error",
+        "preload_stiffening",
+        "unidentifiable",
+    ];
+    println!("\nconfusion (rows truth, columns verdict):");
+    print!("{:<28}", "");
+    for n in &names {
+        print!("{:>6}", &n[..4]);
+    }
+    println!();
+    for t in &names[..7] {
+        print!("{:<28}", t);
+        for v in &names {
+            print!(
+                "{:>6}",
+                rows.iter().filter(|r| r.0 == *t && r.1 == *v).count()
+            );
+        }
+        println!();
+    }
+    let correct = rows.iter().filter(|r| r.0 == r.1).count();
+    let false_claims = rows
+        .iter()
+        .filter(|r| r.0 == "none" && r.1 != "none")
+        .count();
+    let mut sh: Vec<f64> = rows.iter().filter(|r| r.0 != "none").map(|r| r.2).collect();
+    sh.sort_by(|a, b| a.total_cmp(b));
+    let med = if sh.is_empty() {
+        f64::NAN
+    } else if sh.len() % 2 == 1 {
+        sh[sh.len() / 2]
+    } else {
+        0.5 * (sh[sh.len() / 2 - 1] + sh[sh.len() / 2])
+    };
+    println!("top-1 accuracy {}/{} = {:.3}; false claims on none: {}; median shrink (effect cases) {:.3}", correct, rows.len(), correct as f64 / rows.len().max(1) as f64, false_claims, med);
+}

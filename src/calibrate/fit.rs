@@ -1,0 +1,605 @@
+//! Calibration: multi-start Levenberg-Marquardt on the log-parameters of a
+//! [`Problem`] from a seeded Latin hypercube over the bounds, clustering of
+//! the local minima, and the statistics of the best one (covariance,
+//! correlations, confidence intervals, condition number, poorly determined
+//! parameters with the singular directions that explain them).
+
+use super::experiment::DOF_NAMES;
+use super::lhs;
+use super::lm::{self, LmOptions, LmStop};
+use super::problem::{Evaluator, Predictions, Problem};
+use crate::error::{Error, Result};
+use nalgebra::DMatrix;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Options of a calibration.
+#[derive(Debug, Clone)]
+pub struct FitOptions {
+    /// Number of starts (the first is the nominal model when `nominal_start`).
+    pub starts: usize,
+    /// Also start from the nominal model (clamped into the bounds).
+    pub nominal_start: bool,
+    /// Seed of the Latin hypercube.
+    pub seed: u64,
+    /// LM settings.
+    pub lm: LmOptions,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+    /// Parallel starts (rayon; the thread count is the caller's pool).
+    pub parallel: bool,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions {
+            starts: 16,
+            nominal_start: true,
+            seed: 1,
+            lm: LmOptions::default(),
+            progress: false,
+            parallel: true,
+        }
+    }
+}
+
+/// One start of the multi-start.
+#[derive(Debug, Clone, Serialize)]
+pub struct StartResult {
+    /// Start point (natural units).
+    pub start: Vec<f64>,
+    /// End point (natural units); empty when the start failed.
+    pub params: Vec<f64>,
+    /// Cost `sum r^2` (thesis Eqn 3.1) at the end point.
+    pub cost: f64,
+    pub iterations: usize,
+    pub evaluations: usize,
+    pub stop: Option<LmStop>,
+    /// Index of the local minimum it reached.
+    pub minimum: Option<usize>,
+    pub error: Option<String>,
+}
+
+/// A distinct local minimum (parameters differing by more than 1% relative
+/// from every other one).
+#[derive(Debug, Clone, Serialize)]
+pub struct LocalMinimum {
+    pub params: Vec<f64>,
+    pub cost: f64,
+    /// Starts that ended here.
+    pub starts: Vec<usize>,
+}
+
+/// Statistics of one parameter at the best minimum.
+#[derive(Debug, Clone, Serialize)]
+pub struct ParamEstimate {
+    pub name: String,
+    pub unit: String,
+    pub value: f64,
+    pub nominal: f64,
+    pub lower: f64,
+    pub upper: f64,
+    /// Relative standard deviation (SD of log p), first order.
+    pub rel_sd: f64,
+    /// 95% confidence interval (t distribution, log scale).
+    pub ci95: [f64; 2],
+    pub at_bound: bool,
+}
+
+/// A weakly determined direction of parameter space.
+#[derive(Debug, Clone, Serialize)]
+pub struct WeakDirection {
+    /// Singular value of the weighted Jacobian (log-parameters).
+    pub singular_value: f64,
+    /// Relative to the largest.
+    pub relative: f64,
+    /// Parameters with |loading| >= 0.2, largest first.
+    pub loadings: Vec<(String, f64)>,
+}
+
+/// A parameter the data do not determine well, and why.
+#[derive(Debug, Clone, Serialize)]
+pub struct PoorlyDetermined {
+    pub name: String,
+    pub reason: String,
+}
+
+/// Identifiability summary.
+#[derive(Debug, Clone, Serialize)]
+pub struct Identifiability {
+    /// Largest / smallest singular value of the weighted log-parameter Jacobian.
+    pub condition_number: f64,
+    pub singular_values: Vec<f64>,
+    /// Directions with relative singular value below 1e-3.
+    pub weak_directions: Vec<WeakDirection>,
+    pub poorly_determined: Vec<PoorlyDetermined>,
+}
+
+/// A finished calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct Calibration {
+    pub family: String,
+    pub param_names: Vec<String>,
+    /// Best parameters (natural units).
+    pub best: Vec<f64>,
+    /// Cost `sum_i w_i (p_i - m_i)^2` at the best parameters (SI units).
+    pub cost: f64,
+    /// Number of residuals and of parameters.
+    pub n_residuals: usize,
+    pub n_params: usize,
+    /// Residual variance `cost / (m - n)` (weighted units).
+    pub s2: f64,
+    /// Residual SD per DoF (rx..tz, SI; NaN when not in the cost), the
+    /// noise level the covariance uses.
+    pub residual_sd: [f64; 6],
+    pub estimates: Vec<ParamEstimate>,
+    /// Covariance of the log-parameters.
+    pub covariance_log: Vec<Vec<f64>>,
+    pub correlation: Vec<Vec<f64>>,
+    pub identifiability: Identifiability,
+    pub minima: Vec<LocalMinimum>,
+    pub starts: Vec<StartResult>,
+    /// Predicted increments of every row at the best parameters (SI).
+    #[serde(skip)]
+    pub predictions: Predictions,
+    /// Total residual evaluations.
+    pub evaluations: usize,
+}
+
+/// Start points (natural units): nominal (clamped) then Latin hypercube in log space.
+pub fn start_points(pb: &Problem, opts: &FitOptions) -> Vec<Vec<f64>> {
+    let (lo, hi) = pb.log_bounds();
+    let mut out = Vec::new();
+    if opts.nominal_start && opts.starts > 0 {
+        out.push(
+            pb.family
+                .params()
+                .iter()
+                .map(|p| p.nominal.clamp(p.lower, p.upper))
+                .collect(),
+        );
+    }
+    let n_lhs = opts.starts.saturating_sub(out.len());
+    for x in lhs::in_box(n_lhs, &lo, &hi, opts.seed) {
+        out.push(x.iter().map(|v| v.exp()).collect());
+    }
+    out
+}
+
+/// Run LM from one start point (natural units).
+pub fn fit_from(
+    pb: &Problem,
+    ev: &mut Evaluator,
+    start: &[f64],
+    lm_opts: &LmOptions,
+) -> Result<lm::LmResult> {
+    let (lo, hi) = pb.log_bounds();
+    let x0: Vec<f64> = start.iter().map(|v| v.ln()).collect();
+    lm::minimize(|x, j| ev.residuals(pb, x, j), &x0, &lo, &hi, lm_opts)
+}
+
+/// Check the problem before fitting: every case reaches equilibrium at the
+/// start and every parameter moves at least one residual.
+pub fn precheck(pb: &Problem, start: &[f64]) -> Result<()> {
+    let mut ev = pb.evaluator();
+    let x: Vec<f64> = start.iter().map(|v| v.ln()).collect();
+    let (_, j) = ev.residuals(pb, &x, true).map_err(|e| {
+        Error::numerical(
+            format!("experiment {}", pb.exp.dir.display()),
+            format!("the model at the start parameters cannot be solved: {e}"),
+        )
+    })?;
+    let Some(j) = j else { return Ok(()) };
+    let norms: Vec<f64> = (0..j.ncols()).map(|k| j.column(k).norm()).collect();
+    let max = norms.iter().fold(0.0f64, |m, v| m.max(*v));
+    let dead: Vec<String> = norms
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| **n <= 1e-12 * max.max(1e-300))
+        .map(|(k, _)| pb.family.params()[k].name.clone())
+        .collect();
+    if !dead.is_empty() {
+        return Err(Error::invalid(
+            format!("experiment {}", pb.exp.dir.display()),
+            format!(
+                "parameter(s) {} affect no measured DoF in the cost (DoFs {}): measure those DoFs, add them with --dofs, or drop the parameters",
+                dead.join(", "),
+                pb.opts.dofs.iter().map(|&d| DOF_NAMES[d]).collect::<Vec<_>>().join(",")
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn rel_close(a: &[f64], b: &[f64], tol: f64) -> bool {
+    a.iter()
+        .zip(b)
+        .all(|(x, y)| (x - y).abs() <= tol * x.abs().max(y.abs()))
+}
+
+/// Calibrate: multi-start LM, clustering, statistics at the best minimum.
+pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
+    let starts = start_points(pb, opts);
+    if starts.is_empty() {
+        return Err(Error::invalid("calibration", "--starts must be at least 1"));
+    }
+    precheck(pb, &starts[0])?;
+    let bar = if opts.progress {
+        let b = indicatif::ProgressBar::new(starts.len() as u64);
+        b.set_message("starts");
+        Some(b)
+    } else {
+        None
+    };
+    let run = |s: &Vec<f64>| -> StartResult {
+        let mut ev = pb.evaluator();
+        let res = fit_from(pb, &mut ev, s, &opts.lm);
+        if let Some(b) = &bar {
+            b.inc(1);
+        }
+        match res {
+            Ok(r) => StartResult {
+                start: s.clone(),
+                params: r.x.iter().map(|v| v.exp()).collect(),
+                cost: 2.0 * r.cost,
+                iterations: r.iterations,
+                evaluations: ev.evaluations,
+                stop: Some(r.stop),
+                minimum: None,
+                error: None,
+            },
+            Err(e) => StartResult {
+                start: s.clone(),
+                params: Vec::new(),
+                cost: f64::INFINITY,
+                iterations: 0,
+                evaluations: ev.evaluations,
+                stop: None,
+                minimum: None,
+                error: Some(e.to_string()),
+            },
+        }
+    };
+    let mut results: Vec<StartResult> = if opts.parallel {
+        starts.par_iter().map(run).collect()
+    } else {
+        starts.iter().map(run).collect()
+    };
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    // cluster, best first
+    let mut order: Vec<usize> = (0..results.len())
+        .filter(|&i| results[i].error.is_none())
+        .collect();
+    if order.is_empty() {
+        let msg = results
+            .iter()
+            .find_map(|r| r.error.clone())
+            .unwrap_or_default();
+        return Err(Error::numerical(
+            "calibration",
+            format!("every start failed; first error: {msg}"),
+        ));
+    }
+    order.sort_by(|&a, &b| results[a].cost.total_cmp(&results[b].cost).then(a.cmp(&b)));
+    let mut minima: Vec<LocalMinimum> = Vec::new();
+    for &i in &order {
+        let found = minima
+            .iter()
+            .position(|m| rel_close(&m.params, &results[i].params, 0.01));
+        let k = match found {
+            Some(k) => k,
+            None => {
+                minima.push(LocalMinimum {
+                    params: results[i].params.clone(),
+                    cost: results[i].cost,
+                    starts: Vec::new(),
+                });
+                minima.len() - 1
+            }
+        };
+        minima[k].starts.push(i);
+        results[i].minimum = Some(k);
+    }
+    for m in minima.iter_mut() {
+        m.starts.sort_unstable();
+    }
+    let best = minima[0].params.clone();
+    let evaluations: usize = results.iter().map(|r| r.evaluations).sum();
+    let mut ev = pb.evaluator();
+    let mut cal = statistics(pb, &mut ev, &best)?;
+    cal.minima = minima;
+    cal.starts = results;
+    cal.evaluations = evaluations + ev.evaluations;
+    Ok(cal)
+}
+
+/// Statistics at parameters `p` (natural units), with no multi-start record.
+pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibration> {
+    let x: Vec<f64> = p.iter().map(|v| v.ln()).collect();
+    let (r, j) = ev.residuals(pb, &x, true)?;
+    let j = j.unwrap_or_else(|| DMatrix::zeros(r.len(), p.len()));
+    let predictions = ev.predict(pb, p)?;
+    let m = r.len();
+    let n = p.len();
+    let cost = r.norm_squared();
+    let s2 = if m > n {
+        cost / (m - n) as f64
+    } else {
+        f64::NAN
+    };
+    let info = pb.family.params();
+    let svd = j.clone().svd(false, true);
+    let sv: Vec<f64> = svd.singular_values.iter().copied().collect();
+    let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(n, n));
+    let smax = sv.iter().fold(0.0f64, |a, b| a.max(*b));
+    let smin = sv.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+    // Covariance of the log-parameters: the sandwich A+ B A+ with
+    // A = J^T J (weighted Jacobian) and B = sum_i w_i sigma_d(i)^2 J_i^T J_i,
+    // the residual variance sigma_d^2 estimated per DoF from the
+    // unweighted residuals (so that weights that are not 1/variance, e.g.
+    // the default motion-based ones, still give honest intervals). With
+    // w = 1/sigma^2 it reduces to s^2 (J^T J)^-1. Directions with tiny
+    // singular values have unbounded variance.
+    let tiny = smax * 1e-10;
+    let mut a_pinv = DMatrix::<f64>::zeros(n, n);
+    for (k, &s) in sv.iter().enumerate() {
+        if s > tiny {
+            for a in 0..n {
+                for b in 0..n {
+                    a_pinv[(a, b)] += vt[(k, a)] * vt[(k, b)] / (s * s);
+                }
+            }
+        }
+    }
+    let mut sigma2 = [0.0f64; 6];
+    let mut count = [0usize; 6];
+    for (ci, c) in pb.cells.iter().enumerate() {
+        if c.sqrt_w > 0.0 {
+            sigma2[c.dof] += (r[ci] / c.sqrt_w).powi(2);
+            count[c.dof] += 1;
+        }
+    }
+    let dof_share = if m > n {
+        (m - n) as f64 / m as f64
+    } else {
+        f64::NAN
+    };
+    for d in 0..6 {
+        if count[d] > 0 {
+            sigma2[d] /= count[d] as f64 * dof_share;
+        }
+    }
+    let mut bmat = DMatrix::<f64>::zeros(n, n);
+    for (ci, c) in pb.cells.iter().enumerate() {
+        let f = c.sqrt_w * c.sqrt_w * sigma2[c.dof];
+        for a in 0..n {
+            let ja = j[(ci, a)];
+            if ja == 0.0 {
+                continue;
+            }
+            for b in 0..n {
+                bmat[(a, b)] += f * ja * j[(ci, b)];
+            }
+        }
+    }
+    let mut cov = &a_pinv * bmat * &a_pinv;
+    for (k, &s) in sv.iter().enumerate() {
+        if s <= tiny {
+            for a in 0..n {
+                if vt[(k, a)].abs() > 1e-3 {
+                    cov[(a, a)] = f64::INFINITY;
+                }
+            }
+        }
+    }
+    let tq = if m > n {
+        use statrs::distribution::{ContinuousCDF, StudentsT};
+        StudentsT::new(0.0, 1.0, (m - n) as f64)
+            .map(|t| t.inverse_cdf(0.975))
+            .unwrap_or(1.96)
+    } else {
+        f64::NAN
+    };
+    let mut estimates = Vec::new();
+    let mut poorly = Vec::new();
+    for k in 0..n {
+        let sd = cov[(k, k)].max(0.0).sqrt();
+        let at_bound = x[k] <= info[k].lower.ln() + 1e-9 || x[k] >= info[k].upper.ln() - 1e-9;
+        estimates.push(ParamEstimate {
+            name: info[k].name.clone(),
+            unit: info[k].unit.clone(),
+            value: p[k],
+            nominal: info[k].nominal,
+            lower: info[k].lower,
+            upper: info[k].upper,
+            rel_sd: sd,
+            ci95: [p[k] * (-tq * sd).exp(), p[k] * (tq * sd).exp()],
+            at_bound,
+        });
+        if !sd.is_finite() || sd > 0.5 {
+            poorly.push(PoorlyDetermined {
+                name: info[k].name.clone(),
+                reason: format!(
+                    "relative SD {} (> 50%): the data barely constrain it",
+                    if sd.is_finite() {
+                        format!("{:.0}%", 100.0 * sd)
+                    } else {
+                        "unbounded".into()
+                    }
+                ),
+            });
+        } else if at_bound {
+            poorly.push(PoorlyDetermined {
+                name: info[k].name.clone(),
+                reason: format!(
+                    "at a literature bound ({} .. {} {}): the best fit wants a value outside the range",
+                    info[k].lower, info[k].upper, info[k].unit
+                ),
+            });
+        }
+    }
+    let mut weak = Vec::new();
+    for (k, &s) in sv.iter().enumerate() {
+        let rel = if smax > 0.0 { s / smax } else { 0.0 };
+        if rel < 1e-3 {
+            let mut load: Vec<(String, f64)> = (0..n)
+                .filter(|&a| vt[(k, a)].abs() >= 0.2)
+                .map(|a| (info[a].name.clone(), vt[(k, a)]))
+                .collect();
+            load.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()).then(a.0.cmp(&b.0)));
+            for (name, _) in &load {
+                if !poorly.iter().any(|p| &p.name == name) {
+                    poorly.push(PoorlyDetermined {
+                        name: name.clone(),
+                        reason: format!(
+                            "loads a nearly singular direction of the Jacobian (relative singular value {rel:.1e})"
+                        ),
+                    });
+                }
+            }
+            weak.push(WeakDirection {
+                singular_value: s,
+                relative: rel,
+                loadings: load,
+            });
+        }
+    }
+    let mut corr = vec![vec![0.0; n]; n];
+    for a in 0..n {
+        for b in 0..n {
+            let d = (cov[(a, a)] * cov[(b, b)]).sqrt();
+            corr[a][b] = if d > 0.0 && d.is_finite() {
+                cov[(a, b)] / d
+            } else if a == b {
+                1.0
+            } else {
+                f64::NAN
+            };
+        }
+    }
+    Ok(Calibration {
+        family: pb.family.label(),
+        param_names: info.iter().map(|i| i.name.clone()).collect(),
+        best: p.to_vec(),
+        cost,
+        n_residuals: m,
+        n_params: n,
+        s2,
+        residual_sd: std::array::from_fn(|d| {
+            if count[d] > 0 {
+                sigma2[d].sqrt()
+            } else {
+                f64::NAN
+            }
+        }),
+        estimates,
+        covariance_log: (0..n)
+            .map(|a| (0..n).map(|b| cov[(a, b)]).collect())
+            .collect(),
+        correlation: corr,
+        identifiability: Identifiability {
+            condition_number: if smin > 0.0 {
+                smax / smin
+            } else {
+                f64::INFINITY
+            },
+            singular_values: sv,
+            weak_directions: weak,
+            poorly_determined: poorly,
+        },
+        minima: Vec::new(),
+        starts: Vec::new(),
+        predictions,
+        evaluations: ev.evaluations,
+    })
+}
+
+/// Root-mean-square errors of predictions against the measurements, per
+/// level (pair) and DoF, in SI units, over the rows `rows` accepts.
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorTable {
+    /// (upper/lower, dof) -> (RMSE SI, normalised RMSE = RMSE / measured range, n)
+    pub entries: Vec<ErrorEntry>,
+}
+
+/// One entry of an [`ErrorTable`].
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorEntry {
+    pub pair: String,
+    pub dof: String,
+    pub n: usize,
+    /// RMSE (rad or m).
+    pub rmse: f64,
+    /// RMSE divided by the range (max - min) of the measured values.
+    pub nrmse: f64,
+    /// RMSE in the experiment's unit (`unit`).
+    pub rmse_in_unit: f64,
+    /// `deg`/`rad` or `mm`/`m` as in `[units]`.
+    pub unit: String,
+}
+
+impl ErrorTable {
+    /// Pooled RMSE over all entries of rotational (`rot = true`) or
+    /// translational DoFs, in the experiment's unit; NaN when there is none.
+    pub fn pooled(&self, rot: bool) -> f64 {
+        let (mut ss, mut n) = (0.0, 0usize);
+        for e in &self.entries {
+            if DOF_NAMES[..3].contains(&e.dof.as_str()) == rot {
+                ss += e.rmse_in_unit.powi(2) * e.n as f64;
+                n += e.n;
+            }
+        }
+        if n == 0 {
+            f64::NAN
+        } else {
+            (ss / n as f64).sqrt()
+        }
+    }
+}
+
+/// Error table of `pred` vs measured over the selected DoFs and rows.
+pub fn error_table(pb: &Problem, pred: &[[f64; 6]], rows: impl Fn(usize) -> bool) -> ErrorTable {
+    let mut acc: BTreeMap<(String, usize), (f64, usize, f64, f64)> = BTreeMap::new();
+    for (ri, r) in pb.exp.rows.iter().enumerate() {
+        if !rows(ri) {
+            continue;
+        }
+        let Some(p) = pred.get(ri) else { continue };
+        for &d in &pb.opts.dofs {
+            if let Some(m) = r.values[d] {
+                let e = acc
+                    .entry((format!("{}/{}", r.upper, r.lower), d))
+                    .or_insert((0.0, 0, f64::INFINITY, f64::NEG_INFINITY));
+                e.0 += (p[d] - m).powi(2);
+                e.1 += 1;
+                e.2 = e.2.min(m);
+                e.3 = e.3.max(m);
+            }
+        }
+    }
+    ErrorTable {
+        entries: acc
+            .into_iter()
+            .map(|((pair, d), (ss, n, lo, hi))| {
+                let rmse = (ss / n.max(1) as f64).sqrt();
+                ErrorEntry {
+                    pair,
+                    dof: DOF_NAMES[d].into(),
+                    n,
+                    rmse,
+                    nrmse: if hi > lo { rmse / (hi - lo) } else { f64::NAN },
+                    rmse_in_unit: rmse * pb.exp.units.from_si(d),
+                    unit: if d < 3 {
+                        pb.exp.units.angle
+                    } else {
+                        pb.exp.units.length
+                    }
+                    .to_string(),
+                }
+            })
+            .collect(),
+    }
+}

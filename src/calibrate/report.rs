@@ -1,0 +1,285 @@
+//! Calibration outputs: the JSON report structure, per-case errors and the
+//! SVG figures (measured vs predicted per level and DoF; parameter spread
+//! over the multi-start with confidence intervals). SVG is written by hand
+//! so that outputs are byte-stable.
+
+use super::experiment::DOF_NAMES;
+use super::fit::{Calibration, ErrorTable};
+use super::problem::Problem;
+use serde::Serialize;
+use std::fmt::Write as _;
+
+/// Errors of one load case (experiment units).
+#[derive(Debug, Clone, Serialize)]
+pub struct CaseError {
+    pub case: String,
+    /// RMSE over the case's measured rotational cells in the cost.
+    pub rotation_rmse: Option<f64>,
+    /// RMSE over the case's measured translational cells in the cost.
+    pub translation_rmse: Option<f64>,
+}
+
+/// Per-case RMSEs of `pred` (SI) over the problem's cells, in file units.
+pub fn case_errors(pb: &Problem, pred: &[[f64; 6]]) -> Vec<CaseError> {
+    pb.exp
+        .cases
+        .iter()
+        .enumerate()
+        .filter_map(|(ci, c)| {
+            let mut acc = [(0.0, 0usize); 2];
+            for cell in pb.cells.iter().filter(|cell| cell.case == ci) {
+                let e = (pred[cell.row][cell.dof] - cell.measured) * pb.exp.units.from_si(cell.dof);
+                let k = usize::from(cell.dof >= 3);
+                acc[k].0 += e * e;
+                acc[k].1 += 1;
+            }
+            if acc[0].1 + acc[1].1 == 0 {
+                return None;
+            }
+            let f = |(ss, n): (f64, usize)| (n > 0).then(|| (ss / n as f64).sqrt());
+            Some(CaseError {
+                case: c.id.clone(),
+                rotation_rmse: f(acc[0]),
+                translation_rmse: f(acc[1]),
+            })
+        })
+        .collect()
+}
+
+/// One measured row with its prediction (experiment units).
+#[derive(Debug, Clone, Serialize)]
+pub struct RowOut {
+    pub case: String,
+    pub upper: String,
+    pub lower: String,
+    pub measured: [Option<f64>; 6],
+    pub predicted: [f64; 6],
+}
+
+/// Rows with predictions in file units.
+pub fn rows_out(pb: &Problem, pred: &[[f64; 6]]) -> Vec<RowOut> {
+    pb.exp
+        .rows
+        .iter()
+        .zip(pred)
+        .map(|(r, p)| RowOut {
+            case: pb
+                .exp
+                .cases
+                .get(r.case)
+                .map(|c| c.id.clone())
+                .unwrap_or_default(),
+            upper: r.upper.clone(),
+            lower: r.lower.clone(),
+            measured: std::array::from_fn(|d| r.values[d].map(|v| v * pb.exp.units.from_si(d))),
+            predicted: std::array::from_fn(|d| p[d] * pb.exp.units.from_si(d)),
+        })
+        .collect()
+}
+
+/// Summary of a model's fit to the data.
+#[derive(Debug, Clone, Serialize)]
+pub struct FitSummary {
+    /// Pooled RMSE of rotations / translations (experiment units).
+    pub rotation_rmse: f64,
+    pub translation_rmse: Option<f64>,
+    pub per_case: Vec<CaseError>,
+    pub per_level_dof: ErrorTable,
+}
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+fn nice(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if !(1e-3..1e4).contains(&a) {
+        format!("{v:.1e}")
+    } else if a >= 100.0 {
+        format!("{v:.0}")
+    } else if a >= 1.0 {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.3}")
+    }
+}
+
+/// Measured vs predicted scatter, one panel per level (pair) and cost DoF,
+/// identity line in each panel, experiment units.
+pub fn fit_svg(pb: &Problem, pred: &[[f64; 6]], title: &str) -> String {
+    let mut pairs: Vec<(String, String)> = Vec::new();
+    for r in &pb.exp.rows {
+        let k = (r.upper.clone(), r.lower.clone());
+        if !pairs.contains(&k) {
+            pairs.push(k);
+        }
+    }
+    let dofs = &pb.opts.dofs;
+    let (pw, ph, margin, top) = (190.0, 170.0, 46.0, 50.0);
+    let w = margin + dofs.len() as f64 * (pw + margin);
+    let h = top + pairs.len() as f64 * (ph + margin) + 10.0;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{:.0}\" y=\"20\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n<text x=\"{:.0}\" y=\"36\" text-anchor=\"middle\">measured (x) vs predicted (y) per level and DoF; dashed: identity</text>",
+        w / 2.0,
+        esc(title),
+        w / 2.0
+    );
+    for (pi, (u, l)) in pairs.iter().enumerate() {
+        for (di, &d) in dofs.iter().enumerate() {
+            let f = pb.exp.units.from_si(d);
+            let pts: Vec<(f64, f64)> = pb
+                .exp
+                .rows
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| &r.upper == u && &r.lower == l)
+                .filter_map(|(ri, r)| Some((r.values[d]? * f, pred.get(ri)?[d] * f)))
+                .collect();
+            let x0 = margin + di as f64 * (pw + margin);
+            let y0 = top + pi as f64 * (ph + margin);
+            let unit = if d < 3 {
+                pb.exp.units.angle
+            } else {
+                pb.exp.units.length
+            };
+            let _ = writeln!(
+                s,
+                "<rect x=\"{x0:.1}\" y=\"{y0:.1}\" width=\"{pw}\" height=\"{ph}\" fill=\"none\" stroke=\"#999\"/>\n<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}/{} {} ({unit})</text>",
+                x0 + pw / 2.0,
+                y0 - 4.0,
+                esc(u),
+                esc(l),
+                DOF_NAMES[d]
+            );
+            if pts.is_empty() {
+                continue;
+            }
+            let mut lo = pts.iter().fold(f64::INFINITY, |m, p| m.min(p.0).min(p.1));
+            let mut hi = pts
+                .iter()
+                .fold(f64::NEG_INFINITY, |m, p| m.max(p.0).max(p.1));
+            if hi - lo < 1e-12 {
+                lo -= 1.0;
+                hi += 1.0;
+            }
+            let pad = 0.05 * (hi - lo);
+            let (lo, hi) = (lo - pad, hi + pad);
+            let sx = |v: f64| x0 + (v - lo) / (hi - lo) * pw;
+            let sy = |v: f64| y0 + ph - (v - lo) / (hi - lo) * ph;
+            let _ = writeln!(
+                s,
+                "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"#888\" stroke-dasharray=\"4 3\"/>\n<text x=\"{x0:.1}\" y=\"{:.1}\">{}</text><text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text>",
+                sx(lo), sy(lo), sx(hi), sy(hi),
+                y0 + ph + 12.0, nice(lo),
+                x0 + pw, y0 + ph + 12.0, nice(hi)
+            );
+            for (m, p) in pts {
+                let _ = writeln!(
+                    s,
+                    "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"#1f77b4\" fill-opacity=\"0.7\"/>",
+                    sx(m),
+                    sy(p)
+                );
+            }
+        }
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+/// Parameter spread: per parameter, the end points of every start (dots),
+/// the best value with its 95% interval (bar) and the bounds (grey), as
+/// value / nominal on a log axis.
+pub fn params_svg(cal: &Calibration, title: &str) -> String {
+    let n = cal.estimates.len();
+    let (left, right, top, bottom) = (60.0, 20.0, 50.0, 110.0);
+    let slot = 36.0f64.max(600.0 / n.max(1) as f64).min(80.0);
+    let w = left + right + slot * n as f64;
+    let h = 420.0;
+    let mut vals: Vec<f64> = Vec::new();
+    for (k, e) in cal.estimates.iter().enumerate() {
+        let nom = e.nominal;
+        vals.push(e.lower / nom);
+        vals.push(e.upper / nom);
+        for st in &cal.starts {
+            if let Some(v) = st.params.get(k) {
+                vals.push(v / nom);
+            }
+        }
+    }
+    let lmin = vals
+        .iter()
+        .filter(|v| **v > 0.0)
+        .fold(f64::INFINITY, |m, v| m.min(v.log10()))
+        .floor();
+    let lmax = vals
+        .iter()
+        .filter(|v| **v > 0.0)
+        .fold(f64::NEG_INFINITY, |m, v| m.max(v.log10()))
+        .ceil();
+    let (lmin, lmax) = if lmin.is_finite() && lmax > lmin {
+        (lmin, lmax)
+    } else {
+        (-1.0, 1.0)
+    };
+    let sy =
+        |v: f64| top + (h - top - bottom) * (1.0 - (v.max(1e-300).log10() - lmin) / (lmax - lmin));
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{:.0}\" y=\"20\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n<text x=\"{:.0}\" y=\"36\" text-anchor=\"middle\">value / nominal (log); dots: end of each start; red: best with 95% CI; grey: literature bounds</text>",
+        w / 2.0, esc(title), w / 2.0
+    );
+    let mut e10 = lmin;
+    while e10 <= lmax + 1e-9 {
+        let y = sy(10f64.powf(e10));
+        let _ = writeln!(
+            s,
+            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text>",
+            w - right, left - 4.0, y + 3.0, nice(10f64.powf(e10))
+        );
+        e10 += 1.0;
+    }
+    let y1 = sy(1.0);
+    let _ = writeln!(s, "<line x1=\"{left}\" y1=\"{y1:.1}\" x2=\"{:.1}\" y2=\"{y1:.1}\" stroke=\"#888\" stroke-dasharray=\"4 3\"/>", w - right);
+    for (k, e) in cal.estimates.iter().enumerate() {
+        let xc = left + slot * (k as f64 + 0.5);
+        let nom = e.nominal;
+        let _ = writeln!(
+            s,
+            "<line x1=\"{xc:.1}\" y1=\"{:.1}\" x2=\"{xc:.1}\" y2=\"{:.1}\" stroke=\"#ccc\" stroke-width=\"6\"/>",
+            sy(e.lower / nom), sy(e.upper / nom)
+        );
+        for st in &cal.starts {
+            if let Some(v) = st.params.get(k) {
+                let _ = writeln!(
+                    s,
+                    "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"2\" fill=\"#1f77b4\"/>",
+                    xc - 6.0,
+                    sy(v / nom)
+                );
+            }
+        }
+        let (lo, hi) = (e.ci95[0], e.ci95[1]);
+        if lo.is_finite() && hi.is_finite() {
+            let _ = writeln!(
+                s,
+                "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"#d62728\" stroke-width=\"2\"/>",
+                xc + 5.0, sy(lo / nom), xc + 5.0, sy(hi / nom)
+            );
+        }
+        let _ = writeln!(
+            s,
+            "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"3.5\" fill=\"#d62728\"/>\n<text transform=\"translate({:.1},{:.1}) rotate(-60)\" text-anchor=\"end\">{}</text>",
+            xc + 5.0, sy(e.value / nom), xc, h - bottom + 12.0, esc(&e.name)
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}

@@ -1,0 +1,311 @@
+//! `osim-spine calibrate EXPERIMENT [--params uniform|ratio:TABLE|per-level]
+//! [--dofs rx,ry,rz,...] [--translations] [--weights rx=1,...] [--starts N]
+//! [--seed S] [--jobs N] [--loco] [--loso EXP...] --out DIR`: stiffness
+//! calibration from measured kinematics. Writes `calibrated.osim`,
+//! `report.json`, `fit.svg` and `params.svg`, all computed before anything is
+//! written.
+
+use crate::calibrate::experiment::{Experiment, DOF_NAMES};
+use crate::calibrate::fit::{self, error_table, Calibration, FitOptions};
+use crate::calibrate::measure::Convention;
+use crate::calibrate::problem::Problem;
+use crate::calibrate::report::{self, FitSummary};
+use crate::calibrate::setup::{self, Setup};
+use crate::calibrate::validate;
+use crate::personalise::linear::set_linear_bushing_stiffness;
+use crate::util::write_atomic;
+use anyhow::Context;
+use clap::Args as ClapArgs;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// Arguments of `calibrate`.
+#[derive(Debug, ClapArgs)]
+pub struct Args {
+    /// Experiment folder (experiment.toml, kinematics.csv, model).
+    pub experiment: PathBuf,
+    /// Parameterisation: uniform (one value per DoF for all levels),
+    /// ratio:TABLE (a base value per DoF times fixed level ratios, TOML or
+    /// CSV level,rx,ry,rz; e.g. templates/level_ratios_zhang.toml) or
+    /// per-level (independent values).
+    #[arg(long, default_value = "uniform", value_name = "KIND")]
+    pub params: String,
+    /// DoFs in the cost (default: the measured rotations, plus the measured
+    /// translations with --translations). Rotational ones get a stiffness parameter.
+    #[arg(long, value_name = "rx,ry,rz,...")]
+    pub dofs: Option<String>,
+    /// Also calibrate translational stiffness.
+    #[arg(long)]
+    pub translations: bool,
+    /// Weights per DoF (default 1 / RMS of the measured motion in the DoF, squared).
+    #[arg(long, value_name = "rx=1,...")]
+    pub weights: Option<String>,
+    /// Number of starts (the nominal model plus a Latin hypercube over the bounds).
+    #[arg(long, default_value_t = 16)]
+    pub starts: usize,
+    /// Seed of the Latin hypercube.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// How measured increments are formed: composed (the format's
+    /// definition) or difference (upper's rotation vector minus lower's).
+    #[arg(long, default_value = "composed")]
+    pub convention: Convention,
+    /// Leave-one-case-out validation.
+    #[arg(long)]
+    pub loco: bool,
+    /// Other experiments for leave-one-specimen-out validation (each is
+    /// calibrated with the same options; predicted with the median of the others).
+    #[arg(long, num_args = 1.., value_name = "EXPERIMENT")]
+    pub loso: Vec<PathBuf>,
+    /// Output folder.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+#[derive(Debug, Serialize)]
+struct ExperimentInfo {
+    name: String,
+    dir: String,
+    model: String,
+    fixed_body: String,
+    gravity: bool,
+    units: crate::calibrate::experiment::Units,
+    cases: usize,
+    rows: usize,
+    warnings: Vec<String>,
+}
+
+#[derive(Debug, Serialize)]
+struct OptionsInfo {
+    params: String,
+    cost_dofs: Vec<&'static str>,
+    weights: BTreeMap<&'static str, f64>,
+    convention: Convention,
+    starts: usize,
+    seed: u64,
+}
+
+#[derive(Debug, Serialize)]
+struct LosoSpecimen {
+    experiment: String,
+    calibrated: Vec<f64>,
+}
+
+#[derive(Debug, Serialize)]
+struct Validation {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    leave_one_case_out: Option<validate::LeaveOneCaseOut>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    leave_one_specimen_out: Option<Vec<validate::HeldOutSpecimen>>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    specimens: Vec<LosoSpecimen>,
+}
+
+#[derive(Debug, Serialize)]
+struct Report<'a> {
+    tool: &'static str,
+    experiment: ExperimentInfo,
+    options: OptionsInfo,
+    levels: Vec<crate::calibrate::family::Level>,
+    calibration: &'a Calibration,
+    fit: FitSummary,
+    nominal_fit: FitSummary,
+    stiffness: BTreeMap<String, [f64; 6]>,
+    validation: Validation,
+    rows: Vec<report::RowOut>,
+}
+
+fn summary(pb: &Problem, pred: &[[f64; 6]]) -> FitSummary {
+    let t = error_table(pb, pred, |_| true);
+    let tr = t.pooled(false);
+    FitSummary {
+        rotation_rmse: t.pooled(true),
+        translation_rmse: tr.is_finite().then_some(tr),
+        per_case: report::case_errors(pb, pred),
+        per_level_dof: t,
+    }
+}
+
+fn setup_from(a: &Args) -> anyhow::Result<Setup> {
+    Ok(Setup {
+        params: setup::parse_params(&a.params)?,
+        dofs: a.dofs.as_deref().map(setup::parse_dofs).transpose()?,
+        translations: a.translations,
+        weights: match &a.weights {
+            Some(w) => setup::parse_weights(w)?,
+            None => [None; 6],
+        },
+        convention: a.convention,
+    })
+}
+
+/// Run `calibrate`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    let jobs = a.jobs.unwrap_or(0);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(jobs)
+        .build()
+        .context("starting the worker threads")?;
+    pool.install(|| run_inner(&a))
+}
+
+fn run_inner(a: &Args) -> anyhow::Result<i32> {
+    let setup = setup_from(a)?;
+    let exp = Arc::new(Experiment::read(&a.experiment)?);
+    for w in &exp.warnings {
+        eprintln!("warning: {w}");
+    }
+    let (pb, fam) = setup::build_problem(exp.clone(), &setup)?;
+    let fopts = FitOptions {
+        starts: a.starts,
+        seed: a.seed,
+        progress: true,
+        ..FitOptions::default()
+    };
+    eprintln!(
+        "calibrate: {} ({} cases, {} residuals), {} parameters ({}), {} starts",
+        exp.name,
+        exp.cases.len(),
+        pb.cells.len(),
+        pb.n_params(),
+        fam.label_str(),
+        a.starts
+    );
+    let cal = fit::calibrate(&pb, &fopts)?;
+    let mut ev = pb.evaluator();
+    let nominal: Vec<f64> = fam.params_nominal();
+    let nominal_pred = ev
+        .predict(&pb, &nominal)
+        .context("solving the nominal model")?;
+    let loco = if a.loco {
+        eprintln!("calibrate: leave-one-case-out ...");
+        Some(validate::leave_one_case_out(&pb, &cal.best, &fopts)?)
+    } else {
+        None
+    };
+    let mut specimens = Vec::new();
+    let loso = if a.loso.is_empty() {
+        None
+    } else {
+        let mut items: Vec<(Problem, Vec<f64>)> = vec![(pb.clone(), cal.best.clone())];
+        for dir in &a.loso {
+            eprintln!(
+                "calibrate: leave-one-specimen-out: calibrating {} ...",
+                dir.display()
+            );
+            let e = Arc::new(Experiment::read(dir)?);
+            let (p2, _) = setup::build_problem(e, &setup)?;
+            let c2 = fit::calibrate(
+                &p2,
+                &FitOptions {
+                    progress: false,
+                    ..fopts.clone()
+                },
+            )
+            .with_context(|| format!("calibrating {}", dir.display()))?;
+            specimens.push(LosoSpecimen {
+                experiment: p2.exp.name.clone(),
+                calibrated: c2.best.clone(),
+            });
+            items.push((p2, c2.best));
+        }
+        Some(validate::leave_one_specimen_out(&items)?)
+    };
+    // calibrated model
+    let stiff = fam.bushing_stiffness(&cal.best);
+    let names: Vec<String> = pb.system().bushing_names().map(String::from).collect();
+    let level_values: Vec<(String, [f64; 6])> = fam
+        .levels
+        .iter()
+        .filter_map(|l| Some((names.get(l.bushing)?.clone(), *stiff.get(l.bushing)?)))
+        .collect();
+    let mut doc = exp.doc.clone();
+    set_linear_bushing_stiffness(&mut doc, &level_values)?;
+    let rep = Report {
+        tool: concat!("osim-spine ", env!("CARGO_PKG_VERSION")),
+        experiment: ExperimentInfo {
+            name: exp.name.clone(),
+            dir: exp.dir.display().to_string(),
+            model: exp.model_path.display().to_string(),
+            fixed_body: exp.fixed_body.clone(),
+            gravity: exp.gravity,
+            units: exp.units,
+            cases: exp.cases.len(),
+            rows: exp.rows.len(),
+            warnings: exp.warnings.clone(),
+        },
+        options: OptionsInfo {
+            params: a.params.clone(),
+            cost_dofs: pb.opts.dofs.iter().map(|&d| DOF_NAMES[d]).collect(),
+            weights: pb
+                .opts
+                .dofs
+                .iter()
+                .map(|&d| (DOF_NAMES[d], pb.weights[d]))
+                .collect(),
+            convention: a.convention,
+            starts: a.starts,
+            seed: a.seed,
+        },
+        levels: fam.levels.clone(),
+        calibration: &cal,
+        fit: summary(&pb, &cal.predictions),
+        nominal_fit: summary(&pb, &nominal_pred),
+        stiffness: level_values.iter().cloned().collect(),
+        validation: Validation {
+            leave_one_case_out: loco,
+            leave_one_specimen_out: loso,
+            specimens,
+        },
+        rows: report::rows_out(&pb, &cal.predictions),
+    };
+    let json = serde_json::to_string_pretty(&rep)? + "\n";
+    let fit_svg = report::fit_svg(
+        &pb,
+        &cal.predictions,
+        &format!("{}: calibrated ({})", exp.name, a.params),
+    );
+    let params_svg = report::params_svg(&cal, &format!("{}: parameters ({})", exp.name, a.params));
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    write_atomic(
+        &a.out.join("calibrated.osim"),
+        doc.to_xml_string().as_bytes(),
+    )?;
+    write_atomic(&a.out.join("report.json"), json.as_bytes())?;
+    write_atomic(&a.out.join("fit.svg"), fit_svg.as_bytes())?;
+    write_atomic(&a.out.join("params.svg"), params_svg.as_bytes())?;
+    let unit = exp.units.angle;
+    eprintln!(
+        "calibrate: rotation RMSE {:.4} {unit} (nominal model {:.4} {unit}); {} local minim{} from {} starts; condition number {:.3e}",
+        rep.fit.rotation_rmse,
+        rep.nominal_fit.rotation_rmse,
+        cal.minima.len(),
+        if cal.minima.len() == 1 { "um" } else { "a" },
+        a.starts,
+        cal.identifiability.condition_number
+    );
+    for e in &cal.estimates {
+        eprintln!(
+            "  {:<14} {:>12.4} {}  95% CI [{:.4}, {:.4}]{}",
+            e.name,
+            e.value,
+            e.unit,
+            e.ci95[0],
+            e.ci95[1],
+            if e.at_bound { "  (at bound)" } else { "" }
+        );
+    }
+    for p in &cal.identifiability.poorly_determined {
+        eprintln!(
+            "warning: parameter {} is poorly determined: {}",
+            p.name, p.reason
+        );
+    }
+    eprintln!("calibrate: written to {}", a.out.display());
+    Ok(0)
+}

@@ -1,0 +1,40 @@
+//! `osim-spine diagnose EXPERIMENT --out DIR [--quiet]`: sim-to-real gap
+//! diagnosis. Writes `diagnosis.json` (format in
+//! `../shared/formats/experiment.md`), `report.md`, `residual_map.svg`,
+//! `curves.svg` and `improved.osim` (the chosen effect added).
+
+use crate::diagnose::{self, select::Options};
+use clap::Args as ClapArgs;
+use std::path::PathBuf;
+
+/// Arguments of `diagnose`.
+#[derive(Debug, ClapArgs)]
+pub struct Args {
+    /// Experiment folder (experiment.toml, kinematics.csv, model).
+    pub experiment: PathBuf,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Run.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    let opts = Options {
+        progress: !a.quiet,
+        ..Options::default()
+    };
+    let o = diagnose::run(&a.experiment, &a.out, &opts)?;
+    let (b, au) = o.heldout_rmse();
+    eprintln!(
+        "verdict: {} (confidence {:.2}); held-out rotation RMSE {:.4} -> {:.4} deg; wrote {}",
+        o.verdict,
+        o.confidence,
+        b,
+        au,
+        a.out.join("diagnosis.json").display()
+    );
+    Ok(0)
+}

@@ -1,0 +1,358 @@
+//! The load-case design, read from the case definitions only (never from
+//! measured values): each case's load axis, sign, moment magnitude and
+//! follower load; the held-out split (magnitude and follower-load
+//! extrapolation); and which effects the design cannot test, with the
+//! load cases that would (named in the experiment's own id style).
+
+use crate::calibrate::experiment::LoadCase;
+use serde::Serialize;
+use std::collections::BTreeSet;
+
+/// Axis names of the format (X lateral bending, Y axial rotation, Z flexion/extension).
+pub const AXIS_NAMES: [&str; 3] = ["LB", "AR", "FE"];
+
+/// The structure of one case.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CaseInfo {
+    pub id: String,
+    /// Dominant moment axis (0 X, 1 Y, 2 Z), None without a moment.
+    pub axis: Option<usize>,
+    /// Sign of the dominant component (+1 / -1; 0 without a moment).
+    pub sign: i8,
+    /// Moment magnitude (N m).
+    pub magnitude: f64,
+    /// Follower load (N).
+    pub follower: f64,
+}
+
+impl CaseInfo {
+    /// Read the structure of a case.
+    pub fn of(c: &LoadCase) -> CaseInfo {
+        let m = c.moment;
+        let mag = (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]).sqrt();
+        let (axis, sign) = if mag > 0.0 {
+            let mut a = 0;
+            for i in 1..3 {
+                if m[i].abs() > m[a].abs() {
+                    a = i;
+                }
+            }
+            (Some(a), if m[a] > 0.0 { 1 } else { -1 })
+        } else {
+            (None, 0)
+        };
+        CaseInfo {
+            id: c.id.clone(),
+            axis,
+            sign,
+            magnitude: mag,
+            follower: c.follower_load,
+        }
+    }
+}
+
+/// Magnitudes equal to 1e-9 relative.
+fn same(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0)
+}
+
+/// Sorted distinct values.
+fn distinct(v: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut out: Vec<f64> = Vec::new();
+    for x in v {
+        if !out.iter().any(|y| same(*y, x)) {
+            out.push(x);
+        }
+    }
+    out.sort_by(|a, b| a.total_cmp(b));
+    out
+}
+
+/// A missing load case that would make an effect testable.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MissingCase {
+    pub case: String,
+    pub effect: String,
+    pub reason: String,
+}
+
+/// The held-out design and the identifiability of the effects.
+#[derive(Debug, Clone, Serialize)]
+pub struct Design {
+    pub cases: Vec<CaseInfo>,
+    /// Indices of the cases used for fitting.
+    pub train: Vec<usize>,
+    /// Indices of the cases kept out of every fit.
+    pub heldout: Vec<usize>,
+    /// How the held-out cases were chosen.
+    pub rule: String,
+    /// Effects the design cannot test at all, with the reason.
+    pub untestable: Vec<(String, String)>,
+    /// Load cases that would make them testable.
+    pub missing: Vec<MissingCase>,
+    /// True when a follower-load case exists.
+    pub has_follower: bool,
+}
+
+/// Format a number as the ids do (`2.5`, `7.5`, `5`).
+fn fmt_num(x: f64) -> String {
+    let r = (x * 1000.0).round() / 1000.0;
+    if r.fract() == 0.0 {
+        format!("{}", r as i64)
+    } else {
+        format!("{r}")
+    }
+}
+
+/// The id style of the experiment: `<AXIS>_<pos|neg>_<magnitude>` with the
+/// axis tokens and sign words learnt from ids of that shape (defaults
+/// `LB`/`AR`/`FE`, `pos`/`neg`).
+struct IdStyle {
+    axis: [String; 3],
+    pos: String,
+    neg: String,
+}
+
+impl IdStyle {
+    fn learn(cases: &[CaseInfo]) -> IdStyle {
+        let mut s = IdStyle {
+            axis: AXIS_NAMES.map(String::from),
+            pos: "pos".into(),
+            neg: "neg".into(),
+        };
+        for c in cases {
+            let (Some(a), true) = (c.axis, c.follower == 0.0) else {
+                continue;
+            };
+            let parts: Vec<&str> = c.id.split('_').collect();
+            if let [ax, sg, mag] = parts.as_slice() {
+                if mag
+                    .parse::<f64>()
+                    .map(|m| same(m, c.magnitude))
+                    .unwrap_or(false)
+                {
+                    s.axis[a] = ax.to_string();
+                    if c.sign > 0 {
+                        s.pos = sg.to_string();
+                    } else {
+                        s.neg = sg.to_string();
+                    }
+                }
+            }
+        }
+        s
+    }
+    fn id(&self, axis: usize, sign: i8, mag: f64) -> String {
+        let sg = if sign > 0 { &self.pos } else { &self.neg };
+        format!("{}_{}_{}", self.axis[axis], sg, fmt_num(mag))
+    }
+}
+
+impl Design {
+    /// Analyse the cases.
+    pub fn new(cases: &[LoadCase]) -> Design {
+        let info: Vec<CaseInfo> = cases.iter().map(CaseInfo::of).collect();
+        let style = IdStyle::learn(&info);
+        let has_follower = info.iter().any(|c| c.follower > 0.0);
+        let mut untestable = Vec::new();
+        let mut missing = Vec::new();
+        // magnitudes and signs per axis (pure-moment and follower cases alike)
+        let mut nonlinear_gaps = Vec::new();
+        let mut sign_gaps = Vec::new();
+        for a in 0..3 {
+            let on: Vec<&CaseInfo> = info.iter().filter(|c| c.axis == Some(a)).collect();
+            if on.is_empty() {
+                continue;
+            }
+            let mags = distinct(on.iter().map(|c| c.magnitude));
+            let signs: BTreeSet<i8> = on.iter().map(|c| c.sign).collect();
+            if mags.len() < 2 {
+                let m = mags.first().copied().unwrap_or(1.0);
+                nonlinear_gaps.push(AXIS_NAMES[a]);
+                for &sg in &signs {
+                    for other in [m / 2.0, 2.0 * m] {
+                        missing.push(MissingCase {
+                            case: style.id(a, sg, other),
+                            effect: "nonlinear_stiffness".into(),
+                            reason: format!(
+                                "a single moment magnitude ({} N m) about {}: a deflection-dependent stiffness is absorbed by a linear one; a second magnitude separates them",
+                                fmt_num(m),
+                                AXIS_NAMES[a]
+                            ),
+                        });
+                    }
+                }
+            }
+            if signs.len() < 2 {
+                sign_gaps.push(AXIS_NAMES[a]);
+                let have = *signs.iter().next().unwrap_or(&1);
+                for &m in &mags {
+                    missing.push(MissingCase {
+                        case: style.id(a, -have, m),
+                        effect: "asymmetric_stiffness".into(),
+                        reason: format!(
+                            "moments about {} in one direction only: the stiffness of the other side is never loaded",
+                            AXIS_NAMES[a]
+                        ),
+                    });
+                }
+            }
+        }
+        if !nonlinear_gaps.is_empty() {
+            untestable.push((
+                "nonlinear_stiffness".to_string(),
+                format!(
+                    "a single moment magnitude about {}",
+                    nonlinear_gaps.join(", ")
+                ),
+            ));
+        }
+        if !sign_gaps.is_empty() {
+            untestable.push((
+                "asymmetric_stiffness".to_string(),
+                format!("one moment direction only about {}", sign_gaps.join(", ")),
+            ));
+        }
+        if !has_follower {
+            untestable.push((
+                "preload_stiffening".to_string(),
+                "no follower-load case: stiffness under compression is never probed".to_string(),
+            ));
+        }
+        // held-out split: largest magnitude of every axis, largest follower load
+        let mut held = vec![false; info.len()];
+        let mut rules = Vec::new();
+        for a in 0..3 {
+            let on: Vec<usize> = (0..info.len())
+                .filter(|&i| info[i].axis == Some(a))
+                .collect();
+            let mags = distinct(on.iter().map(|&i| info[i].magnitude));
+            if mags.len() >= 2 {
+                let top = mags[mags.len() - 1];
+                for &i in &on {
+                    if same(info[i].magnitude, top) {
+                        held[i] = true;
+                    }
+                }
+                rules.push(format!("{} moments of {} N m", AXIS_NAMES[a], fmt_num(top)));
+            }
+        }
+        let fls = distinct(info.iter().map(|c| c.follower).filter(|f| *f > 0.0));
+        if fls.len() >= 2 {
+            let top = fls[fls.len() - 1];
+            for (i, c) in info.iter().enumerate() {
+                if same(c.follower, top) {
+                    held[i] = true;
+                }
+            }
+            rules.push(format!(
+                "every case under the {} N follower load",
+                fmt_num(top)
+            ));
+        }
+        let mut train: Vec<usize> = (0..info.len()).filter(|&i| !held[i]).collect();
+        // every loaded axis must stay in the training set
+        let axis_ok = (0..3).all(|a| {
+            !info.iter().any(|c| c.axis == Some(a))
+                || train.iter().any(|&i| info[i].axis == Some(a))
+        });
+        let rule;
+        if rules.is_empty() || !axis_ok || train.is_empty() {
+            // no extrapolation regime: interleave (every other case of each axis group)
+            held = vec![false; info.len()];
+            for a in [Some(0), Some(1), Some(2), None] {
+                let on: Vec<usize> = (0..info.len()).filter(|&i| info[i].axis == a).collect();
+                for (k, &i) in on.iter().enumerate() {
+                    if k % 2 == 1 {
+                        held[i] = true;
+                    }
+                }
+            }
+            train = (0..info.len()).filter(|&i| !held[i]).collect();
+            rule = "interleaved: every other case of each load axis (the design has no second magnitude or follower load to extrapolate to)".to_string();
+        } else {
+            rule = format!("held out: {}; fitted on the rest", rules.join("; "));
+        }
+        let heldout = (0..info.len()).filter(|&i| held[i]).collect();
+        Design {
+            cases: info,
+            train,
+            heldout,
+            rule,
+            untestable,
+            missing,
+            has_follower,
+        }
+    }
+
+    /// True when the effect is untestable by design.
+    pub fn is_untestable(&self, effect: &str) -> bool {
+        self.untestable.iter().any(|(e, _)| e == effect)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn case(id: &str, m: [f64; 3], fl: f64) -> LoadCase {
+        LoadCase {
+            id: id.into(),
+            body: "b".into(),
+            moment: m,
+            moment_frame: None,
+            force: [0.0; 3],
+            force_point: [0.0; 3],
+            force_frame: None,
+            follower_load: fl,
+        }
+    }
+
+    #[test]
+    fn full_design_holds_out_the_largest_magnitude_and_follower_load() {
+        let mut cs = Vec::new();
+        for (a, n) in AXIS_NAMES.iter().enumerate() {
+            for s in [-1.0, 1.0] {
+                for m in [1.0, 2.5, 7.5] {
+                    let mut v = [0.0; 3];
+                    v[a] = s * m;
+                    let sg = if s > 0.0 { "pos" } else { "neg" };
+                    cs.push(case(&format!("{n}_{sg}_{m}"), v, 0.0));
+                    cs.push(case(&format!("{n}_{sg}_{m}_FL250"), v, 250.0));
+                    cs.push(case(&format!("{n}_{sg}_{m}_FL500"), v, 500.0));
+                }
+            }
+        }
+        let d = Design::new(&cs);
+        assert!(d.untestable.is_empty());
+        for &i in &d.heldout {
+            let c = &d.cases[i];
+            assert!(c.magnitude == 7.5 || c.follower == 500.0, "{}", c.id);
+        }
+        for &i in &d.train {
+            let c = &d.cases[i];
+            assert!(c.magnitude < 7.5 && c.follower < 500.0, "{}", c.id);
+        }
+        assert_eq!(d.train.len() + d.heldout.len(), cs.len());
+    }
+
+    #[test]
+    fn single_magnitude_and_single_sign_name_the_missing_cases() {
+        let cs = vec![
+            case("FE_neg_5", [0.0, 0.0, -5.0], 0.0),
+            case("FE_pos_5", [0.0, 0.0, 5.0], 0.0),
+            case("LB_pos_5", [5.0, 0.0, 0.0], 0.0),
+        ];
+        let d = Design::new(&cs);
+        assert!(d.is_untestable("nonlinear_stiffness"));
+        assert!(d.is_untestable("asymmetric_stiffness"));
+        assert!(d.is_untestable("preload_stiffening"));
+        let names: Vec<&str> = d.missing.iter().map(|m| m.case.as_str()).collect();
+        assert!(
+            names.contains(&"FE_pos_2.5") && names.contains(&"FE_neg_10"),
+            "{names:?}"
+        );
+        assert!(names.contains(&"LB_neg_5"), "{names:?}");
+        assert!(!d.heldout.is_empty() && !d.train.is_empty());
+    }
+}

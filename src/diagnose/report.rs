@@ -1,0 +1,607 @@
+//! Outputs of a diagnosis: `diagnosis.json` (the contract of
+//! `../shared/formats/experiment.md`, extended), the Markdown report, the
+//! SVG figures (residual maps before/after, measured vs predicted curves)
+//! and the improved `.osim` (the chosen effect's laws and joint frames).
+//! Everything is computed in memory; the CLI writes it.
+
+use super::family::Variant;
+use super::select::Outcome;
+use super::sim::Sim;
+use crate::calibrate::experiment::{Experiment, DOF_NAMES};
+use crate::error::{Error, Result};
+use crate::osim::Document;
+use crate::personalise::{self, CurveSpec, LevelLaw};
+use crate::solver::{BushingModel, Curve};
+use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use serde_json::{json, Value};
+use std::fmt::Write as _;
+
+/// Top cells listed in `where`.
+pub const TOP_CELLS: usize = 20;
+
+fn r4(x: f64) -> f64 {
+    if x.is_finite() {
+        (x * 1e4).round() / 1e4
+    } else {
+        0.0
+    }
+}
+
+/// `diagnosis.json`.
+pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -> Value {
+    let ranked: Vec<Value> = o
+        .ranked
+        .iter()
+        .map(|&i| {
+            let s = &o.stats[i];
+            json!({"effect": s.effect.name(), "score": r4(s.score), "family": s.family.label(),
+                   "earns": s.earns, "n_params": s.n_params, "p_train": s.p_train,
+                   "dchi2_train": r4(s.dchi2_train), "dchi2_heldout": r4(s.dchi2_heldout)})
+        })
+        .collect();
+    let gap = o.gap_cells(exp);
+    let gap_json: Vec<Value> = gap
+        .iter()
+        .take(TOP_CELLS)
+        .map(|g| {
+            json!({"upper": g.upper, "lower": g.lower, "level": g.level, "dof": g.dof,
+                   "case": g.case, "share": r4(g.share), "residual": r4(g.residual)})
+        })
+        .collect();
+    let missing: Vec<Value> = o
+        .design
+        .missing
+        .iter()
+        .map(|m| json!({"case": m.case, "effect": m.effect, "reason": m.reason}))
+        .collect();
+    let mut where_ = gap_json.clone();
+    if o.verdict == "unidentifiable" {
+        // the load cases (or measurements) that would separate the candidates
+        where_ = missing.clone();
+        if where_.is_empty() {
+            where_.push(json!({
+                "case": "translations (tx, ty, tz) of every case, and follower-load series of the moment cases",
+                "effect": "coupled_stiffness vs joint_pose_error",
+                "reason": o.reasons.join("; "),
+            }));
+        }
+    }
+    let (b, a) = o.heldout_rmse();
+    let shrink = if b > 0.0 { 1.0 - a / b } else { 0.0 };
+    let held: Vec<&str> = o
+        .design
+        .heldout
+        .iter()
+        .map(|&i| o.design.cases[i].id.as_str())
+        .collect();
+    let train: Vec<&str> = o
+        .design
+        .train
+        .iter()
+        .map(|&i| o.design.cases[i].id.as_str())
+        .collect();
+    let per: Vec<Value> = o
+        .per_level_dof()
+        .iter()
+        .map(|r| {
+            json!({"level": r.level, "dof": r.dof, "baseline_rmse": r4(r.baseline_rmse),
+                   "augmented_rmse": r4(r.augmented_rmse), "shrink": r4(r.shrink)})
+        })
+        .collect();
+    let tables: serde_json::Map<String, Value> = o
+        .gap_tables()
+        .into_iter()
+        .map(|(k, v)| {
+            (
+                k,
+                Value::Array(
+                    v.iter()
+                        .map(|s| json!({"key": s.key, "share": r4(s.share)}))
+                        .collect(),
+                ),
+            )
+        })
+        .collect();
+    let trans = o.heldout_trans_rmse().map(|(b, a)| {
+        json!({"baseline_rmse": r4(b), "augmented_rmse": r4(a), "shrink": if b > 0.0 { r4(1.0 - a / b) } else { 0.0 }, "units": "mm"})
+    });
+    let candidates: Vec<Value> = o
+        .stats
+        .iter()
+        .map(|s| {
+            json!({"family": s.family.label(), "effect": s.effect.name(), "n_params": s.n_params,
+                   "chi2_train": r4(s.chi2_train), "chi2_heldout": r4(s.chi2_heldout),
+                   "heldout_rotation_rmse": r4(s.heldout_rot_rmse),
+                   "dchi2_train": r4(s.dchi2_train), "p_train": s.p_train, "dbic_train": r4(s.dbic_train),
+                   "dchi2_heldout": r4(s.dchi2_heldout), "score": r4(s.score), "earns": s.earns,
+                   "iterations": s.iterations, "params": s.params})
+        })
+        .collect();
+    json!({
+        "verdict": {
+            "effect": o.verdict,
+            "confidence": r4(o.confidence),
+            "ranked": ranked,
+            "family": o.chosen.map(|i| o.stats[i].family.label()),
+            "reasons": o.reasons,
+        },
+        "where": where_,
+        "gap_cells": gap_json,
+        "gap_tables": tables,
+        "heldout": {
+            "cases": held,
+            "baseline_rmse": r4(b),
+            "augmented_rmse": r4(a),
+            "shrink": r4(shrink),
+            "units": "deg: RMSE over every measured rotational cell (rx, ry, rz) of the held-out cases",
+            "translations": trans,
+            "per_level_dof": per,
+        },
+        "design": {
+            "rule": o.design.rule,
+            "train_cases": train,
+        },
+        "untestable": o.design.untestable.iter().map(|(e, w)| json!({"effect": e, "reason": w})).collect::<Vec<_>>(),
+        "missing_cases": missing,
+        "noise": {"rotation_deg": r4(1.0 / o.noise.rot), "translation_mm": r4(1.0 / o.noise.trans)},
+        "baseline": {"params": o.baseline.family.names.iter().cloned().zip(o.baseline.x.iter().map(|v| r4(*v))).collect::<std::collections::BTreeMap<_, _>>()},
+        "candidates": candidates,
+        "model": model_file,
+        "experiment": exp.name,
+    })
+}
+
+fn curve_spec(c: &Curve) -> CurveSpec {
+    match c {
+        Curve::Linear { k } => CurveSpec::Linear { k: *k },
+        Curve::Cubic { k, c } => CurveSpec::Cubic { k: *k, c: *c },
+        Curve::Sinh { k, a } => CurveSpec::Sinh { k: *k, a: *a },
+        Curve::Bilinear { k_neg, k_pos } => CurveSpec::Bilinear {
+            k_neg: *k_neg,
+            k_pos: *k_pos,
+        },
+        // families never produce tabulated curves
+        Curve::Function(_) => CurveSpec::Linear { k: 0.0 },
+    }
+}
+
+fn level_law(m: &BushingModel, expr: Option<&[String; 6]>) -> LevelLaw {
+    let c = m.damping();
+    match m {
+        BushingModel::PerDof { curves, .. } => LevelLaw::Nonlinear {
+            curves: Box::new(std::array::from_fn(|i| curve_spec(&curves[i]))),
+            c,
+        },
+        BushingModel::Coupled { stiffness, .. } => LevelLaw::Coupled {
+            k: std::array::from_fn(|i| std::array::from_fn(|j| stiffness[(i, j)])),
+            c,
+        },
+        BushingModel::Expression { .. } => LevelLaw::Expression {
+            exprs: Box::new(expr.cloned().unwrap_or_default()),
+            c,
+        },
+        _ => {
+            let p = m.stiffness_params();
+            LevelLaw::Linear {
+                k: std::array::from_fn(|i| p.get(i).copied().unwrap_or(0.0)),
+                c,
+            }
+        }
+    }
+}
+
+/// Body-fixed X-Y-Z angles of a rotation (OpenSim `orientation`).
+pub fn xyz_body_fixed(r: &Rotation3<f64>) -> Vector3<f64> {
+    let m = r.matrix();
+    let b = m[(0, 2)].clamp(-1.0, 1.0).asin();
+    let a = (-m[(1, 2)]).atan2(m[(2, 2)]);
+    let c = (-m[(0, 1)]).atan2(m[(0, 0)]);
+    Vector3::new(a, b, c)
+}
+
+/// Rotation of body-fixed X-Y-Z angles.
+pub fn from_xyz_body_fixed(v: &Vector3<f64>) -> Rotation3<f64> {
+    Rotation3::from_axis_angle(&Vector3::x_axis(), v.x)
+        * Rotation3::from_axis_angle(&Vector3::y_axis(), v.y)
+        * Rotation3::from_axis_angle(&Vector3::z_axis(), v.z)
+}
+
+/// Move the PhysicalOffsetFrame a bushing socket points to (`/jointset/J/F`)
+/// by `t`: `X -> X * t`.
+fn move_socket_frame(doc: &mut Document, socket: &str, t: &Isometry3<f64>) -> Result<()> {
+    let file = doc.path().display().to_string();
+    let parts: Vec<&str> = socket.trim_start_matches('/').split('/').collect();
+    let [set, joint, frame] = parts.as_slice() else {
+        return Err(Error::invalid(
+            file,
+            format!("bushing socket '{socket}' is not /jointset/JOINT/FRAME"),
+        ));
+    };
+    if *set != "jointset" {
+        return Err(Error::invalid(
+            file,
+            format!("bushing socket '{socket}' is not a joint frame"),
+        ));
+    }
+    let j = doc
+        .component_mut("JointSet", joint)
+        .ok_or_else(|| Error::invalid(file.clone(), format!("joint '{joint}' not found")))?;
+    let frames = j
+        .child_mut("frames")
+        .ok_or_else(|| Error::invalid(file.clone(), format!("joint '{joint}' has no frames")))?;
+    let f = frames
+        .elements_mut()
+        .find(|e| e.name_attr() == *frame)
+        .ok_or_else(|| {
+            Error::invalid(
+                file.clone(),
+                format!("frame '{frame}' of joint '{joint}' not found"),
+            )
+        })?;
+    let nums = |s: Option<String>| -> Vector3<f64> {
+        let v: Vec<f64> = s
+            .unwrap_or_default()
+            .split_whitespace()
+            .filter_map(|x| x.parse().ok())
+            .collect();
+        if v.len() == 3 {
+            Vector3::new(v[0], v[1], v[2])
+        } else {
+            Vector3::zeros()
+        }
+    };
+    let p = nums(f.child_text("translation"));
+    let o = nums(f.child_text("orientation"));
+    let x = Isometry3::from_parts(
+        Translation3::from(p),
+        UnitQuaternion::from_rotation_matrix(&from_xyz_body_fixed(&o)),
+    );
+    let y = x * t;
+    let ang = xyz_body_fixed(&y.rotation.to_rotation_matrix());
+    crate::osim::document::set_vec3(f, "translation", &y.translation.vector);
+    crate::osim::document::set_vec3(f, "orientation", &ang);
+    Ok(())
+}
+
+/// The nominal model with the variant's laws and joint frames.
+pub fn improved_model(sim: &Sim, exp: &Experiment, v: &Variant) -> Result<Document> {
+    let mut doc = exp.doc.clone();
+    let levels = personalise::levels(&doc)?;
+    let mut laws = Vec::new();
+    for (li, l) in sim.levels.iter().enumerate() {
+        let bname = sim
+            .base
+            .bushing_names()
+            .nth(l.bushing)
+            .unwrap_or("")
+            .to_string();
+        let Some(pl) = levels.iter().find(|x| x.bushing == bname) else {
+            return Err(Error::invalid(
+                exp.model_path.display().to_string(),
+                format!("bushing '{bname}' is not a level of the document"),
+            ));
+        };
+        if let Some(m) = v.laws.get(li) {
+            let e = v.expressions.get(li).and_then(|e| e.as_ref());
+            laws.push((pl.clone(), level_law(m, e)));
+        }
+        if let Some(Some(t)) = v.frames.get(li) {
+            let e = doc.component("ForceSet", &bname).ok_or_else(|| {
+                Error::invalid(
+                    exp.model_path.display().to_string(),
+                    format!("bushing '{bname}' not found"),
+                )
+            })?;
+            let s1 = e.child_text("socket_frame1").unwrap_or_default();
+            let s2 = e.child_text("socket_frame2").unwrap_or_default();
+            move_socket_frame(&mut doc, s1.trim(), t)?;
+            move_socket_frame(&mut doc, s2.trim(), t)?;
+        }
+    }
+    personalise::apply(&mut doc, &laws)?;
+    Ok(doc)
+}
+
+fn color(v: f64) -> String {
+    // diverging: blue (negative) - white - red (positive), v in [-1, 1]
+    let v = v.clamp(-1.0, 1.0);
+    let (r, g, b) = if v >= 0.0 {
+        (255.0, 255.0 * (1.0 - v), 255.0 * (1.0 - v))
+    } else {
+        (255.0 * (1.0 + v), 255.0 * (1.0 + v), 255.0)
+    };
+    format!("rgb({},{},{})", r as u8, g as u8, b as u8)
+}
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+/// Residual map (levels x (case, DoF)) of the baseline and the augmented
+/// model on every case, held-out cases marked; colour scaled by the
+/// largest baseline residual of each DoF class.
+pub fn residual_map_svg(o: &Outcome, exp: &Experiment) -> String {
+    let sim = &o.sim;
+    let dofs: Vec<usize> = (0..6)
+        .filter(|d| sim.cells.iter().any(|c| c.dof == *d))
+        .collect();
+    let nc = exp.cases.len();
+    let nl = sim.levels.len();
+    let cw = 6.0;
+    let ch = 14.0;
+    let left = 70.0;
+    let panel_w = cw * (nc * dofs.len()) as f64;
+    let panel_h = ch * nl as f64;
+    let w = left + panel_w + 20.0;
+    let h = 40.0 + 2.0 * (panel_h + 50.0);
+    let scale = |rot: bool| {
+        sim.cells
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| (c.dof < 3) == rot)
+            .map(|(i, _)| o.baseline.residual(sim, i).abs())
+            .fold(1e-9, f64::max)
+    };
+    let (sr, st) = (scale(true), scale(false));
+    let mut s = String::new();
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w:.0}" height="{h:.0}" font-family="sans-serif" font-size="10">"#
+    );
+    let _ = write!(s, r#"<rect width="100%" height="100%" fill="white"/>"#);
+    let held: Vec<bool> = (0..nc).map(|i| o.design.heldout.contains(&i)).collect();
+    for (pi, (title, fit)) in [("baseline", &o.baseline), ("augmented", o.augmented())]
+        .iter()
+        .enumerate()
+    {
+        let y0 = 30.0 + pi as f64 * (panel_h + 50.0);
+        let _ = write!(
+            s,
+            r#"<text x="{left}" y="{:.1}">{} residual (predicted - measured), columns: case x DoF ({}), scale +-{:.3} deg / +-{:.3} mm; held-out cases underlined</text>"#,
+            y0 - 8.0,
+            title,
+            dofs.iter()
+                .map(|d| DOF_NAMES[*d])
+                .collect::<Vec<_>>()
+                .join(","),
+            sr,
+            st
+        );
+        for (li, l) in sim.levels.iter().enumerate() {
+            let _ = write!(
+                s,
+                r#"<text x="4" y="{:.1}">{}</text>"#,
+                y0 + ch * (li as f64 + 0.75),
+                esc(&l.name)
+            );
+        }
+        for (ci, c) in sim.cells.iter().enumerate() {
+            let Some(dk) = dofs.iter().position(|d| *d == c.dof) else {
+                continue;
+            };
+            let x = left + cw * (c.case * dofs.len() + dk) as f64;
+            let y = y0 + ch * c.level as f64;
+            let r = fit.residual(sim, ci) / if c.dof < 3 { sr } else { st };
+            let _ = write!(
+                s,
+                r#"<rect x="{x:.1}" y="{y:.1}" width="{cw}" height="{ch}" fill="{}"/>"#,
+                color(r)
+            );
+        }
+        for (i, hd) in held.iter().enumerate() {
+            if *hd {
+                let x = left + cw * (i * dofs.len()) as f64;
+                let _ = write!(
+                    s,
+                    r#"<rect x="{x:.1}" y="{:.1}" width="{:.1}" height="3" fill="black"/>"#,
+                    y0 + panel_h + 2.0,
+                    cw * dofs.len() as f64
+                );
+            }
+        }
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+/// Measured vs predicted total rotation (sum over levels of the primary
+/// DoF) against the signed moment, one panel per load axis, pure-moment
+/// cases and each follower load separately.
+pub fn curves_svg(o: &Outcome, _exp: &Experiment) -> String {
+    let sim = &o.sim;
+    let info = &o.design.cases;
+    let pw = 260.0;
+    let ph = 200.0;
+    let mut s = String::new();
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{:.0}" height="{:.0}" font-family="sans-serif" font-size="10">"#,
+        3.0 * (pw + 40.0) + 20.0,
+        ph + 80.0
+    );
+    let _ = write!(s, r#"<rect width="100%" height="100%" fill="white"/>"#);
+    let fits = [
+        ("measured", None, "black"),
+        ("baseline", Some(&o.baseline), "#1f77b4"),
+        ("augmented", Some(o.augmented()), "#d62728"),
+    ];
+    for a in 0..3 {
+        let x0 = 40.0 + a as f64 * (pw + 40.0);
+        let y0 = 30.0;
+        // (signed moment, follower, total) per case per series
+        let mut pts: Vec<Vec<(f64, f64, f64, bool)>> = vec![Vec::new(); 3];
+        for (ci, c) in info.iter().enumerate() {
+            if c.axis != Some(a) {
+                continue;
+            }
+            let m = c.sign as f64 * c.magnitude;
+            for (k, (_, f, _)) in fits.iter().enumerate() {
+                let tot: f64 = sim
+                    .cells
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, x)| x.case == ci && x.dof == a)
+                    .map(|(_, x)| match f {
+                        None => x.measured,
+                        Some(f) => f.pred[x.row][x.dof],
+                    })
+                    .sum();
+                pts[k].push((m, c.follower, tot, o.design.heldout.contains(&ci)));
+            }
+        }
+        let mx = pts.iter().flatten().map(|p| p.0.abs()).fold(1e-9, f64::max);
+        let my = pts.iter().flatten().map(|p| p.2.abs()).fold(1e-9, f64::max);
+        let px = |m: f64| x0 + pw * (0.5 + 0.5 * m / mx);
+        let py = |v: f64| y0 + ph * (0.5 - 0.5 * v / my);
+        let _ = write!(
+            s,
+            r#"<rect x="{x0}" y="{y0}" width="{pw}" height="{ph}" fill="none" stroke="gray"/>"#
+        );
+        let _ = write!(
+            s,
+            r#"<text x="{x0}" y="{:.0}">{} moment (N m, +-{:.1}) vs total {} (deg, +-{:.2})</text>"#,
+            y0 - 8.0,
+            super::design::AXIS_NAMES[a],
+            mx,
+            DOF_NAMES[a],
+            my
+        );
+        for (k, (_, _, col)) in fits.iter().enumerate() {
+            let mut series = pts[k].clone();
+            series.sort_by(|p, q| p.1.total_cmp(&q.1).then(p.0.total_cmp(&q.0)));
+            if k == 0 {
+                for p in &series {
+                    let r = if p.3 { 3.5 } else { 2.0 };
+                    let _ = write!(
+                        s,
+                        r#"<circle cx="{:.1}" cy="{:.1}" r="{r}" fill="{col}"/>"#,
+                        px(p.0),
+                        py(p.2)
+                    );
+                }
+            } else {
+                let mut fl = f64::NAN;
+                let mut path = String::new();
+                for p in &series {
+                    let cmd = if p.1 != fl { "M" } else { "L" };
+                    fl = p.1;
+                    let _ = write!(path, "{cmd}{:.1},{:.1} ", px(p.0), py(p.2));
+                }
+                let _ = write!(s, r#"<path d="{path}" fill="none" stroke="{col}"/>"#);
+            }
+        }
+    }
+    let _ = write!(
+        s,
+        r##"<text x="40" y="{:.0}">black dots: measured (large: held out); blue: baseline; red: augmented ({})</text>"##,
+        ph + 60.0,
+        esc(o
+            .chosen
+            .map(|i| o.stats[i].family.label())
+            .unwrap_or("none"))
+    );
+    s.push_str("</svg>\n");
+    s
+}
+
+/// The Markdown report.
+pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
+    let mut m = String::new();
+    let _ = writeln!(m, "# Sim-to-real gap diagnosis: {}\n", exp.name);
+    let _ = writeln!(
+        m,
+        "**Verdict: `{}`** (confidence {:.2})\n",
+        o.verdict, o.confidence
+    );
+    for r in &o.reasons {
+        let _ = writeln!(m, "- {r}");
+    }
+    let _ = writeln!(m, "\n## Design\n\n{}\n", o.design.rule);
+    let _ = writeln!(
+        m,
+        "Training cases: {}; held-out cases: {}.\n",
+        o.design.train.len(),
+        o.design.heldout.len()
+    );
+    if !o.design.untestable.is_empty() {
+        let _ = writeln!(m, "Untestable by design:\n");
+        for (e, w) in &o.design.untestable {
+            let _ = writeln!(m, "- `{e}`: {w}");
+        }
+        let _ = writeln!(m);
+    }
+    let _ = writeln!(
+        m,
+        "Noise estimate: {:.4} deg (rotations), {:.4} mm (translations).\n",
+        1.0 / o.noise.rot,
+        1.0 / o.noise.trans
+    );
+    let _ = writeln!(m, "## Candidates\n\n| family | effect | params | dchi2 train | p train | dchi2 held-out | score | earns |\n|---|---|---|---|---|---|---|---|");
+    for &i in &o.ranked {
+        let s = &o.stats[i];
+        let _ = writeln!(
+            m,
+            "| {} | {} | {} | {:.1} | {:.2e} | {:.1} | {:.1} | {} |",
+            s.family.label(),
+            s.effect.name(),
+            s.n_params,
+            s.dchi2_train,
+            s.p_train,
+            s.dchi2_heldout,
+            s.score,
+            if s.earns { "yes" } else { "no" }
+        );
+    }
+    let (b, a) = o.heldout_rmse();
+    let _ = writeln!(m, "\n## How far: held-out rotation RMSE\n\nbaseline {:.4} deg, augmented {:.4} deg, shrink {:.3}.\n", b, a, if b > 0.0 { 1.0 - a / b } else { 0.0 });
+    let _ = writeln!(
+        m,
+        "| level | DoF | baseline | augmented | shrink |\n|---|---|---|---|---|"
+    );
+    for r in o.per_level_dof() {
+        let _ = writeln!(
+            m,
+            "| {} | {} | {:.4} | {:.4} | {:.2} |",
+            r.level, r.dof, r.baseline_rmse, r.augmented_rmse, r.shrink
+        );
+    }
+    let _ = writeln!(m, "\n## Where: cells carrying the held-out gap (baseline)\n\n| level | DoF | case | share | residual |\n|---|---|---|---|---|");
+    for g in o.gap_cells(exp).iter().take(TOP_CELLS) {
+        let _ = writeln!(
+            m,
+            "| {} | {} | {} | {:.3} | {:.4} |",
+            g.level, g.dof, g.case, g.share, g.residual
+        );
+    }
+    for (name, rows) in o.gap_tables() {
+        let _ = writeln!(
+            m,
+            "\n**{name}**: {}",
+            rows.iter()
+                .map(|r| format!("{} {:.2}", r.key, r.share))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    if o.verdict == "unidentifiable" {
+        let _ = writeln!(m, "\n## Load cases that would separate the candidates\n");
+        if let Some(Value::Array(w)) = json.get("where") {
+            for x in w {
+                let _ = writeln!(
+                    m,
+                    "- `{}` ({}): {}",
+                    x["case"].as_str().unwrap_or(""),
+                    x["effect"].as_str().unwrap_or(""),
+                    x["reason"].as_str().unwrap_or("")
+                );
+            }
+        }
+    }
+    let _ = writeln!(
+        m,
+        "\n## Figures\n\n![residual map](residual_map.svg)\n\n![curves](curves.svg)\n"
+    );
+    m
+}

@@ -1,0 +1,672 @@
+//! The diagnosis procedure: baseline and candidate fits on the training
+//! cases, the noise estimate, the selection statistics, the verdict, the
+//! decomposition of the held-out gap and the held-out shrink.
+//!
+//! **Noise.** The residuals are in report units (deg, mm) weighted 1:1 for
+//! the fits. The noise variance of each class (rotations, translations)
+//! is estimated from the training residuals of the best-fitting family
+//! (lowest training sum of squares), divided by its degrees of freedom
+//! (`n_class - p n_class / n`); chi-squares below use these variances.
+//!
+//! **Criterion.** For each effect, the variant with the lowest training
+//! BIC is kept. It *earns* its parameters when (a) the training
+//! improvement over the baseline is significant, `P(chi2_dp > dchi2_train)
+//! < alpha` with `alpha = 1e-4`, and (b) it predicts the held-out cases
+//! better, `dchi2_heldout > 3.84`. Its score is `dchi2_heldout + dBIC_train`
+//! (both twice a log-likelihood ratio over the baseline); `none` scores 0.
+//! The confidence is the tempered Akaike weight of the winner over the
+//! earning effects and `none`, the temperature being the winner's held-out
+//! reduced chi-square (>= 1: misfit on unseen cases discounts the evidence).
+//!
+//! **Unidentifiable.** (a) design: an effect the design cannot test
+//! (single magnitude, single direction; not the absence of follower loads,
+//! which only makes preload stiffening untestable and is reported in
+//! `untestable`) and no effect earning its parameters, or the winner
+//! closing less than [`DECISIVE_SHRINK`] of the held-out gap; (b) data: the
+//! runner-up's score within [`INDISTINGUISHABLE`] of the winner's.
+
+use super::design::{Design, AXIS_NAMES};
+use super::family::{Effect, Family, Kind};
+use super::fit::{dominant_level, fit, kinds, Fitted, Weights};
+use super::sim::Sim;
+use crate::calibrate::experiment::{Experiment, DOF_NAMES};
+use crate::error::Result;
+use rayon::prelude::*;
+use serde::Serialize;
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+use std::collections::BTreeMap;
+
+/// Training significance level.
+pub const ALPHA: f64 = 1e-4;
+/// Held-out chi-square improvement required (95% of chi2 with 1 dof).
+pub const HELDOUT_MIN: f64 = 3.84;
+/// Score margin under which the two best effects are indistinguishable.
+pub const INDISTINGUISHABLE: f64 = 6.0;
+
+/// Held-out shrink a candidate needs to be reported while some effect is
+/// untestable by design.
+pub const DECISIVE_SHRINK: f64 = 0.5;
+
+/// Options.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// LM iterations per fit.
+    pub max_iterations: usize,
+    /// Show progress on stderr.
+    pub progress: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            max_iterations: 40,
+            progress: true,
+        }
+    }
+}
+
+/// Statistics of one fitted family.
+#[derive(Debug, Clone, Serialize)]
+pub struct CandidateStats {
+    pub family: Kind,
+    pub effect: Effect,
+    pub n_params: usize,
+    pub chi2_train: f64,
+    pub chi2_heldout: f64,
+    /// Rotation RMSE on the held-out cases (deg).
+    pub heldout_rot_rmse: f64,
+    /// Training chi-square improvement over the baseline.
+    pub dchi2_train: f64,
+    /// Its p-value (chi-square with the extra parameters as dof).
+    pub p_train: f64,
+    pub dbic_train: f64,
+    pub dchi2_heldout: f64,
+    pub score: f64,
+    pub earns: bool,
+    pub iterations: usize,
+    pub params: BTreeMap<String, f64>,
+}
+
+/// A cell of the held-out gap.
+#[derive(Debug, Clone, Serialize)]
+pub struct GapCell {
+    pub upper: String,
+    pub lower: String,
+    pub level: String,
+    pub dof: String,
+    pub case: String,
+    /// Share of the held-out chi-square of the baseline.
+    pub share: f64,
+    /// Baseline residual (predicted - measured), deg or mm.
+    pub residual: f64,
+}
+
+/// A row of an aggregate table.
+#[derive(Debug, Clone, Serialize)]
+pub struct Share {
+    pub key: String,
+    pub share: f64,
+}
+
+/// RMSE per level and DoF.
+#[derive(Debug, Clone, Serialize)]
+pub struct LevelDofRmse {
+    pub level: String,
+    pub dof: String,
+    pub baseline_rmse: f64,
+    pub augmented_rmse: f64,
+    pub shrink: f64,
+}
+
+/// The outcome of a diagnosis (everything reports need).
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub sim: Sim,
+    pub design: Design,
+    pub noise: Weights,
+    pub baseline: Fitted,
+    pub fits: Vec<Fitted>,
+    pub stats: Vec<CandidateStats>,
+    /// Best variant per effect (index into `fits`), ranked by score.
+    pub ranked: Vec<usize>,
+    /// `none`, an effect name or `unidentifiable`.
+    pub verdict: String,
+    pub confidence: f64,
+    /// The family used for the held-out comparison and the improved model
+    /// (None for `none`).
+    pub chosen: Option<usize>,
+    pub reasons: Vec<String>,
+}
+
+fn chi2_of(sim: &Sim, f: &Fitted, cells: &[usize], w: Weights) -> f64 {
+    cells
+        .iter()
+        .map(|&c| (f.residual(sim, c) * w.of(sim.cells[c].dof)).powi(2))
+        .sum()
+}
+
+fn rmse(sim: &Sim, f: &Fitted, cells: &[usize]) -> f64 {
+    if cells.is_empty() {
+        return f64::NAN;
+    }
+    (cells
+        .iter()
+        .map(|&c| f.residual(sim, c).powi(2))
+        .sum::<f64>()
+        / cells.len() as f64)
+        .sqrt()
+}
+
+/// Run the diagnosis on an experiment.
+pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
+    let sim = Sim::new(exp)?;
+    let design = Design::new(&exp.cases);
+    let in_train: Vec<bool> = (0..exp.cases.len())
+        .map(|i| design.train.contains(&i))
+        .collect();
+    let train_cells: Vec<usize> = (0..sim.cells.len())
+        .filter(|&c| in_train[sim.cells[c].case])
+        .collect();
+    let ho_cells: Vec<usize> = (0..sim.cells.len())
+        .filter(|&c| !in_train[sim.cells[c].case])
+        .collect();
+    let has_trans = sim.cells.iter().any(|c| c.dof >= 3);
+    let unit = Weights {
+        rot: 1.0,
+        trans: 1.0,
+    };
+    let kinds = kinds(design.has_follower);
+    let offsets = has_trans || design.has_follower;
+    let pb = if opts.progress {
+        let pb = indicatif::ProgressBar::new(kinds.len() as u64 + 3 + offsets as u64);
+        pb.set_style(
+            indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        pb.set_message("baseline");
+        pb
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let baseline = fit(
+        &sim,
+        Family::new(Kind::Baseline, &sim, [0.0; 3]),
+        &train_cells,
+        &design.train,
+        unit,
+        opts.max_iterations,
+    )?;
+    pb.inc(1);
+    pb.set_message("candidates");
+    let g = [baseline.x[0], baseline.x[1], baseline.x[2]];
+    let mut fits: Vec<Fitted> = kinds
+        .par_iter()
+        .map(|&k| {
+            let r = fit(
+                &sim,
+                Family::new(k, &sim, g),
+                &train_cells,
+                &design.train,
+                unit,
+                opts.max_iterations,
+            );
+            pb.inc(1);
+            r
+        })
+        .collect::<Vec<Result<Fitted>>>()
+        .into_iter()
+        .collect::<Result<Vec<_>>>()?;
+    // second stage: pose with offsets from the rotation-only pose fit, and
+    // the local (one-level) coupling and pose variants at the level that
+    // carries most of the per-level fit
+    pb.set_message("pose offsets, local variants");
+    let find = |fits: &[Fitted], k: Kind| fits.iter().position(|f| f.family.kind == k);
+    let nl = sim.levels.len();
+    let mut stage2: Vec<Family> = Vec::new();
+    if let Some(i) = find(&fits, Kind::JointRotation) {
+        let rot = &fits[i];
+        let lj = dominant_level(&sim, rot, &train_cells, &design.train, 3)?;
+        let mut mask = vec![false; nl];
+        mask[lj] = true;
+        let mut loc = Family::masked(Kind::JointLocal, &sim, g, mask, offsets);
+        if let Some(x) = loc.x0.get_mut(..3) {
+            x.copy_from_slice(&rot.x[..3]);
+        }
+        for k in 0..3 {
+            if let (Some(v), Some(r)) = (loc.x0.get_mut(3 + k), rot.x.get(3 + 3 * lj + k)) {
+                *v = *r;
+            }
+        }
+        stage2.push(loc);
+        if offsets {
+            let mut pose = Family::new(Kind::JointPose, &sim, g);
+            pose.x0[..3].copy_from_slice(&rot.x[..3]);
+            for li in 0..nl {
+                for k in 0..3 {
+                    pose.x0[3 + 6 * li + k] = rot.x[3 + 3 * li + k];
+                }
+            }
+            stage2.push(pose);
+        }
+    }
+    if let Some(i) = find(&fits, Kind::CoupledPerLevel) {
+        let cp = &fits[i];
+        let lc = dominant_level(&sim, cp, &train_cells, &design.train, 3)?;
+        let mut mask = vec![false; nl];
+        mask[lc] = true;
+        let mut loc = Family::masked(Kind::CoupledLocal, &sim, g, mask, false);
+        for k in 0..6 {
+            let src = if k < 3 { k } else { 3 + 3 * lc + (k - 3) };
+            if let (Some(v), Some(r)) = (loc.x0.get_mut(k), cp.x.get(src)) {
+                *v = *r;
+            }
+        }
+        stage2.push(loc);
+    }
+    let more = stage2
+        .into_par_iter()
+        .map(|f| {
+            let r = fit(
+                &sim,
+                f,
+                &train_cells,
+                &design.train,
+                unit,
+                opts.max_iterations,
+            );
+            pb.inc(1);
+            r
+        })
+        .collect::<Vec<Result<Fitted>>>()
+        .into_iter()
+        .collect::<Result<Vec<_>>>()?;
+    fits.extend(more);
+    pb.finish_and_clear();
+
+    // noise from the best-fitting family
+    let n = train_cells.len() as f64;
+    let class_sse = |f: &Fitted, rot: bool| -> (f64, f64) {
+        let v: Vec<f64> = train_cells
+            .iter()
+            .filter(|&&c| (sim.cells[c].dof < 3) == rot)
+            .map(|&c| f.residual(&sim, c).powi(2))
+            .collect();
+        (v.iter().sum(), v.len() as f64)
+    };
+    let best = fits
+        .iter()
+        .chain(std::iter::once(&baseline))
+        .min_by(|a, b| {
+            let sa: f64 = train_cells
+                .iter()
+                .map(|&c| a.residual(&sim, c).powi(2))
+                .sum();
+            let sb: f64 = train_cells
+                .iter()
+                .map(|&c| b.residual(&sim, c).powi(2))
+                .sum();
+            sa.total_cmp(&sb)
+        })
+        .unwrap_or(&baseline);
+    let sigma = |rot: bool| -> f64 {
+        let (sse, nc) = class_sse(best, rot);
+        if nc == 0.0 {
+            return 1.0;
+        }
+        let dof = (nc - best.x.len() as f64 * nc / n).max(1.0);
+        (sse / dof).sqrt().max(1e-6)
+    };
+    let noise = Weights {
+        rot: 1.0 / sigma(true),
+        trans: 1.0 / sigma(false),
+    };
+    let chi_b_tr = chi2_of(&sim, &baseline, &train_cells, noise);
+    let chi_b_ho = chi2_of(&sim, &baseline, &ho_cells, noise);
+    let ho_rot: Vec<usize> = ho_cells
+        .iter()
+        .copied()
+        .filter(|&c| sim.cells[c].dof < 3)
+        .collect();
+    let p0 = baseline.x.len();
+    let mut stats = Vec::new();
+    for f in &fits {
+        let chi_tr = chi2_of(&sim, f, &train_cells, noise);
+        let chi_ho = chi2_of(&sim, f, &ho_cells, noise);
+        let dp = (f.x.len() - p0).max(1) as f64;
+        let d_tr = chi_b_tr - chi_tr;
+        let p_train = if d_tr > 0.0 {
+            ChiSquared::new(dp).map(|c| c.sf(d_tr)).unwrap_or(1.0)
+        } else {
+            1.0
+        };
+        let dbic = d_tr - dp * n.ln();
+        let d_ho = chi_b_ho - chi_ho;
+        let untestable = design.is_untestable(f.family.kind.effect().name());
+        let earns = !untestable && p_train < ALPHA && d_ho > HELDOUT_MIN;
+        stats.push(CandidateStats {
+            family: f.family.kind,
+            effect: f.family.kind.effect(),
+            n_params: f.x.len(),
+            chi2_train: chi_tr,
+            chi2_heldout: chi_ho,
+            heldout_rot_rmse: rmse(&sim, f, &ho_rot),
+            dchi2_train: d_tr,
+            p_train,
+            dbic_train: dbic,
+            dchi2_heldout: d_ho,
+            score: d_ho + dbic,
+            earns,
+            iterations: f.iterations,
+            params: f
+                .family
+                .names
+                .iter()
+                .cloned()
+                .zip(f.x.iter().copied())
+                .collect(),
+        });
+    }
+    // best variant per effect: lowest training BIC
+    let mut per_effect: BTreeMap<Effect, usize> = BTreeMap::new();
+    for (i, s) in stats.iter().enumerate() {
+        let e = per_effect.entry(s.effect).or_insert(i);
+        let bic = |s: &CandidateStats| s.chi2_train + s.n_params as f64 * n.ln();
+        if bic(s) < bic(&stats[*e]) {
+            *e = i;
+        }
+    }
+    let mut ranked: Vec<usize> = per_effect.values().copied().collect();
+    ranked.sort_by(|a, b| stats[*b].score.total_cmp(&stats[*a].score).then(a.cmp(b)));
+    let earning: Vec<usize> = ranked.iter().copied().filter(|&i| stats[i].earns).collect();
+    let mut reasons = Vec::new();
+    let (verdict, chosen, confidence);
+    let design_gaps: Vec<&(String, String)> = design
+        .untestable
+        .iter()
+        .filter(|(e, _)| e != "preload_stiffening")
+        .collect();
+    if let Some(&top) = earning.first() {
+        let t = (stats[top].chi2_heldout / ho_cells.len().max(1) as f64).max(1.0);
+        let top_score = stats[top].score;
+        let mut z = (-(top_score) / (2.0 * t)).exp(); // none
+        for &i in &earning {
+            z += ((stats[i].score - top_score) / (2.0 * t)).exp();
+        }
+        confidence = 1.0 / z;
+        chosen = Some(top);
+        if let Some(&second) = earning.get(1) {
+            if top_score - stats[second].score < INDISTINGUISHABLE * t {
+                reasons.push(format!(
+                    "{} and {} explain the gap equally well (scores {:.1} and {:.1})",
+                    stats[top].effect.name(),
+                    stats[second].effect.name(),
+                    top_score,
+                    stats[second].score
+                ));
+            }
+        }
+        // an effect the design cannot test could carry the gap too: only a
+        // candidate that closes most of the held-out gap excludes it
+        let (b_rot, top_rot) = {
+            let hr: Vec<usize> = ho_cells
+                .iter()
+                .copied()
+                .filter(|&c| sim.cells[c].dof < 3)
+                .collect();
+            (rmse(&sim, &baseline, &hr), stats[top].heldout_rot_rmse)
+        };
+        let top_shrink = if b_rot > 0.0 {
+            1.0 - top_rot / b_rot
+        } else {
+            0.0
+        };
+        if !design_gaps.is_empty() && top_shrink < DECISIVE_SHRINK {
+            for (e, why) in &design_gaps {
+                reasons.push(format!(
+                    "{e} cannot be tested ({why}) and {} closes only {:.0}% of the held-out gap",
+                    stats[top].effect.name(),
+                    100.0 * top_shrink
+                ));
+            }
+        }
+        verdict = if reasons.is_empty() {
+            stats[top].effect.name().to_string()
+        } else {
+            "unidentifiable".to_string()
+        };
+    } else {
+        chosen = ranked.first().copied().filter(|_| !design_gaps.is_empty());
+        if design_gaps.is_empty() {
+            verdict = "none".to_string();
+            // none's tempered weight against every candidate
+            let z: f64 = ranked
+                .iter()
+                .map(|&i| (stats[i].score / 2.0).min(50.0).exp())
+                .sum();
+            confidence = 1.0 / (1.0 + z);
+        } else {
+            verdict = "unidentifiable".to_string();
+            confidence = 0.0;
+            for (e, why) in &design_gaps {
+                reasons.push(format!("{e} cannot be tested: {why}"));
+            }
+        }
+    }
+    Ok(Outcome {
+        sim,
+        design,
+        noise,
+        baseline,
+        fits,
+        stats,
+        ranked,
+        verdict,
+        confidence,
+        chosen,
+        reasons,
+    })
+}
+
+impl Outcome {
+    /// Indices of held-out cells.
+    pub fn heldout_cells(&self) -> Vec<usize> {
+        let held: Vec<bool> = (0..self.sim.loads.len())
+            .map(|i| self.design.heldout.contains(&i))
+            .collect();
+        (0..self.sim.cells.len())
+            .filter(|&c| held[self.sim.cells[c].case])
+            .collect()
+    }
+
+    /// The augmented fit (the baseline when nothing is chosen).
+    pub fn augmented(&self) -> &Fitted {
+        self.chosen
+            .and_then(|i| self.fits.get(i))
+            .unwrap_or(&self.baseline)
+    }
+
+    /// Held-out rotation RMSE (deg) of the baseline and the augmented model.
+    pub fn heldout_rmse(&self) -> (f64, f64) {
+        let rot: Vec<usize> = self
+            .heldout_cells()
+            .into_iter()
+            .filter(|&c| self.sim.cells[c].dof < 3)
+            .collect();
+        (
+            rmse(&self.sim, &self.baseline, &rot),
+            rmse(&self.sim, self.augmented(), &rot),
+        )
+    }
+
+    /// Held-out translation RMSE (mm), when measured.
+    pub fn heldout_trans_rmse(&self) -> Option<(f64, f64)> {
+        let tr: Vec<usize> = self
+            .heldout_cells()
+            .into_iter()
+            .filter(|&c| self.sim.cells[c].dof >= 3)
+            .collect();
+        if tr.is_empty() {
+            return None;
+        }
+        Some((
+            rmse(&self.sim, &self.baseline, &tr),
+            rmse(&self.sim, self.augmented(), &tr),
+        ))
+    }
+
+    /// Cells of the baseline's held-out gap, by share of its chi-square.
+    pub fn gap_cells(&self, exp: &Experiment) -> Vec<GapCell> {
+        let cells = self.heldout_cells();
+        let w = self.noise;
+        let total: f64 = cells
+            .iter()
+            .map(|&c| (self.baseline.residual(&self.sim, c) * w.of(self.sim.cells[c].dof)).powi(2))
+            .sum();
+        let mut out: Vec<GapCell> = cells
+            .iter()
+            .map(|&c| {
+                let cell = &self.sim.cells[c];
+                let r = self.baseline.residual(&self.sim, c);
+                let l = &self.sim.levels[cell.level];
+                GapCell {
+                    upper: l.upper_name.clone(),
+                    lower: l.lower_name.clone(),
+                    level: l.name.clone(),
+                    dof: DOF_NAMES[cell.dof].to_string(),
+                    case: exp
+                        .cases
+                        .get(cell.case)
+                        .map(|c| c.id.clone())
+                        .unwrap_or_default(),
+                    share: if total > 0.0 {
+                        (r * w.of(cell.dof)).powi(2) / total
+                    } else {
+                        0.0
+                    },
+                    residual: r,
+                }
+            })
+            .collect();
+        out.sort_by(|a, b| b.share.total_cmp(&a.share).then(a.case.cmp(&b.case)));
+        out
+    }
+
+    /// Aggregates of the baseline's held-out gap: by level, DoF, load axis,
+    /// magnitude, and by sign parity (the odd part `(r+ - r-)/2` and even
+    /// part `(r+ + r-)/2` of the residuals over +/- pairs of cases).
+    pub fn gap_tables(&self) -> BTreeMap<String, Vec<Share>> {
+        let cells = self.heldout_cells();
+        let w = self.noise;
+        let sq =
+            |c: usize| (self.baseline.residual(&self.sim, c) * w.of(self.sim.cells[c].dof)).powi(2);
+        let total: f64 = cells.iter().map(|&c| sq(c)).sum::<f64>().max(1e-300);
+        let mut tables = BTreeMap::new();
+        let mut agg = |name: &str, key: &dyn Fn(usize) -> String| {
+            let mut m: BTreeMap<String, f64> = BTreeMap::new();
+            for &c in &cells {
+                *m.entry(key(c)).or_insert(0.0) += sq(c) / total;
+            }
+            let mut v: Vec<Share> = m
+                .into_iter()
+                .map(|(key, share)| Share { key, share })
+                .collect();
+            v.sort_by(|a, b| b.share.total_cmp(&a.share).then(a.key.cmp(&b.key)));
+            tables.insert(name.to_string(), v);
+        };
+        let sim = &self.sim;
+        let info = &self.design.cases;
+        agg("by_level", &|c| sim.levels[sim.cells[c].level].name.clone());
+        agg("by_dof", &|c| DOF_NAMES[sim.cells[c].dof].to_string());
+        agg("by_load_axis", &|c| {
+            info[sim.cells[c].case]
+                .axis
+                .map(|a| AXIS_NAMES[a].to_string())
+                .unwrap_or_else(|| "none".into())
+        });
+        agg("by_magnitude", &|c| {
+            let i = &info[sim.cells[c].case];
+            format!("{} N m, follower {} N", i.magnitude, i.follower)
+        });
+        // parity: pair each held-out case with its mirror (same axis, magnitude, follower, other sign)
+        let mut odd = 0.0;
+        let mut even = 0.0;
+        let mut unpaired = 0.0;
+        for &c in &cells {
+            let cell = &sim.cells[c];
+            let ic = &info[cell.case];
+            let Some(_) = ic.axis else {
+                unpaired += sq(c) / total;
+                continue;
+            };
+            let mirror = cells.iter().copied().find(|&o| {
+                let oc = &sim.cells[o];
+                let io = &info[oc.case];
+                oc.level == cell.level
+                    && oc.dof == cell.dof
+                    && io.axis == ic.axis
+                    && io.sign == -ic.sign
+                    && (io.magnitude - ic.magnitude).abs() < 1e-9
+                    && (io.follower - ic.follower).abs() < 1e-9
+            });
+            match mirror {
+                Some(o) if ic.sign > 0 => {
+                    let wd = w.of(cell.dof);
+                    let rp = self.baseline.residual(sim, c) * wd;
+                    let rm = self.baseline.residual(sim, o) * wd;
+                    // r+^2 + r-^2 = 2 odd^2 + 2 even^2
+                    odd += 2.0 * ((rp - rm) / 2.0).powi(2) / total;
+                    even += 2.0 * ((rp + rm) / 2.0).powi(2) / total;
+                }
+                Some(_) => {}
+                None => unpaired += sq(c) / total,
+            }
+        }
+        tables.insert(
+            "by_sign_parity".to_string(),
+            vec![
+                Share {
+                    key: "odd".into(),
+                    share: odd,
+                },
+                Share {
+                    key: "even".into(),
+                    share: even,
+                },
+                Share {
+                    key: "unpaired".into(),
+                    share: unpaired,
+                },
+            ],
+        );
+        tables
+    }
+
+    /// RMSE per level and DoF on the held-out cases.
+    pub fn per_level_dof(&self) -> Vec<LevelDofRmse> {
+        let cells = self.heldout_cells();
+        let aug = self.augmented();
+        let mut out = Vec::new();
+        for (li, l) in self.sim.levels.iter().enumerate() {
+            for d in 0..6 {
+                let cs: Vec<usize> = cells
+                    .iter()
+                    .copied()
+                    .filter(|&c| self.sim.cells[c].level == li && self.sim.cells[c].dof == d)
+                    .collect();
+                if cs.is_empty() {
+                    continue;
+                }
+                let b = rmse(&self.sim, &self.baseline, &cs);
+                let a = rmse(&self.sim, aug, &cs);
+                out.push(LevelDofRmse {
+                    level: l.name.clone(),
+                    dof: DOF_NAMES[d].to_string(),
+                    baseline_rmse: b,
+                    augmented_rmse: a,
+                    shrink: if b > 0.0 { 1.0 - a / b } else { 0.0 },
+                });
+            }
+        }
+        out
+    }
+}

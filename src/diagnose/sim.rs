@@ -1,0 +1,283 @@
+//! The experiment as the diagnoser simulates it: the nominal system, its
+//! intervertebral levels, the load cases and the measured cells, and the
+//! predicted increments of a model variant (any [`System`] built from the
+//! nominal one), with warm starts so repeated evaluations are cheap.
+
+use crate::calibrate::experiment::Experiment;
+use crate::calibrate::family::{find_levels, Level};
+use crate::calibrate::measure::{pair_increment, Convention};
+use crate::error::{Error, Result};
+use crate::solver::kinematics;
+use crate::solver::system::KinBuf;
+use crate::solver::{BushingModel, Load, LoadSet, StaticOptions, System, Workspace};
+use nalgebra::{DVector, Isometry3};
+
+/// One measured value: a (row, DoF) of `kinematics.csv`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cell {
+    /// Row index in the experiment.
+    pub row: usize,
+    /// Case index.
+    pub case: usize,
+    /// Level index (into [`Sim::levels`]).
+    pub level: usize,
+    /// DoF 0..6 (rx .. tz).
+    pub dof: usize,
+    /// Measured value in report units (deg for rotations, mm for translations).
+    pub measured: f64,
+}
+
+/// Report units: degrees for rotations, millimetres for translations.
+pub fn to_report_units(dof: usize, si: f64) -> f64 {
+    if dof < 3 {
+        si.to_degrees()
+    } else {
+        si * 1000.0
+    }
+}
+
+/// The simulated experiment.
+#[derive(Debug, Clone)]
+pub struct Sim {
+    /// Nominal system (sacrum or `fixed_body` welded to ground).
+    pub base: System,
+    /// Intervertebral levels between the fixed and the loaded bodies, in
+    /// bushing order.
+    pub levels: Vec<Level>,
+    /// Nominal law of each level.
+    pub nominal: Vec<BushingModel>,
+    /// Nominal linear stiffness `(rx .. tz)` of each level.
+    pub k_nominal: Vec<[f64; 6]>,
+    /// Nominal bushing frames of each level.
+    pub frames: Vec<(Isometry3<f64>, Isometry3<f64>)>,
+    /// Loads of every case.
+    pub loads: Vec<Vec<Load>>,
+    /// The loads resolved on the nominal system. Follower-load guide points
+    /// are fixed in the bodies where the nominal joint centres are: the
+    /// rig places its cable guides on the anatomy, so a misplaced joint
+    /// centre (joint_pose_error) does not carry the guides with it.
+    pub prepared: Vec<LoadSet>,
+    /// `(upper, lower)` body indices of each row.
+    pub row_bodies: Vec<(usize, usize)>,
+    /// Rows of each case.
+    pub case_rows: Vec<Vec<usize>>,
+    /// All measured cells, row by row, DoF order.
+    pub cells: Vec<Cell>,
+}
+
+/// Warm starts: the last equilibria (unloaded, and per case).
+#[derive(Debug, Clone)]
+pub struct Warm {
+    q0: DVector<f64>,
+    q1: Vec<DVector<f64>>,
+}
+
+impl Sim {
+    /// Build from an experiment. Every row's pair must be a level (adjacent
+    /// bodies joined by a linear bushing on the load path).
+    pub fn new(exp: &Experiment) -> Result<Sim> {
+        let ctx = format!("experiment {}", exp.dir.display());
+        let base = System::new(&exp.spec)?;
+        let fixed = base.body_index(&exp.fixed_body).ok_or_else(|| {
+            Error::invalid(
+                ctx.clone(),
+                format!("fixed body '{}' is not in the model", exp.fixed_body),
+            )
+        })?;
+        let mut loaded = Vec::new();
+        for c in &exp.cases {
+            let b = base.body_index(&c.body).ok_or_else(|| {
+                Error::invalid(
+                    format!("{ctx}: case '{}'", c.id),
+                    format!("body '{}' is not in the model", c.body),
+                )
+            })?;
+            if !loaded.contains(&b) {
+                loaded.push(b);
+            }
+        }
+        let levels = find_levels(&base, fixed, &loaded);
+        if levels.is_empty() {
+            return Err(Error::invalid(
+                ctx,
+                "no intervertebral level (a bushing between adjacent bodies) lies between the fixed body and the loaded bodies",
+            ));
+        }
+        let mut nominal = Vec::new();
+        let mut k_nominal = Vec::new();
+        let mut frames = Vec::new();
+        for l in &levels {
+            let m = base
+                .bushing_model(l.bushing)
+                .cloned()
+                .ok_or_else(|| Error::invalid(ctx.clone(), "bushing index out of range"))?;
+            let k = match &m {
+                BushingModel::Linear {
+                    rot_stiffness: r,
+                    trans_stiffness: t,
+                    ..
+                } => [r.x, r.y, r.z, t.x, t.y, t.z],
+                _ => {
+                    return Err(Error::invalid(
+                        format!("{ctx}: level {}", l.name),
+                        "the nominal model must have linear, uncoupled BushingForces (the baseline form)",
+                    ))
+                }
+            };
+            if !k.iter().all(|v| v.is_finite() && *v > 0.0) {
+                return Err(Error::invalid(
+                    format!("{ctx}: level {}", l.name),
+                    format!("nominal stiffness must be positive, got {k:?}"),
+                ));
+            }
+            if !base.bushing_on_joint_frames(l.bushing) {
+                return Err(Error::invalid(
+                    format!("{ctx}: level {}", l.name),
+                    "the bushing must sit on the two offset frames of its 6-DoF joint",
+                ));
+            }
+            let fr = base
+                .bushing_frames(l.bushing)
+                .ok_or_else(|| Error::invalid(ctx.clone(), "bushing index out of range"))?;
+            nominal.push(m);
+            k_nominal.push(k);
+            frames.push(fr);
+        }
+        let loads = exp
+            .cases
+            .iter()
+            .map(|c| c.loads(Some(&exp.fixed_body)))
+            .collect::<Result<Vec<_>>>()?;
+        let prepared = exp
+            .cases
+            .iter()
+            .zip(&loads)
+            .map(|(c, l)| {
+                base.prepare_loads(l)
+                    .map_err(|e| Error::invalid(format!("{ctx}: case '{}'", c.id), e.to_string()))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut row_bodies = Vec::new();
+        let mut case_rows = vec![Vec::new(); exp.cases.len()];
+        let mut cells = Vec::new();
+        for (ri, r) in exp.rows.iter().enumerate() {
+            let here = || {
+                format!(
+                    "{}: line {}",
+                    exp.dir.join("kinematics.csv").display(),
+                    r.line
+                )
+            };
+            let u = base.body_index(&r.upper).ok_or_else(|| {
+                Error::invalid(here(), format!("body '{}' is not in the model", r.upper))
+            })?;
+            let lo = base.body_index(&r.lower).ok_or_else(|| {
+                Error::invalid(here(), format!("body '{}' is not in the model", r.lower))
+            })?;
+            let li = levels
+                .iter()
+                .position(|l| l.upper == u && l.lower == lo)
+                .ok_or_else(|| {
+                    Error::invalid(
+                        here(),
+                        format!(
+                            "pair {}/{} is not an intervertebral level on the load path (levels: {})",
+                            r.upper,
+                            r.lower,
+                            levels.iter().map(|l| format!("{}/{}", l.upper_name, l.lower_name)).collect::<Vec<_>>().join(", ")
+                        ),
+                    )
+                })?;
+            row_bodies.push((u, lo));
+            if let Some(v) = case_rows.get_mut(r.case) {
+                v.push(ri);
+            }
+            for d in 0..6 {
+                if let Some(m) = r.values[d] {
+                    cells.push(Cell {
+                        row: ri,
+                        case: r.case,
+                        level: li,
+                        dof: d,
+                        measured: to_report_units(d, m),
+                    });
+                }
+            }
+        }
+        if cells.is_empty() {
+            return Err(Error::invalid(ctx, "kinematics.csv has no measured value"));
+        }
+        Ok(Sim {
+            base,
+            levels,
+            nominal,
+            k_nominal,
+            frames,
+            loads,
+            prepared,
+            row_bodies,
+            case_rows,
+            cells,
+        })
+    }
+
+    /// Fresh warm starts (default pose).
+    pub fn warm(&self) -> Warm {
+        let q = self.base.default_q();
+        Warm {
+            q1: vec![q.clone(); self.loads.len()],
+            q0: q,
+        }
+    }
+
+    /// Predicted increments `(rx..tz)` in report units (deg, mm) of every
+    /// row of the cases `cases` (other rows stay zero), for the variant
+    /// `sys`. `warm` is used and updated.
+    pub fn predict(&self, sys: &System, cases: &[usize], warm: &mut Warm) -> Result<Vec<[f64; 6]>> {
+        let mut ws = Workspace::new(sys);
+        let mut kb = KinBuf::<f64>::new(sys);
+        let opts = StaticOptions::default();
+        let solve = |loads: &LoadSet, start: &DVector<f64>, ws: &mut Workspace| match sys
+            .solve_static(loads, start.as_slice(), ws, &opts)
+        {
+            Ok(s) => Ok(s.q),
+            Err(_) => sys
+                .solve_static(loads, sys.default_q().as_slice(), ws, &opts)
+                .map(|s| s.q),
+        };
+        let q0 = solve(&LoadSet::empty(), &warm.q0, &mut ws)
+            .map_err(|e| Error::numerical("unloaded equilibrium", e.to_string()))?;
+        kb.q.copy_from_slice(q0.as_slice());
+        kinematics::forward(sys, &mut kb);
+        let poses0 = kb.x_gb.clone();
+        warm.q0 = q0;
+        let mut out = vec![[0.0; 6]; self.row_bodies.len()];
+        for &ci in cases {
+            let (Some(ls), Some(rows), Some(start)) = (
+                self.prepared.get(ci),
+                self.case_rows.get(ci),
+                warm.q1.get(ci),
+            ) else {
+                continue;
+            };
+            let q1 = solve(ls, start, &mut ws).map_err(|e| {
+                Error::numerical(format!("case {ci}"), format!("no equilibrium: {e}"))
+            })?;
+            kb.q.copy_from_slice(q1.as_slice());
+            kinematics::forward(sys, &mut kb);
+            for &ri in rows {
+                let (u, l) = self.row_bodies[ri];
+                let inc = pair_increment(
+                    Convention::Composed,
+                    &poses0[u],
+                    &poses0[l],
+                    &kb.x_gb[u],
+                    &kb.x_gb[l],
+                );
+                out[ri] = std::array::from_fn(|d| to_report_units(d, inc[d]));
+            }
+            warm.q1[ci] = q1;
+        }
+        Ok(out)
+    }
+}
