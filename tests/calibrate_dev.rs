@@ -24,12 +24,20 @@ use std::sync::Arc;
 
 /// `(folder, [LB, AR, FE] stiffness ratio to nominal)` of every `none` case.
 fn none_cases() -> Vec<(std::path::PathBuf, [f64; 3])> {
-    let Some(dev) = common::shared("diagnose-dev") else { return Vec::new() };
+    let Some(dev) = common::shared("diagnose-dev") else {
+        return Vec::new();
+    };
     let mut out = Vec::new();
-    let mut dirs: Vec<_> = std::fs::read_dir(&dev).unwrap().flatten().map(|e| e.path()).collect();
+    let mut dirs: Vec<_> = std::fs::read_dir(&dev)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .collect();
     dirs.sort();
     for d in dirs {
-        let Ok(t) = std::fs::read_to_string(d.join("truth.toml")) else { continue };
+        let Ok(t) = std::fs::read_to_string(d.join("truth.toml")) else {
+            continue;
+        };
         let v: toml::Value = toml::from_str(&t).unwrap();
         if v["effect"].as_str() != Some("none") {
             continue;
@@ -38,7 +46,9 @@ fn none_cases() -> Vec<(std::path::PathBuf, [f64; 3])> {
         let ratio = |tag: &str| -> f64 {
             let i = notes.find(tag).unwrap() + tag.len();
             let rest = notes[i..].trim_start().trim_start_matches('x');
-            let end = rest.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap();
+            let end = rest
+                .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+                .unwrap();
             rest[..end].parse().unwrap()
         };
         out.push((d, [ratio("LB(X)"), ratio("AR(Y)"), ratio("FE(Z)")]));
@@ -91,9 +101,18 @@ fn none_cases_are_reproduced_to_the_noise_level() {
             println!("  RMSE per case (deg): {}", per_case.join(", "));
             for d in 0..3 {
                 let r = cal.best[d] / nominal[d];
-                assert!((r / truth[d] - 1.0).abs() < 0.03, "{}: dof {d} ratio {r} vs truth {}", exp.name, truth[d]);
+                assert!(
+                    (r / truth[d] - 1.0).abs() < 0.03,
+                    "{}: dof {d} ratio {r} vs truth {}",
+                    exp.name,
+                    truth[d]
+                );
             }
-            assert!(rmse < 0.12, "{}: RMSE {rmse} deg is above the noise level", exp.name);
+            assert!(
+                rmse < 0.12,
+                "{}: RMSE {rmse} deg is above the noise level",
+                exp.name
+            );
             // no structure left: per-level stiffness (6x the parameters) does not help
             let setup_pl = Setup {
                 params: Parameterisation::PerLevel,
@@ -108,16 +127,28 @@ fn none_cases_are_reproduced_to_the_noise_level() {
                 },
             )
             .unwrap();
-            let (m, n1, n2) = (pb.cells.len() as f64, pb.n_params() as f64, pb_pl.n_params() as f64);
+            let (m, n1, n2) = (
+                pb.cells.len() as f64,
+                pb.n_params() as f64,
+                pb_pl.n_params() as f64,
+            );
             let f = ((cal.cost - cal_pl.cost) / (n2 - n1)) / (cal_pl.cost / (m - n2));
             let p = 1.0 - FisherSnedecor::new(n2 - n1, m - n2).unwrap().cdf(f);
             println!("  per-level vs uniform: F = {f:.3}, p = {p:.3}");
-            assert!(p > 0.001, "{}: per-level stiffness explains structure the uniform fit left (p = {p})", exp.name);
+            assert!(
+                p > 0.001,
+                "{}: per-level stiffness explains structure the uniform fit left (p = {p})",
+                exp.name
+            );
         }
         println!(
             "  cost composed {:.4} vs difference {:.4}",
             costs[0], costs[1]
         );
-        assert!(costs[0] < costs[1], "{}: the data follow the format's composed rotation", exp.name);
+        assert!(
+            costs[0] < costs[1],
+            "{}: the data follow the format's composed rotation",
+            exp.name
+        );
     }
 }
