@@ -363,6 +363,11 @@ impl StiffnessFamily {
         &self.label
     }
 
+    /// The parameters (same as [`ModelFamily::params`]).
+    pub fn params_info(&self) -> &[ParamInfo] {
+        &self.params
+    }
+
     /// Nominal parameter values.
     pub fn params_nominal(&self) -> Vec<f64> {
         self.params.iter().map(|p| p.nominal).collect()

@@ -9,6 +9,7 @@ pub mod check;
 pub mod convert;
 pub mod info;
 pub mod mean_shape;
+pub mod sensitivity;
 pub mod simulate;
 pub mod variability;
 
@@ -27,6 +28,10 @@ pub enum Command {
     /// (experiment folder): multi-start Levenberg-Marquardt, covariance,
     /// identifiability, validation; calibrated .osim, JSON and SVG.
     Calibrate(calibrate::Args),
+    /// Joint-pose sensitivity of a calibration: landmark noise propagated
+    /// to the joint frames (Latin hypercube), every sample re-calibrated;
+    /// spread of stiffness and error, two-factor (pose x stiffness) analysis.
+    Sensitivity(sensitivity::Args),
     /// Summarise a model: bodies, joints, coordinates, forces, muscles, markers, meshes.
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
@@ -52,6 +57,7 @@ pub fn main() -> i32 {
     let cli = Cli::parse();
     let result: anyhow::Result<i32> = match cli.command {
         Command::Calibrate(a) => calibrate::run(a),
+        Command::Sensitivity(a) => sensitivity::run(a),
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Base(a) => base::run(a),
