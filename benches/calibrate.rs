@@ -61,12 +61,8 @@ fn main() {
         return;
     }
     let t = Instant::now();
-    let rep = sensitivity::run(
-        exp,
-        &Setup::default(),
-        &SensitivityOptions::default(),
-    )
-    .expect("sensitivity");
+    let rep = sensitivity::run(exp, &Setup::default(), &SensitivityOptions::default())
+        .expect("sensitivity");
     println!(
         "sensitivity, {} samples (uniform, 1 mm): {:.1} s (target < 120 s); {} in the reduced dataset",
         rep.samples,

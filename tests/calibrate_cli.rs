@@ -299,3 +299,128 @@ fn parameters_the_data_cannot_determine_are_named() {
     assert!(named.contains(&"rx") && named.contains(&"ry"), "{named:?}");
     assert!(!named.contains(&"rz"), "{named:?}");
 }
+
+#[test]
+fn leave_one_specimen_out_over_two_none_specimens() {
+    let (Some(a), Some(b)) = (
+        common::shared("diagnose-dev/dev-09"),
+        common::shared("diagnose-dev/dev-25"),
+    ) else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("o");
+    let o = calibrate(&a, &out, &["--starts", "2", "--loso", b.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let loso = r["validation"]["leave_one_specimen_out"]
+        .as_array()
+        .unwrap();
+    assert_eq!(loso.len(), 2);
+    // with two specimens the "median of the others" is the other one's calibration
+    let own: Vec<f64> = r["calibration"]["best"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let other: Vec<f64> = r["validation"]["specimens"][0]["calibrated"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(
+        loso[0]["params"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect::<Vec<_>>(),
+        other
+    );
+    assert_eq!(
+        loso[1]["params"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect::<Vec<_>>(),
+        own
+    );
+    // dev-09 and dev-25 differ (FE x0.57 vs x0.56, LB x1.17 vs x0.65): the
+    // other specimen's stiffness predicts lateral bending clearly worse
+    let rx_err = |k: usize| -> f64 {
+        loso[k]["errors"]["entries"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|e| e["dof"] == "rx")
+            .map(|e| e["rmse_in_unit"].as_f64().unwrap())
+            .fold(0.0, f64::max)
+    };
+    println!(
+        "held-out rx RMSE (deg): dev-09 {:.3}, dev-25 {:.3}",
+        rx_err(0),
+        rx_err(1)
+    );
+    assert!(rx_err(0) > 0.3 && rx_err(1) > 0.3);
+}
+
+#[test]
+fn sensitivity_cli_reports_spread_and_two_factor_shares() {
+    let Some(dir) = common::shared("diagnose-dev/dev-09") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("s");
+    let run = |sd: &str, out: &Path| {
+        Command::new(common::bin())
+            .args([
+                "sensitivity",
+                dir.to_str().unwrap(),
+                "--samples",
+                "12",
+                "--landmark-sd",
+                sd,
+                "--out",
+            ])
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let o = run("1.0", &out);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("sensitivity.json")).unwrap()).unwrap();
+    assert_eq!(r["samples"], 12);
+    let t = &r["two_factor"];
+    let shares: f64 = ["share_pose", "share_stiffness", "share_interaction"]
+        .iter()
+        .map(|k| t[k].as_f64().unwrap())
+        .sum();
+    assert!((shares - 1.0).abs() < 1e-9);
+    for p in r["params"].as_array().unwrap() {
+        assert!(p["p2_5"].as_f64().unwrap() <= p["median"].as_f64().unwrap());
+        assert!(p["median"].as_f64().unwrap() <= p["p97_5"].as_f64().unwrap());
+    }
+    // no landmark noise: every sample is the reference model
+    let out0 = tmp.path().join("s0");
+    assert!(run("0", &out0).status.success());
+    let r0: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out0.join("sensitivity.json")).unwrap()).unwrap();
+    for p in r0["params"].as_array().unwrap() {
+        let (lo, hi, reference) = (
+            p["min"].as_f64().unwrap(),
+            p["max"].as_f64().unwrap(),
+            p["reference"].as_f64().unwrap(),
+        );
+        assert!(
+            (lo / reference - 1.0).abs() < 1e-6 && (hi / reference - 1.0).abs() < 1e-6,
+            "{p}"
+        );
+    }
+    let bad = run("-1", &tmp.path().join("bad"));
+    assert!(!bad.status.success() && !tmp.path().join("bad").exists());
+}

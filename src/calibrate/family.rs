@@ -234,7 +234,7 @@ impl StiffnessFamily {
         for l in &levels {
             let k = nominal.get(l.bushing).copied().unwrap_or([0.0; 6]);
             for &d in dofs {
-                if !(k[d] > 0.0) {
+                if k[d].is_nan() || k[d] <= 0.0 {
                     return Err(Error::invalid(
                         format!("level {}", l.name),
                         format!(
