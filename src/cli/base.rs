@@ -2,8 +2,14 @@
 //! [`crate::build::base`]). Everything is computed in memory first; then
 //! `OUT/base.osim`, its meshes, `OUT/base_report.json` and the SVG views
 //! are written, each atomically. Nothing is written on error.
+//!
+//! `--procedural [--stature M] [--sex female|male]` replaces the generic
+//! model by the procedural spine of [`crate::build::procedural`] (also
+//! writing `OUT/procedural_report.json`); `base_model/` in the repository
+//! is `osim-spine base --procedural --out base_model`.
 
 use crate::build::base::{build_base, BaseOptions, DirMeshSource, FixedBody, IvdParams};
+use crate::build::procedural::{generate_generic, ProceduralOptions, Sex};
 use crate::error::Error;
 use crate::landmarks::Level;
 use crate::osim::Document;
@@ -15,8 +21,25 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, ClapArgs)]
 pub struct Args {
     /// The generic model (.osim) with an articulated thoracolumbar spine.
-    #[arg(long, value_name = "MODEL.osim")]
-    pub generic: PathBuf,
+    #[arg(
+        long,
+        value_name = "MODEL.osim",
+        required_unless_present = "procedural",
+        conflicts_with = "procedural"
+    )]
+    pub generic: Option<PathBuf>,
+    /// Use the procedural generic spine built from published anatomy
+    /// (templates/) instead of a generic model file; nothing to download.
+    #[arg(long)]
+    pub procedural: bool,
+    /// Stature of the procedural spine in metres (default: 1.75 male,
+    /// 1.62 female).
+    #[arg(long, value_name = "M", requires = "procedural")]
+    pub stature: Option<f64>,
+    /// Sex of the procedural spine (default stature, pelvis width, trunk
+    /// mass fractions).
+    #[arg(long, value_enum, default_value = "male", requires = "procedural")]
+    pub sex: SexArg,
     /// Folder(s) to search for the model's mesh files (after the model's
     /// own folder and its Geometry/).
     #[arg(long, value_name = "DIR")]
@@ -50,6 +73,13 @@ pub struct Args {
 pub enum Fixed {
     Pelvis,
     Sacrum,
+}
+
+/// `--sex` values.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum SexArg {
+    Female,
+    Male,
 }
 
 /// Parse `--keep TOP..L5`.
@@ -101,7 +131,6 @@ fn body_meshes(
 /// Run `base`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let top = parse_keep(&args.keep)?;
-    let generic = Document::read(&args.generic)?;
     let mut opts = BaseOptions {
         top,
         fixed: match args.fixed {
@@ -120,13 +149,39 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if let Some(d) = &args.body_meshes {
         opts.body_meshes = body_meshes(d, top)?;
     }
-    let source = DirMeshSource {
-        model_path: args.generic.clone(),
-        extra: args.geometry.clone(),
-    };
-    let built = build_base(&generic, &opts, &source)?;
-    // Everything computed: serialise, then write.
     let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+    let built = if args.procedural {
+        let popts = ProceduralOptions {
+            stature: args.stature,
+            sex: match args.sex {
+                SexArg::Female => Sex::Female,
+                SexArg::Male => Sex::Male,
+            },
+        };
+        let generic = generate_generic(&popts)?;
+        if args.body_meshes.is_none() {
+            // the generated vertebral bodies, for the sphere fits
+            opts.body_meshes = generic.body_meshes();
+        }
+        let summary = serde_json::to_string_pretty(&generic.summary())?;
+        files.push((
+            args.out.join("procedural_report.json"),
+            summary.into_bytes(),
+        ));
+        build_base(&generic.doc, &opts, &generic.meshes)?
+    } else {
+        let path = args
+            .generic
+            .clone()
+            .ok_or_else(|| Error::invalid("base", "give --generic MODEL.osim or --procedural"))?;
+        let generic = Document::read(&path)?;
+        let source = DirMeshSource {
+            model_path: path,
+            extra: args.geometry.clone(),
+        };
+        build_base(&generic, &opts, &source)?
+    };
+    // Everything computed: serialise, then write.
     files.push((
         args.out.join("base.osim"),
         built.doc.to_xml_string().into_bytes(),

@@ -48,11 +48,25 @@ fn convert_checked(args: &Args) -> anyhow::Result<(Document, super::info::Summar
 /// Run `convert`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let (ein, eout) = (ext(&args.input), ext(&args.output));
-    if MESH_EXTENSIONS.contains(&ein.as_str()) || MESH_EXTENSIONS.contains(&eout.as_str()) {
-        anyhow::bail!(
-            "{}: mesh conversion is not available yet (crate::mesh readers/writers are not in this build)",
-            args.input.display()
+    let in_mesh = MESH_EXTENSIONS.contains(&ein.as_str());
+    let out_mesh = MESH_EXTENSIONS.contains(&eout.as_str());
+    if in_mesh || out_mesh {
+        if !(in_mesh && out_mesh) {
+            anyhow::bail!(
+                "{} -> {}: a mesh converts only to a mesh (.vtp .stl .obj .ply)",
+                args.input.display(),
+                args.output.display()
+            );
+        }
+        let mesh = crate::mesh::read(&args.input)?;
+        crate::mesh::write(&args.output, &mesh)?;
+        eprintln!(
+            "wrote {} ({} vertices, {} triangles)",
+            args.output.display(),
+            mesh.vertices.len(),
+            mesh.triangles.len()
         );
+        return Ok(0);
     }
     if ein != "osim" && ein != "xml" {
         anyhow::bail!(

@@ -11,6 +11,7 @@ pub mod info;
 pub mod mean_shape;
 pub mod sensitivity;
 pub mod simulate;
+pub mod stiffness;
 pub mod variability;
 
 /// osim-spine: patient-specific scoliotic OpenSim spine models.
@@ -50,6 +51,10 @@ pub enum Command {
     /// Repeated-palpation statistics: IQRs, ICC(2,1), Shapiro-Wilk,
     /// Friedman/Skillings-Mack with Nemenyi post hoc; JSON + SVG.
     Variability(variability::Args),
+    /// Assign intervertebral stiffness from a table (uniform, per level,
+    /// base x ratio; linear, non-linear per DoF, coupled 6x6), or --list the
+    /// current stiffness in the same format.
+    Stiffness(stiffness::Args),
 }
 
 /// Parse the command line and run; returns the process exit code.
@@ -65,6 +70,7 @@ pub fn main() -> i32 {
         Command::Simulate(a) => simulate::run(a),
         Command::Check(a) => check::run(&a),
         Command::Variability(a) => variability::run(&a),
+        Command::Stiffness(a) => stiffness::run(a),
     };
     match result {
         Ok(code) => code,

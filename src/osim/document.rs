@@ -140,6 +140,7 @@ impl Document {
                 prolog: vec![],
                 root,
                 epilog: vec![],
+                source_len: 0,
             },
             path: PathBuf::from(format!("<new model {name}>")),
             original_version: CURRENT_VERSION,

@@ -231,6 +231,9 @@ pub struct OtherBushing {
     pub frames: Vec<OffsetFrame>,
     /// Every other property (tag, trimmed text) in file order.
     pub properties: Vec<(String, String)>,
+    /// Properties holding a function (e.g. `m_x_theta_x_function` of a
+    /// FunctionBasedBushingForce): (tag, parsed function), in file order.
+    pub functions: Vec<(String, Function)>,
 }
 
 /// Kind of a path point.
@@ -244,9 +247,9 @@ pub enum PathPointKind {
     },
     /// Location given by functions of coordinates (x, y, z; each optional).
     Moving {
-        x: Option<(Function, String)>,
-        y: Option<(Function, String)>,
-        z: Option<(Function, String)>,
+        x: Option<Box<(Function, String)>>,
+        y: Option<Box<(Function, String)>>,
+        z: Option<Box<(Function, String)>>,
     },
 }
 
@@ -286,7 +289,7 @@ pub struct Muscle {
 pub enum Force {
     Bushing(BushingForce),
     OtherBushing(OtherBushing),
-    Muscle(Muscle),
+    Muscle(Box<Muscle>),
     Other { class: String, name: String },
 }
 
@@ -482,7 +485,7 @@ impl Model {
             model.ground.wrap_objects = parse_wraps(g, "ground", &cx)?;
         }
         let mut offset_frames: Vec<(OffsetFrame, &Element)> = Vec::new();
-        collect_offset_frames(m, "", &cx, &mut offset_frames)?;
+        collect_offset_frames(m, &mut Vec::new(), &cx, &mut offset_frames)?;
 
         for b in objects(m, "BodySet") {
             let name = b.name_attr().to_string();
@@ -714,7 +717,7 @@ impl Model {
     /// Muscles in file order.
     pub fn muscles(&self) -> impl Iterator<Item = &Muscle> {
         self.forces.iter().filter_map(|f| match f {
-            Force::Muscle(m) => Some(m),
+            Force::Muscle(m) => Some(m.as_ref()),
             _ => None,
         })
     }
@@ -816,6 +819,13 @@ impl Model {
         // Force sockets.
         let force_els: Vec<&Element> = objects(m, "ForceSet").collect();
         let coords: BTreeSet<&str> = self.coordinates().map(|c| c.name.as_str()).collect();
+        let wraps: BTreeSet<&str> = self
+            .bodies
+            .iter()
+            .flat_map(|b| b.wrap_objects.iter())
+            .chain(self.ground.wrap_objects.iter())
+            .map(|w| w.name.as_str())
+            .collect();
         for (f, el) in self.forces.iter().zip(force_els.iter()) {
             let owner = format!("/{forceset}/{}", f.name());
             let check = |prop: &str, s: &str| -> Result<()> {
@@ -854,7 +864,7 @@ impl Model {
                             PathPointKind::Conditional { coordinate, .. } => vec![coordinate],
                             PathPointKind::Moving { x, y, z } => [x, y, z]
                                 .iter()
-                                .filter_map(|o| o.as_ref().map(|(_, c)| c))
+                                .filter_map(|o| o.as_ref().map(|b| &b.1))
                                 .collect(),
                         };
                         for c in cs {
@@ -867,13 +877,6 @@ impl Model {
                             }
                         }
                     }
-                    let wraps: BTreeSet<&str> = self
-                        .bodies
-                        .iter()
-                        .flat_map(|b| b.wrap_objects.iter())
-                        .chain(self.ground.wrap_objects.iter())
-                        .map(|w| w.name.as_str())
-                        .collect();
                     for w in &mu.wraps {
                         if !wraps.contains(w.wrap_object.as_str()) {
                             return Err(cx.err(
@@ -943,11 +946,18 @@ fn required_text(e: &Element, prop: &str, cx: &Ctx) -> Result<String> {
 /// Every PhysicalOffsetFrame in the model with its absolute path.
 fn collect_offset_frames<'a>(
     e: &'a Element,
-    path: &str,
+    path: &mut Vec<String>,
     cx: &Ctx,
     out: &mut Vec<(OffsetFrame, &'a Element)>,
 ) -> Result<()> {
     for c in e.elements() {
+        // Leaves (text-only properties) hold no components.
+        if c.children
+            .iter()
+            .all(|n| !matches!(n, super::xml::Node::Element(_)))
+        {
+            continue;
+        }
         // Path segment: sets use their name (default: lower-case class),
         // components their name; lists/properties add nothing.
         let seg = if c.name.ends_with("Set") && c.child("objects").is_some() {
@@ -955,10 +965,10 @@ fn collect_offset_frames<'a>(
         } else {
             c.attr("name").filter(|n| !n.is_empty()).map(str::to_string)
         };
-        let child_path = match &seg {
-            Some(s) => format!("{path}/{s}"),
-            None => path.to_string(),
-        };
+        let pushed = seg.is_some();
+        if let Some(s) = seg {
+            path.push(s);
+        }
         if c.name == "PhysicalOffsetFrame" {
             let name = c.name_attr().to_string();
             if name.is_empty() {
@@ -967,7 +977,7 @@ fn collect_offset_frames<'a>(
             out.push((
                 OffsetFrame {
                     name,
-                    path: child_path.clone(),
+                    path: format!("/{}", path.join("/")),
                     socket_parent: required_text(c, "socket_parent", cx)?,
                     translation: vec3_or(c, "translation", Vector3::zeros(), cx.file)?,
                     orientation: vec3_or(c, "orientation", Vector3::zeros(), cx.file)?,
@@ -976,7 +986,10 @@ fn collect_offset_frames<'a>(
                 c,
             ));
         }
-        collect_offset_frames(c, &child_path, cx, out)?;
+        collect_offset_frames(c, path, cx, out)?;
+        if pushed {
+            path.pop();
+        }
     }
     Ok(())
 }
@@ -1248,6 +1261,11 @@ fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -
                     })
                     .map(|c| (c.name.clone(), c.text().trim().to_string()))
                     .collect(),
+                functions: fe
+                    .elements()
+                    .filter(|c| Function::element_in(c).is_some())
+                    .map(|c| Ok((c.name.clone(), Function::from_parent(c, f)?)))
+                    .collect::<Result<_>>()?,
                 name,
                 class,
             })
@@ -1261,7 +1279,7 @@ fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -
                 Some(p) => Some(f64_prop(fe, &p.name, f)?),
                 None => None,
             };
-            Force::Muscle(Muscle {
+            Force::Muscle(Box::new(Muscle {
                 max_isometric_force: f64_prop(fe, "max_isometric_force", f)?,
                 optimal_fiber_length: f64_prop(fe, "optimal_fiber_length", f)?,
                 tendon_slack_length: f64_prop(fe, "tendon_slack_length", f)?,
@@ -1270,7 +1288,7 @@ fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -
                 wraps: parse_path_wraps(path, cx)?,
                 name,
                 class,
-            })
+            }))
         }
         _ => Force::Other { class, name },
     })
@@ -1303,9 +1321,9 @@ fn parse_path_points(path: &Element, cx: &Ctx) -> Result<Vec<PathPoint>> {
                     }
                 };
                 PathPointKind::Moving {
-                    x: axis("x_location", "socket_x_coordinate")?,
-                    y: axis("y_location", "socket_y_coordinate")?,
-                    z: axis("z_location", "socket_z_coordinate")?,
+                    x: axis("x_location", "socket_x_coordinate")?.map(Box::new),
+                    y: axis("y_location", "socket_y_coordinate")?.map(Box::new),
+                    z: axis("z_location", "socket_z_coordinate")?.map(Box::new),
                 }
             }
             other => return Err(cx.err(p, format!("unknown path point class '{other}'"))),

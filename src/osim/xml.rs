@@ -60,6 +60,9 @@ pub struct XmlTree {
     pub root: Element,
     /// Comments / processing instructions after the root element.
     pub epilog: Vec<Node>,
+    /// Length of the parsed text (0 when built in code): a capacity hint
+    /// for the writer.
+    pub source_len: usize,
 }
 
 impl Element {
@@ -330,6 +333,25 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                 prev.push_str(t);
                 return;
             }
+            // Whitespace beside markup is formatting (the writer regenerates
+            // it): do not keep it. Whitespace-only content of a text-only
+            // element is kept until markup shows up beside it.
+            let is_markup = !matches!(node, Node::Text(_) | Node::CData(_));
+            if is_markup {
+                if let Some(Node::Text(prev)) = top.children.last() {
+                    if prev.trim().is_empty() {
+                        top.children.pop();
+                    }
+                }
+            } else if let Node::Text(t) = &node {
+                let beside_markup = top
+                    .children
+                    .last()
+                    .is_some_and(|n| !matches!(n, Node::Text(_) | Node::CData(_)));
+                if beside_markup && t.trim().is_empty() {
+                    return;
+                }
+            }
             top.children.push(node);
         } else if root_done {
             epilog.push(node);
@@ -433,6 +455,19 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                 }
             }
             Event::Text(t) => {
+                // Formatting whitespace after markup is dropped without allocating.
+                let ws = t.iter().all(|b| b.is_ascii_whitespace());
+                if ws {
+                    if let Some(top) = stack.last() {
+                        if top
+                            .children
+                            .last()
+                            .is_some_and(|n| !matches!(n, Node::Text(_) | Node::CData(_)))
+                        {
+                            continue;
+                        }
+                    }
+                }
                 let s = t.decode().map_err(|e| decode_err(&e))?;
                 if stack.is_empty() {
                     if !s.trim().is_empty() {
@@ -537,6 +572,7 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
         prolog,
         root,
         epilog,
+        source_len: text.len(),
     })
 }
 
@@ -590,6 +626,10 @@ fn start_element(
 }
 
 fn escape_text(s: &str, out: &mut String) {
+    if !s.bytes().any(|b| matches!(b, b'&' | b'<' | b'>' | b'\r')) {
+        out.push_str(s);
+        return;
+    }
     for c in s.chars() {
         match c {
             '&' => out.push_str("&amp;"),
@@ -602,6 +642,13 @@ fn escape_text(s: &str, out: &mut String) {
 }
 
 fn escape_attr(s: &str, out: &mut String) {
+    if !s
+        .bytes()
+        .any(|b| matches!(b, b'&' | b'<' | b'>' | b'"' | b'\n' | b'\r' | b'\t'))
+    {
+        out.push_str(s);
+        return;
+    }
     for c in s.chars() {
         match c {
             '&' => out.push_str("&amp;"),
@@ -700,7 +747,7 @@ impl XmlTree {
     /// Serialise deterministically: declaration, prolog, root indented with
     /// tabs, epilog; a final newline.
     pub fn to_xml_string(&self) -> String {
-        let mut out = String::with_capacity(1 << 16);
+        let mut out = String::with_capacity((self.source_len + self.source_len / 8).max(1 << 16));
         if let Some(d) = &self.declaration {
             out.push_str("<?xml ");
             out.push_str(d);

@@ -67,7 +67,8 @@ pub struct Energy {
     pub kinetic: f64,
     /// `-sum m g . c` (zero at the ground origin).
     pub gravity: f64,
-    /// `1/2 sum K q^2` over bushings.
+    /// Bushing potential energy (`1/2 sum K q^2` for linear bushings; see
+    /// [`crate::solver::law`] for the other laws).
     pub bushing: f64,
 }
 
@@ -150,15 +151,18 @@ impl System {
                 }
                 .to_error(self));
             }
+            let g = b
+                .law
+                .g(&[qr.x.re, qr.y.re, qr.z.re, qt.x.re, qt.y.re, qt.z.re]);
             let fr = Vector3::new(
-                -(b.k[0] * qr.x.re + b.c[0] * qr.x.eps),
-                -(b.k[1] * qr.y.re + b.c[1] * qr.y.eps),
-                -(b.k[2] * qr.z.re + b.c[2] * qr.z.eps),
+                -(g[0] + b.c[0] * qr.x.eps),
+                -(g[1] + b.c[1] * qr.y.eps),
+                -(g[2] + b.c[2] * qr.z.eps),
             );
             let ft = Vector3::new(
-                -(b.k[3] * qt.x.re + b.c[3] * qt.x.eps),
-                -(b.k[4] * qt.y.re + b.c[4] * qt.y.eps),
-                -(b.k[5] * qt.z.re + b.c[5] * qt.z.eps),
+                -(g[3] + b.c[3] * qt.x.eps),
+                -(g[4] + b.c[4] * qt.y.eps),
+                -(g[5] + b.c[5] * qt.z.eps),
             );
             let (x1, x2, qr64, _) = forces::bushing_deflection(b, &ws.k64);
             forces::bushing_apply(b, &x1, &x2, &qr64, &fr, &ft, &mut ws.k64.w);
@@ -263,9 +267,7 @@ impl System {
         let mut pb = 0.0;
         for b in &self.bushings {
             let (_, _, qr, qt) = forces::bushing_deflection(b, &ws.k64);
-            for k in 0..3 {
-                pb += 0.5 * b.k[k] * qr[k] * qr[k] + 0.5 * b.k[k + 3] * qt[k] * qt[k];
-            }
+            pb += b.law.potential(&[qr.x, qr.y, qr.z, qt.x, qt.y, qt.z]);
         }
         Ok(Energy {
             kinetic: ke,

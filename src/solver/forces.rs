@@ -1,6 +1,6 @@
 //! Applied forces as body wrenches (moment about the ground origin, force;
 //! ground axes), generic over the scalar: gravity, bushings (OpenSim 4.6
-//! BushingForce), external loads (moments, point forces, follower loads), and
+//! BushingForce and its function- and expression-based kin, see `law`), external loads (moments, point forces, follower loads), and
 //! their projection onto the generalised coordinates.
 
 use super::kinematics;
@@ -292,16 +292,9 @@ pub(crate) fn static_wrenches<T: Scalar>(
                 angle: qr.y.re(),
             });
         }
-        let fr = Vector3::new(
-            -qr.x * T::c(b.k[0]),
-            -qr.y * T::c(b.k[1]),
-            -qr.z * T::c(b.k[2]),
-        );
-        let ft = Vector3::new(
-            -qt.x * T::c(b.k[3]),
-            -qt.y * T::c(b.k[4]),
-            -qt.z * T::c(b.k[5]),
-        );
+        let g = b.law.g(&[qr.x, qr.y, qr.z, qt.x, qt.y, qt.z]);
+        let fr = Vector3::new(-g[0], -g[1], -g[2]);
+        let ft = Vector3::new(-g[3], -g[4], -g[5]);
         bushing_apply(b, &x1, &x2, &qr, &fr, &ft, &mut kb.w);
     }
     load_wrenches(loads, kb);
@@ -390,7 +383,7 @@ fn wrap<T: Scalar>(a: T) -> T {
 }
 
 /// Add the generalised forces of fast-path bushings (on their joint's own
-/// XYZ frames): `-(K q + C u)` with the angles as the bushing reads them.
+/// XYZ frames): `-(g(q) + C u)` with the angles as the bushing reads them.
 /// `u` = None for statics. Falls back to gimbal-lock detection like the
 /// general path.
 pub(crate) fn add_fast_bushings<T: Scalar>(
@@ -408,13 +401,16 @@ pub(crate) fn add_fast_bushings<T: Scalar>(
                 angle: q1,
             });
         }
-        for k in 0..6 {
-            let qk = if k == 0 || k == 2 {
+        let d: [T; 6] = std::array::from_fn(|k| {
+            if k == 0 || k == 2 {
                 wrap(q[s + k])
             } else {
                 q[s + k]
-            };
-            let mut f = -qk * T::c(b.k[k]);
+            }
+        });
+        let g = b.law.g(&d);
+        for k in 0..6 {
+            let mut f = -g[k];
             if let Some(u) = u {
                 f -= T::c(b.c[k] * u[s + k]);
             }

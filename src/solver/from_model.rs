@@ -8,7 +8,7 @@
 use super::spec::*;
 use crate::error::{Error, Result};
 use crate::osim::function::Function as OFunction;
-use crate::osim::model::{Force, JointKind as OJointKind, Model};
+use crate::osim::model::{Force, JointKind as OJointKind, Model, OtherBushing};
 use nalgebra::{Matrix3, Vector3};
 use std::collections::BTreeMap;
 
@@ -65,12 +65,118 @@ fn convert_function(f: &OFunction, ctx: &str) -> Result<Function> {
     })
 }
 
+/// Property names of a FunctionBasedBushingForce's six functions, in deflection order.
+pub const FBBF_FUNCTIONS: [&str; 6] = [
+    "m_x_theta_x_function",
+    "m_y_theta_y_function",
+    "m_z_theta_z_function",
+    "f_x_delta_x_function",
+    "f_y_delta_y_function",
+    "f_z_delta_z_function",
+];
+
+/// Property names of an ExpressionBasedBushingForce's six expressions, in deflection order.
+pub const EBBF_EXPRESSIONS: [&str; 6] = [
+    "Mx_expression",
+    "My_expression",
+    "Mz_expression",
+    "Fx_expression",
+    "Fy_expression",
+    "Fz_expression",
+];
+
+/// Diagonal damping of a function- or expression-based bushing (0 when absent, as in OpenSim).
+fn other_damping(b: &OtherBushing, ctx: &str) -> Result<[f64; 6]> {
+    let mut d = [0.0; 6];
+    for (k, prop) in ["rotational_damping", "translational_damping"]
+        .iter()
+        .enumerate()
+    {
+        if let Some((_, text)) = b.properties.iter().find(|(t, _)| t == prop) {
+            let v: Vec<f64> = text
+                .split_whitespace()
+                .map(|w| w.parse::<f64>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|_| Error::invalid(ctx, format!("<{prop}> is not a list of numbers")))?;
+            if v.len() != 3 || !v.iter().all(|x| x.is_finite()) {
+                return Err(Error::invalid(
+                    ctx,
+                    format!("<{prop}> must hold 3 finite numbers"),
+                ));
+            }
+            d[3 * k..3 * k + 3].copy_from_slice(&v);
+        }
+    }
+    Ok(d)
+}
+
+/// The force law of a FunctionBasedBushingForce or ExpressionBasedBushingForce.
+/// Missing functions/expressions are zero (OpenSim's defaults). An
+/// expression-based bushing whose six expressions are all linear forms of
+/// the deflection becomes [`BushingModel::Coupled`].
+pub fn other_bushing_model(b: &OtherBushing, ctx: &str) -> Result<BushingModel> {
+    let damping = other_damping(b, ctx)?;
+    match b.class.as_str() {
+        "FunctionBasedBushingForce" => {
+            let mut curves: Vec<Curve> = Vec::with_capacity(6);
+            for prop in FBBF_FUNCTIONS {
+                let f = match b.functions.iter().find(|(t, _)| t == prop) {
+                    Some((_, f)) => convert_function(f, &format!("{ctx}: <{prop}>"))?,
+                    None => Function::Constant(0.0),
+                };
+                curves.push(Curve::Function(f));
+            }
+            let curves: [Curve; 6] = curves
+                .try_into()
+                .map_err(|_| Error::invalid(ctx, "needs six functions"))?;
+            Ok(BushingModel::PerDof {
+                curves: Box::new(curves),
+                damping,
+            })
+        }
+        "ExpressionBasedBushingForce" => {
+            let mut exprs: Vec<Expr> = Vec::with_capacity(6);
+            for prop in EBBF_EXPRESSIONS {
+                let text = b
+                    .properties
+                    .iter()
+                    .find(|(t, _)| t == prop)
+                    .map(|(_, v)| v.as_str())
+                    .unwrap_or("0.0");
+                let e = Expr::parse(text)
+                    .map_err(|e| Error::invalid(ctx, format!("<{prop}> '{text}': {e}")))?;
+                exprs.push(e);
+            }
+            let rows: Option<Vec<[f64; 6]>> =
+                exprs.iter().map(|e| e.linear_coefficients()).collect();
+            if let Some(rows) = rows {
+                let k = nalgebra::Matrix6::from_fn(|i, j| rows[i][j]);
+                return Ok(BushingModel::Coupled {
+                    stiffness: k,
+                    damping,
+                });
+            }
+            let exprs: [Expr; 6] = exprs
+                .try_into()
+                .map_err(|_| Error::invalid(ctx, "needs six expressions"))?;
+            Ok(BushingModel::Expression {
+                exprs: Box::new(exprs),
+                damping,
+            })
+        }
+        other => Err(Error::invalid(
+            ctx,
+            format!("bushing class {other} is not supported by the solver"),
+        )),
+    }
+}
+
 /// Names (class: name) of force elements the solver does not apply.
 pub fn ignored_forces(model: &Model) -> Vec<String> {
     model
         .forces
         .iter()
-        .filter(|f| !matches!(f, Force::Bushing(_)))
+        .filter(|f| !matches!(f, Force::Bushing(_) | Force::OtherBushing(_)))
         .map(|f| format!("{}: {}", f.class(), f.name()))
         .collect()
 }
@@ -260,10 +366,25 @@ impl SystemSpec {
                     });
                 }
                 Force::OtherBushing(b) => {
-                    return Err(Error::invalid(
-                        format!("{file}: {} '{}'", b.class, b.name),
-                        "this bushing class is not supported by the solver yet (only BushingForce)",
-                    ));
+                    let owner = format!("/forceset/{}", b.name);
+                    let ctx = format!("{file}: {} '{}'", b.class, b.name);
+                    let frame = |socket: &str| -> Result<FrameSpec> {
+                        let (bn, x) = model.resolve_frame(&owner, socket)?;
+                        let body = if bn == "ground" {
+                            None
+                        } else {
+                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
+                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
+                            })?)
+                        };
+                        Ok(FrameSpec { body, transform: x })
+                    };
+                    bushings.push(BushingSpec {
+                        name: b.name.clone(),
+                        frame1: frame(&b.socket_frame1)?,
+                        frame2: frame(&b.socket_frame2)?,
+                        model: other_bushing_model(b, &ctx)?,
+                    });
                 }
                 _ => {}
             }

@@ -7,7 +7,8 @@
 //! | `system` | [`System`] (validated, parent-before-child), [`Workspace`] (scratch) |
 //! | `scalar`, `function` | scalar types (f64, dual numbers) and transform-axis functions |
 //! | `kinematics` | body poses and motion subspaces, generic over the scalar |
-//! | `forces` | gravity, bushings (OpenSim 4.6 BushingForce), loads, projection |
+//! | `law`, `expr` | bushing force laws (linear, per-DoF curves, coupled 6x6, Lepton expressions) |
+//! | `forces` | gravity, bushings (OpenSim 4.6 bushing classes), loads, projection |
 //! | `statics` | Newton equilibrium with exact tangent, sensitivities |
 //! | `dynamics` | mass matrix, generalised accelerations, implicit integrator, energy |
 //! | `from_model` | adapter from an OpenSim model document |
@@ -15,10 +16,12 @@
 
 pub mod dynamics;
 pub mod examples;
+pub mod expr;
 pub mod forces;
 pub mod from_model;
 pub mod function;
 pub mod kinematics;
+pub mod law;
 pub mod output;
 pub mod scalar;
 pub mod spec;
@@ -27,8 +30,8 @@ pub mod system;
 
 pub use forces::{LoadSet, GIMBAL_LIMIT};
 pub use spec::{
-    BodySpec, BushingModel, BushingSpec, CoordinateSpec, FrameSpec, Function, JointKind, JointSpec,
-    Load, LoadFrame, SystemSpec, TransformAxis,
+    BodySpec, BushingModel, BushingSpec, CoordinateSpec, Curve, Expr, FrameSpec, Function,
+    JointKind, JointSpec, Load, LoadFrame, SystemSpec, TransformAxis,
 };
 pub use statics::{StaticOptions, StaticSolution};
 pub use system::{Pose, System, Workspace};

@@ -30,7 +30,7 @@ pub struct BushingRecord {
     /// OpenSim `getRecordValues`: force and torque on frame 1's body (about
     /// its origin, ground axes), then on frame 2's body.
     pub record_values: [f64; 12],
-    /// 1/2 sum K q^2
+    /// Stored energy (1/2 sum K q^2 for linear bushings).
     pub potential_energy: f64,
 }
 
@@ -98,15 +98,17 @@ impl System {
             let (x1, x2) = (x1d.re(), x2d.re());
             let qr = qrd.map(|v| v.re);
             let qt = qtd.map(|v| v.re);
+            let q6 = [qr.x, qr.y, qr.z, qt.x, qt.y, qt.z];
+            let g = b.law.g(&q6);
             let fr = Vector3::new(
-                -(b.k[0] * qr.x + b.c[0] * qrd.x.eps),
-                -(b.k[1] * qr.y + b.c[1] * qrd.y.eps),
-                -(b.k[2] * qr.z + b.c[2] * qrd.z.eps),
+                -(g[0] + b.c[0] * qrd.x.eps),
+                -(g[1] + b.c[1] * qrd.y.eps),
+                -(g[2] + b.c[2] * qrd.z.eps),
             );
             let ft = Vector3::new(
-                -(b.k[3] * qt.x + b.c[3] * qtd.x.eps),
-                -(b.k[4] * qt.y + b.c[4] * qtd.y.eps),
-                -(b.k[5] * qt.z + b.c[5] * qtd.z.eps),
+                -(g[3] + b.c[3] * qtd.x.eps),
+                -(g[4] + b.c[4] * qtd.y.eps),
+                -(g[5] + b.c[5] * qtd.z.eps),
             );
             let m2 = x2.r * forces::n_transpose_mul(&qr, &fr);
             let f2 = x1.r * ft;
@@ -123,10 +125,7 @@ impl System {
             rec[3..6].copy_from_slice(&arr(&t1));
             rec[6..9].copy_from_slice(&arr(&f2));
             rec[9..12].copy_from_slice(&arr(&t2));
-            let mut pe = 0.0;
-            for k in 0..3 {
-                pe += 0.5 * b.k[k] * qr[k] * qr[k] + 0.5 * b.k[k + 3] * qt[k] * qt[k];
-            }
+            let pe = b.law.potential(&q6);
             out.insert(
                 b.name.clone(),
                 BushingRecord {

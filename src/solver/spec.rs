@@ -12,7 +12,9 @@
 //! frame produced by the previous ones) and `p_FM = f3 a3 + f4 a4 + f5 a5`
 //! (along F's axes), with unit axes.
 
-use nalgebra::{Isometry3, Matrix3, Vector3};
+pub use super::expr::Expr;
+pub use super::law::Curve;
+use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3};
 
 /// A whole multibody system: bodies, tree joints, coordinates, bushings, gravity.
 #[derive(Debug, Clone)]
@@ -169,12 +171,16 @@ pub struct BushingSpec {
     pub model: BushingModel,
 }
 
+/// Names of the six deflection components, in order.
+pub const DOF_NAMES: [&str; 6] = ["rx", "ry", "rz", "tx", "ty", "tz"];
+
 /// Bushing force laws acting on the deflection vector
-/// `(rx, ry, rz, tx, ty, tz)`: body-fixed X-Y-Z angles of frame 2 in frame 1
-/// and the origin of frame 2 in frame 1. New laws (a monotone curve per DoF
-/// as FunctionBasedBushingForce computes it, a coupled 6x6 stiffness) are new
-/// variants: the kinematics and the way the generalised force is applied
-/// (moment through the transpose of the angle-rate map) stay the same.
+/// `q = (rx, ry, rz, tx, ty, tz)`: body-fixed X-Y-Z angles of frame 2 in frame 1
+/// and the origin of frame 2 in frame 1. Every law gives the generalised
+/// force `f = -g(q) - C q'` with a diagonal damping `C`; see
+/// [`crate::solver::law`] for `g` and the OpenSim class of each law. The
+/// kinematics and the way `f` is applied (moment through the transpose of
+/// the angle-rate map) are the same for every law.
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
 pub enum BushingModel {
@@ -189,23 +195,54 @@ pub enum BushingModel {
         /// N/(m/s)
         trans_damping: Vector3<f64>,
     },
+    /// OpenSim FunctionBasedBushingForce: `f_i = -curve_i(q_i) - c_i q_i'`.
+    PerDof {
+        /// One curve per DoF, in deflection order.
+        curves: Box<[Curve; 6]>,
+        /// Diagonal damping (Nm/(rad/s) for rx..rz, N/(m/s) for tx..tz).
+        damping: [f64; 6],
+    },
+    /// Coupled linear stiffness: `f = -K q - C q'` with a 6x6 `K` (rows and
+    /// columns in deflection order; Nm/rad, N/rad, Nm/m = N, N/m blocks).
+    /// Written as an ExpressionBasedBushingForce with linear expressions.
+    Coupled {
+        stiffness: Matrix6<f64>,
+        damping: [f64; 6],
+    },
+    /// OpenSim ExpressionBasedBushingForce: `f_i = -expr_i(q) - c_i q_i'`
+    /// (`Mx, My, Mz, Fx, Fy, Fz` expressions of `theta_x .. delta_z`).
+    Expression {
+        exprs: Box<[Expr; 6]>,
+        damping: [f64; 6],
+    },
 }
 
 impl BushingModel {
     /// Number of stiffness parameters the law exposes for sensitivities.
     pub fn n_stiffness_params(&self) -> usize {
-        match self {
-            BushingModel::Linear { .. } => 6,
-        }
+        self.stiffness_params().len()
     }
-    /// Stiffness parameters in deflection order (rx, ry, rz, tx, ty, tz).
-    pub fn stiffness_params(&self) -> [f64; 6] {
+    /// Stiffness parameters: Linear: the diagonal `(rx, ry, rz, tx, ty, tz)`;
+    /// PerDof: each curve's [`Curve::params`] in DoF order; Coupled: the 36
+    /// entries of `K` row by row; Expression: none.
+    pub fn stiffness_params(&self) -> Vec<f64> {
         match self {
             BushingModel::Linear {
                 rot_stiffness: r,
                 trans_stiffness: t,
                 ..
-            } => [r.x, r.y, r.z, t.x, t.y, t.z],
+            } => vec![r.x, r.y, r.z, t.x, t.y, t.z],
+            BushingModel::PerDof { curves, .. } => curves.iter().flat_map(|c| c.params()).collect(),
+            BushingModel::Coupled { stiffness, .. } => {
+                let mut v = Vec::with_capacity(36);
+                for i in 0..6 {
+                    for j in 0..6 {
+                        v.push(stiffness[(i, j)]);
+                    }
+                }
+                v
+            }
+            BushingModel::Expression { .. } => vec![],
         }
     }
 }

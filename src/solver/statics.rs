@@ -11,6 +11,7 @@ use super::scalar::{d6_eps, d6_var, Scalar, D6};
 use super::system::{KinBuf, System, Workspace};
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector, Vector3};
+use num_dual::Dual64;
 
 /// Options of the static solver.
 #[derive(Debug, Clone, Copy)]
@@ -292,9 +293,20 @@ impl System {
         Ok(())
     }
 
-    /// `d tau / d k` at `q`: one column per bushing stiffness parameter
-    /// (bushing-major, deflection order rx, ry, rz, tx, ty, tz). `out` must be
-    /// `n_dofs x 6 n_bushings`.
+    /// Total number of stiffness parameters of all bushings (the columns of
+    /// [`System::dtau_dstiffness`]).
+    pub fn n_stiffness_params(&self) -> usize {
+        self.bushings
+            .iter()
+            .map(|b| b.model.n_stiffness_params())
+            .sum()
+    }
+
+    /// `d tau / d p` at `q`: one column per bushing stiffness parameter,
+    /// bushing-major, each bushing's parameters in the order of
+    /// [`crate::solver::BushingModel::stiffness_params`] (for linear bushings
+    /// the diagonal stiffness rx, ry, rz, tx, ty, tz). `out` must be
+    /// `n_dofs x n_stiffness_params()`.
     pub fn dtau_dstiffness(
         &self,
         q: &[f64],
@@ -303,7 +315,7 @@ impl System {
     ) -> Result<()> {
         self.check_q(q)?;
         let n = self.n_dofs();
-        if out.nrows() != n || out.ncols() != 6 * self.bushings.len() {
+        if out.nrows() != n || out.ncols() != self.n_stiffness_params() {
             return Err(Error::invalid(
                 "solver",
                 "dtau_dstiffness: output matrix has the wrong shape",
@@ -312,40 +324,65 @@ impl System {
         let kb = &mut ws.k64;
         kb.q.copy_from_slice(q);
         kinematics::forward(self, kb);
+        let mut col = 0;
         for (bi, b) in self.bushings.iter().enumerate() {
-            if let Some(s) = b.fast {
-                for k in 0..6 {
-                    for row in 0..n {
-                        out[(row, 6 * bi + k)] = 0.0;
-                    }
-                    out[(s + k, 6 * bi + k)] = -q[s + k];
+            let p = b.model.stiffness_params();
+            let (x1, x2, qr, qt, d) = match b.fast {
+                Some(s) => {
+                    let d: [f64; 6] = std::array::from_fn(|k| q[s + k]);
+                    (None, None, Vector3::zeros(), Vector3::zeros(), d)
                 }
-                continue;
-            }
-            let (x1, x2, qr, qt) = forces::bushing_deflection(b, kb);
-            if qr.y.abs() >= forces::GIMBAL_LIMIT {
+                None => {
+                    let (x1, x2, qr, qt) = forces::bushing_deflection(b, kb);
+                    (
+                        Some(x1),
+                        Some(x2),
+                        qr,
+                        qt,
+                        [qr.x, qr.y, qr.z, qt.x, qt.y, qt.z],
+                    )
+                }
+            };
+            if d[1].abs() >= forces::GIMBAL_LIMIT {
                 return Err(GimbalLock {
                     bushing: bi,
-                    angle: qr.y,
+                    angle: d[1],
                 }
                 .to_error(self));
             }
-            for k in 0..6 {
-                for w in kb.w.iter_mut() {
-                    *w = [Vector3::zeros(), Vector3::zeros()];
-                }
-                let mut fr = Vector3::zeros();
-                let mut ft = Vector3::zeros();
-                if k < 3 {
-                    fr[k] = -qr[k];
-                } else {
-                    ft[k - 3] = -qt[k - 3];
-                }
-                forces::bushing_apply(b, &x1, &x2, &qr, &fr, &ft, &mut kb.w);
-                forces::project(self, kb);
+            let dd: [Dual64; 6] = d.map(Dual64::from_re);
+            for j in 0..p.len() {
+                let pd: Vec<Dual64> = p
+                    .iter()
+                    .enumerate()
+                    .map(|(i, v)| Dual64::new(*v, if i == j { 1.0 } else { 0.0 }))
+                    .collect();
+                let dg: [f64; 6] = b.law.g_with(&dd, &pd).map(|v| v.eps);
                 for row in 0..n {
-                    out[(row, 6 * bi + k)] = kb.tau[row];
+                    out[(row, col)] = 0.0;
                 }
+                match (b.fast, x1, x2) {
+                    (Some(s), _, _) => {
+                        for k in 0..6 {
+                            out[(s + k, col)] = -dg[k];
+                        }
+                    }
+                    (None, Some(x1), Some(x2)) => {
+                        for w in kb.w.iter_mut() {
+                            *w = [Vector3::zeros(), Vector3::zeros()];
+                        }
+                        let fr = Vector3::new(-dg[0], -dg[1], -dg[2]);
+                        let ft = Vector3::new(-dg[3], -dg[4], -dg[5]);
+                        forces::bushing_apply(b, &x1, &x2, &qr, &fr, &ft, &mut kb.w);
+                        let _ = qt;
+                        forces::project(self, kb);
+                        for row in 0..n {
+                            out[(row, col)] = kb.tau[row];
+                        }
+                    }
+                    _ => {}
+                }
+                col += 1;
             }
         }
         Ok(())

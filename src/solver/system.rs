@@ -4,6 +4,7 @@
 //! [`Workspace`] that holds every scratch buffer, so repeated solves allocate
 //! nothing.
 
+use super::law::Law;
 use super::scalar::{Scalar, D6};
 use super::spec::{
     BushingModel, CoordinateSpec, FrameSpec, Function, JointKind, SystemSpec, TransformAxis,
@@ -125,14 +126,15 @@ pub(crate) struct Bushing {
     pub body2: Option<usize>,
     pub x_b2: Pose<f64>,
     pub model: BushingModel,
-    /// Diagonal stiffness (rx, ry, rz, tx, ty, tz).
-    pub k: [f64; 6],
+    /// Compiled stiffness law `g(q)`.
+    pub law: Law,
     /// Diagonal damping.
     pub c: [f64; 6],
     /// Fast path: the bushing sits on the frames of a joint whose six axes
     /// are X, Y, Z rotations then X, Y, Z translations, each the identity
-    /// function of its own free dof; then its generalised force is exactly
-    /// `-(K q + C u)` on those dofs (first dof index stored here).
+    /// function of its own free dof; then the deflection is those dofs and
+    /// its generalised force is exactly `-(g(q) + C u)` on them (first dof
+    /// index stored here).
     pub fast: Option<usize>,
 }
 
@@ -433,26 +435,11 @@ impl System {
         for bs in &spec.bushings {
             let (body1, x_b1) = frame(&bs.frame1, &bs.name, 1)?;
             let (body2, x_b2) = frame(&bs.frame2, &bs.name, 2)?;
-            let (k, c) = match &bs.model {
-                BushingModel::Linear {
-                    rot_stiffness: rk,
-                    trans_stiffness: tk,
-                    rot_damping: rc,
-                    trans_damping: tc,
-                } => (
-                    [rk.x, rk.y, rk.z, tk.x, tk.y, tk.z],
-                    [rc.x, rc.y, rc.z, tc.x, tc.y, tc.z],
-                ),
-            };
-            if !k.iter().chain(c.iter()).all(|v| v.is_finite()) {
-                return Err(Error::invalid(
-                    ctx,
-                    format!(
-                        "bushing '{}': stiffness and damping must be finite",
-                        bs.name
-                    ),
-                ));
-            }
+            bs.model
+                .validate()
+                .map_err(|m| Error::invalid(ctx, format!("bushing '{}': {m}", bs.name)))?;
+            let c = bs.model.damping();
+            let law = Law::from_model(&bs.model);
             let fast = body2.and_then(|c2| {
                 let b = &bodies[c2];
                 let j = &b.joint;
@@ -473,7 +460,7 @@ impl System {
                 body2,
                 x_b2,
                 model: bs.model.clone(),
-                k,
+                law,
                 c,
                 fast,
             });
@@ -806,10 +793,10 @@ impl Workspace {
 }
 
 impl System {
-    /// Replace the diagonal stiffness `(rx, ry, rz, tx, ty, tz)` of a linear
-    /// bushing without rebuilding the system (calibration changes stiffness
-    /// parameters thousands of times). Values must be finite.
-    pub fn set_bushing_stiffness(&mut self, i: usize, k: [f64; 6]) -> Result<()> {
+    /// Replace the force law of bushing `i` without rebuilding the system
+    /// (calibration changes stiffness parameters thousands of times). The
+    /// law is validated; frames and the fast path are unchanged.
+    pub fn set_bushing_model(&mut self, i: usize, model: BushingModel) -> Result<()> {
         let n = self.bushings.len();
         let Some(b) = self.bushings.get_mut(i) else {
             return Err(Error::invalid(
@@ -817,24 +804,42 @@ impl System {
                 format!("bushing index {i} out of range ({n} bushings)"),
             ));
         };
-        if !k.iter().all(|v| v.is_finite()) {
+        model
+            .validate()
+            .map_err(|m| Error::invalid(format!("bushing '{}'", b.name), m))?;
+        b.law = super::law::Law::from_model(&model);
+        b.c = model.damping();
+        b.model = model;
+        Ok(())
+    }
+
+    /// Replace the diagonal stiffness `(rx, ry, rz, tx, ty, tz)` of a linear
+    /// bushing (an error for other laws), keeping its damping.
+    pub fn set_bushing_stiffness(&mut self, i: usize, k: [f64; 6]) -> Result<()> {
+        let Some(b) = self.bushings.get(i) else {
+            return Err(Error::invalid(
+                "solver",
+                format!("bushing index {i} out of range"),
+            ));
+        };
+        let BushingModel::Linear {
+            rot_damping,
+            trans_damping,
+            ..
+        } = &b.model
+        else {
             return Err(Error::invalid(
                 format!("bushing '{}'", b.name),
-                "stiffness must be finite",
+                "not a linear BushingForce: its stiffness is not six numbers",
             ));
-        }
-        match &mut b.model {
-            BushingModel::Linear {
-                rot_stiffness,
-                trans_stiffness,
-                ..
-            } => {
-                *rot_stiffness = Vector3::new(k[0], k[1], k[2]);
-                *trans_stiffness = Vector3::new(k[3], k[4], k[5]);
-            }
-        }
-        b.k = k;
-        Ok(())
+        };
+        let model = BushingModel::Linear {
+            rot_stiffness: Vector3::new(k[0], k[1], k[2]),
+            trans_stiffness: Vector3::new(k[3], k[4], k[5]),
+            rot_damping: *rot_damping,
+            trans_damping: *trans_damping,
+        };
+        self.set_bushing_model(i, model)
     }
 
     /// The two bodies (system indices, None = ground) a bushing connects.

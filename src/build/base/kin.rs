@@ -202,7 +202,8 @@ pub fn muscle_path(
             }
             PathPointKind::Moving { x, y, z } => {
                 for (k, f) in [x, y, z].into_iter().enumerate() {
-                    if let Some((func, c)) = f {
+                    if let Some(fc) = f {
+                        let (func, c) = fc.as_ref();
                         loc[k] = func.eval(coord_val(c)?);
                     }
                 }

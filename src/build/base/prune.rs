@@ -97,7 +97,7 @@ pub fn decide(
                 PathPointKind::Conditional { coordinate, .. } => vec![coordinate],
                 PathPointKind::Moving { x, y, z } => [x, y, z]
                     .iter()
-                    .filter_map(|o| o.as_ref().map(|(_, c)| c))
+                    .filter_map(|o| o.as_ref().map(|fc| &fc.1))
                     .collect(),
             };
             if let Some(c) = coords.into_iter().find(|c| !coord_ok(c)) {

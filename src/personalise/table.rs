@@ -1,0 +1,983 @@
+//! Stiffness tables: the TOML and CSV formats of `docs/stiffness-table.md`,
+//! read into [`Table`] (SI units, unit headers checked and converted) and
+//! written back from per-level laws ([`LevelLaw`]) by `--list`.
+//!
+//! A table has an optional `[all]` row (values for every level, `*` in CSV)
+//! and `[[level]]` rows. Rows give a form (`linear`, `nonlinear`,
+//! `coupled`, `expression`), stiffness, ratio and damping per DoF (`rx ry rz
+//! tx ty tz`), curves, a 6x6 matrix or six expressions. Values are checked
+//! here as far as they can be without the model (units, DoF names, numbers);
+//! [`super::resolve`] merges rows with the model and validates the laws.
+
+use crate::error::{Error, Result};
+use crate::solver::spec::DOF_NAMES;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Form of a level's law.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Form {
+    /// Diagonal linear stiffness: OpenSim BushingForce.
+    Linear,
+    /// A curve per DoF: FunctionBasedBushingForce (ExpressionBasedBushingForce
+    /// when a curve is a sinh).
+    Nonlinear,
+    /// Symmetric positive-definite 6x6 stiffness: ExpressionBasedBushingForce.
+    Coupled,
+    /// Six Lepton expressions: ExpressionBasedBushingForce.
+    Expression,
+}
+
+impl Form {
+    pub fn name(self) -> &'static str {
+        match self {
+            Form::Linear => "linear",
+            Form::Nonlinear => "nonlinear",
+            Form::Coupled => "coupled",
+            Form::Expression => "expression",
+        }
+    }
+    fn parse(s: &str) -> Option<Form> {
+        Some(match s {
+            "linear" => Form::Linear,
+            "nonlinear" => Form::Nonlinear,
+            "coupled" => Form::Coupled,
+            "expression" => Form::Expression,
+            _ => return None,
+        })
+    }
+}
+
+/// Interpolation of a curve given as points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Interp {
+    /// PiecewiseLinearFunction (linear extrapolation with the end slopes).
+    Linear,
+    /// SimmSpline (OpenSim's natural cubic spline).
+    Spline,
+}
+
+/// A per-DoF curve `g(x)` in SI units (N m or N against rad or m).
+#[derive(Debug, Clone, PartialEq)]
+pub enum CurveSpec {
+    Linear {
+        k: f64,
+    },
+    Cubic {
+        k: f64,
+        c: f64,
+    },
+    Sinh {
+        k: f64,
+        a: f64,
+    },
+    Bilinear {
+        k_neg: f64,
+        k_pos: f64,
+    },
+    Points {
+        x: Vec<f64>,
+        y: Vec<f64>,
+        interp: Interp,
+    },
+    /// Coefficients, highest power first (OpenSim PolynomialFunction).
+    Polynomial {
+        coefficients: Vec<f64>,
+    },
+}
+
+/// The complete law of one level, SI units, as written into / read from a model.
+/// (The coupled variant is larger than the others; laws are few, so it is not boxed.)
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum LevelLaw {
+    Linear {
+        k: [f64; 6],
+        c: [f64; 6],
+    },
+    Nonlinear {
+        curves: Box<[CurveSpec; 6]>,
+        c: [f64; 6],
+    },
+    Coupled {
+        k: [[f64; 6]; 6],
+        c: [f64; 6],
+    },
+    Expression {
+        exprs: Box<[String; 6]>,
+        c: [f64; 6],
+    },
+}
+
+impl LevelLaw {
+    pub fn form(&self) -> Form {
+        match self {
+            LevelLaw::Linear { .. } => Form::Linear,
+            LevelLaw::Nonlinear { .. } => Form::Nonlinear,
+            LevelLaw::Coupled { .. } => Form::Coupled,
+            LevelLaw::Expression { .. } => Form::Expression,
+        }
+    }
+    pub fn damping(&self) -> [f64; 6] {
+        match self {
+            LevelLaw::Linear { c, .. }
+            | LevelLaw::Nonlinear { c, .. }
+            | LevelLaw::Coupled { c, .. }
+            | LevelLaw::Expression { c, .. } => *c,
+        }
+    }
+}
+
+/// One row of a table (`[all]` or a `[[level]]`), SI units, unresolved.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Row {
+    /// Level name (`*` for the `[all]` row).
+    pub name: String,
+    /// Where the row is, for messages: `[[level]] #3 'L4_L5'`, `line 5 'L4_L5'`.
+    pub location: String,
+    pub form: Option<Form>,
+    pub stiffness: [Option<f64>; 6],
+    pub ratio: [Option<f64>; 6],
+    pub damping: [Option<f64>; 6],
+    pub curves: [Option<CurveSpec>; 6],
+    pub matrix: Option<[[f64; 6]; 6]>,
+    pub expressions: Option<[String; 6]>,
+}
+
+/// A parsed table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Table {
+    /// The file it came from (for messages).
+    pub path: PathBuf,
+    /// The `[all]` row (CSV: level `*`).
+    pub all: Option<Row>,
+    /// Level rows in file order.
+    pub levels: Vec<Row>,
+}
+
+/// Unit factors to SI of one quantity: (accepted spelling, factor).
+const ROT_STIFF: &[(&str, f64)] = &[("N*m/rad", 1.0), ("N*m/deg", 180.0 / std::f64::consts::PI)];
+const TRANS_STIFF: &[(&str, f64)] = &[("N/m", 1.0), ("N/mm", 1000.0)];
+const ROT_DAMP: &[(&str, f64)] = &[
+    ("N*m*s/rad", 1.0),
+    ("N*m*s/deg", 180.0 / std::f64::consts::PI),
+];
+const TRANS_DAMP: &[(&str, f64)] = &[("N*s/m", 1.0), ("N*s/mm", 1000.0)];
+
+fn unit_factor(
+    path: &Path,
+    key: &str,
+    given: Option<&str>,
+    accepted: &[(&str, f64)],
+) -> Result<f64> {
+    let list = accepted
+        .iter()
+        .map(|(u, _)| format!("\"{u}\""))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let Some(u) = given else {
+        return Err(Error::parse(
+            path,
+            "[units]",
+            format!(
+                "missing unit `{key}` (accepted: {list}); the units of every table must be stated"
+            ),
+        ));
+    };
+    let norm: String = u.chars().filter(|c| !c.is_whitespace()).collect();
+    accepted
+        .iter()
+        .find(|(s, _)| *s == norm)
+        .map(|(_, f)| *f)
+        .ok_or_else(|| {
+            Error::parse(
+                path,
+                "[units]",
+                format!("unit `{key}` = \"{u}\" is not accepted (accepted: {list})"),
+            )
+        })
+}
+
+/// Unit factors of a table (stiffness and damping, rotational and translational).
+#[derive(Debug, Clone, Copy)]
+struct Units {
+    stiff: [f64; 6],
+    damp: [f64; 6],
+    /// All units are SI (required by curves, matrices and expressions).
+    si: bool,
+}
+
+fn dof_index(name: &str) -> Option<usize> {
+    DOF_NAMES.iter().position(|d| *d == name)
+}
+
+// ---------------------------------------------------------------- TOML
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlFile {
+    #[serde(default)]
+    format: Option<String>,
+    #[serde(default)]
+    units: Option<TomlUnits>,
+    #[serde(default)]
+    all: Option<TomlRow>,
+    #[serde(default)]
+    level: Vec<TomlRow>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlUnits {
+    rotational: Option<String>,
+    translational: Option<String>,
+    rot_damping: Option<String>,
+    trans_damping: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlRow {
+    name: Option<String>,
+    form: Option<String>,
+    stiffness: Option<BTreeMap<String, f64>>,
+    ratio: Option<BTreeMap<String, f64>>,
+    damping: Option<BTreeMap<String, f64>>,
+    #[serde(default)]
+    curve: Vec<TomlCurve>,
+    matrix: Option<Vec<Vec<f64>>>,
+    expressions: Option<BTreeMap<String, String>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlCurve {
+    dof: String,
+    kind: String,
+    k: Option<f64>,
+    c: Option<f64>,
+    a: Option<f64>,
+    k_neg: Option<f64>,
+    k_pos: Option<f64>,
+    x: Option<Vec<f64>>,
+    y: Option<Vec<f64>>,
+    interp: Option<String>,
+    coefficients: Option<Vec<f64>>,
+}
+
+fn dof_map(
+    path: &Path,
+    loc: &str,
+    what: &str,
+    m: &Option<BTreeMap<String, f64>>,
+    factor: Option<&[f64; 6]>,
+) -> Result<[Option<f64>; 6]> {
+    let mut out = [None; 6];
+    if let Some(m) = m {
+        for (k, v) in m {
+            let i = dof_index(k).ok_or_else(|| {
+                Error::parse(
+                    path,
+                    loc,
+                    format!("{what}: unknown DoF '{k}' (DoFs: {})", DOF_NAMES.join(", ")),
+                )
+            })?;
+            if !v.is_finite() {
+                return Err(Error::parse(path, loc, format!("{what}.{k} is not finite")));
+            }
+            out[i] = Some(v * factor.map(|f| f[i]).unwrap_or(1.0));
+        }
+    }
+    Ok(out)
+}
+
+fn toml_curve(path: &Path, loc: &str, c: &TomlCurve) -> Result<(usize, CurveSpec)> {
+    let i = dof_index(&c.dof).ok_or_else(|| {
+        Error::parse(
+            path,
+            loc,
+            format!(
+                "curve: unknown DoF '{}' (DoFs: {})",
+                c.dof,
+                DOF_NAMES.join(", ")
+            ),
+        )
+    })?;
+    let cl = format!("{loc} curve {}", c.dof);
+    let need = |v: Option<f64>, key: &str| -> Result<f64> {
+        v.ok_or_else(|| Error::parse(path, &cl, format!("a '{}' curve needs `{key}`", c.kind)))
+    };
+    // keys each kind takes (others are errors: they would be silently ignored)
+    let given: Vec<&str> = [
+        ("k", c.k.is_some()),
+        ("c", c.c.is_some()),
+        ("a", c.a.is_some()),
+        ("k_neg", c.k_neg.is_some()),
+        ("k_pos", c.k_pos.is_some()),
+        ("x", c.x.is_some()),
+        ("y", c.y.is_some()),
+        ("interp", c.interp.is_some()),
+        ("coefficients", c.coefficients.is_some()),
+    ]
+    .iter()
+    .filter(|(_, g)| *g)
+    .map(|(k, _)| *k)
+    .collect();
+    let allowed: &[&str] = match c.kind.as_str() {
+        "linear" => &["k"],
+        "cubic" => &["k", "c"],
+        "sinh" => &["k", "a"],
+        "bilinear" => &["k_neg", "k_pos"],
+        "points" => &["x", "y", "interp"],
+        "polynomial" => &["coefficients"],
+        other => {
+            return Err(Error::parse(
+                path,
+                &cl,
+                format!("unknown curve kind '{other}' (kinds: linear, cubic, sinh, bilinear, points, polynomial)"),
+            ))
+        }
+    };
+    if let Some(extra) = given.iter().find(|k| !allowed.contains(k)) {
+        return Err(Error::parse(
+            path,
+            &cl,
+            format!(
+                "`{extra}` does not belong to a '{}' curve (it takes {})",
+                c.kind,
+                allowed.join(", ")
+            ),
+        ));
+    }
+    let spec = match c.kind.as_str() {
+        "linear" => CurveSpec::Linear { k: need(c.k, "k")? },
+        "cubic" => CurveSpec::Cubic {
+            k: need(c.k, "k")?,
+            c: need(c.c, "c")?,
+        },
+        "sinh" => CurveSpec::Sinh {
+            k: need(c.k, "k")?,
+            a: need(c.a, "a")?,
+        },
+        "bilinear" => CurveSpec::Bilinear {
+            k_neg: need(c.k_neg, "k_neg")?,
+            k_pos: need(c.k_pos, "k_pos")?,
+        },
+        "points" => {
+            let interp = match c.interp.as_deref() {
+                None | Some("linear") => Interp::Linear,
+                Some("spline") => Interp::Spline,
+                Some(o) => {
+                    return Err(Error::parse(
+                        path,
+                        &cl,
+                        format!("interp '{o}' is not 'linear' or 'spline'"),
+                    ))
+                }
+            };
+            let (Some(x), Some(y)) = (&c.x, &c.y) else {
+                return Err(Error::parse(
+                    path,
+                    &cl,
+                    "a 'points' curve needs `x` and `y`",
+                ));
+            };
+            CurveSpec::Points {
+                x: x.clone(),
+                y: y.clone(),
+                interp,
+            }
+        }
+        _ => CurveSpec::Polynomial {
+            coefficients: c.coefficients.clone().ok_or_else(|| {
+                Error::parse(path, &cl, "a 'polynomial' curve needs `coefficients`")
+            })?,
+        },
+    };
+    Ok((i, spec))
+}
+
+fn toml_row(path: &Path, loc: String, r: &TomlRow, units: &Units) -> Result<Row> {
+    let form = match &r.form {
+        None => None,
+        Some(f) => Some(Form::parse(f).ok_or_else(|| {
+            Error::parse(
+                path,
+                &loc,
+                format!("unknown form '{f}' (forms: linear, nonlinear, coupled, expression)"),
+            )
+        })?),
+    };
+    let mut row = Row {
+        name: r.name.clone().unwrap_or_default(),
+        location: loc.clone(),
+        form,
+        stiffness: dof_map(path, &loc, "stiffness", &r.stiffness, Some(&units.stiff))?,
+        ratio: dof_map(path, &loc, "ratio", &r.ratio, None)?,
+        damping: dof_map(path, &loc, "damping", &r.damping, Some(&units.damp))?,
+        ..Row::default()
+    };
+    let non_si = |what: &str| -> Result<()> {
+        if units.si {
+            Ok(())
+        } else {
+            Err(Error::parse(
+                path,
+                &loc,
+                format!("{what} must be given in SI units (N*m/rad, N/m, N*m*s/rad, N*s/m)"),
+            ))
+        }
+    };
+    for c in &r.curve {
+        non_si("curves")?;
+        let (i, spec) = toml_curve(path, &loc, c)?;
+        if row.curves[i].is_some() {
+            return Err(Error::parse(
+                path,
+                &loc,
+                format!("two curves for DoF {}", DOF_NAMES[i]),
+            ));
+        }
+        row.curves[i] = Some(spec);
+    }
+    if let Some(m) = &r.matrix {
+        non_si("a coupled matrix")?;
+        if m.len() != 6 || m.iter().any(|row| row.len() != 6) {
+            return Err(Error::parse(
+                path,
+                &loc,
+                "matrix must be 6 rows of 6 numbers (rx ry rz tx ty tz)",
+            ));
+        }
+        let mut k = [[0.0; 6]; 6];
+        for (i, rr) in m.iter().enumerate() {
+            for (j, v) in rr.iter().enumerate() {
+                if !v.is_finite() {
+                    return Err(Error::parse(
+                        path,
+                        &loc,
+                        format!("matrix[{i}][{j}] is not finite"),
+                    ));
+                }
+                k[i][j] = *v;
+            }
+        }
+        row.matrix = Some(k);
+    }
+    if let Some(e) = &r.expressions {
+        non_si("expressions")?;
+        let mut out: [Option<String>; 6] = Default::default();
+        for (k, v) in e {
+            let i = dof_index(k).ok_or_else(|| {
+                Error::parse(
+                    path,
+                    &loc,
+                    format!(
+                        "expressions: unknown DoF '{k}' (DoFs: {})",
+                        DOF_NAMES.join(", ")
+                    ),
+                )
+            })?;
+            out[i] = Some(v.clone());
+        }
+        let mut all: [String; 6] = Default::default();
+        for (i, o) in out.into_iter().enumerate() {
+            all[i] = o.ok_or_else(|| {
+                Error::parse(
+                    path,
+                    &loc,
+                    format!("expressions: missing DoF {}", DOF_NAMES[i]),
+                )
+            })?;
+        }
+        row.expressions = Some(all);
+    }
+    Ok(row)
+}
+
+/// Parse a TOML table (`path` names it in messages).
+pub fn parse_toml(text: &str, path: &Path) -> Result<Table> {
+    let f: TomlFile = toml::from_str(text)
+        .map_err(|e| Error::parse(path, "TOML", e.to_string().trim_end().to_string()))?;
+    if let Some(fmt) = &f.format {
+        if fmt != FORMAT_TAG {
+            return Err(Error::parse(
+                path,
+                "format",
+                format!("unknown format '{fmt}' (expected \"{FORMAT_TAG}\")"),
+            ));
+        }
+    }
+    let Some(u) = &f.units else {
+        return Err(Error::parse(
+            path,
+            "[units]",
+            "missing the [units] header (rotational, translational, rot_damping, trans_damping)",
+        ));
+    };
+    let r = unit_factor(path, "rotational", u.rotational.as_deref(), ROT_STIFF)?;
+    let t = unit_factor(
+        path,
+        "translational",
+        u.translational.as_deref(),
+        TRANS_STIFF,
+    )?;
+    let rd = unit_factor(path, "rot_damping", u.rot_damping.as_deref(), ROT_DAMP)?;
+    let td = unit_factor(
+        path,
+        "trans_damping",
+        u.trans_damping.as_deref(),
+        TRANS_DAMP,
+    )?;
+    let units = Units {
+        stiff: [r, r, r, t, t, t],
+        damp: [rd, rd, rd, td, td, td],
+        si: r == 1.0 && t == 1.0 && rd == 1.0 && td == 1.0,
+    };
+    let all = match &f.all {
+        None => None,
+        Some(a) => {
+            if a.name.is_some() {
+                return Err(Error::parse(path, "[all]", "the [all] row takes no `name`"));
+            }
+            let mut row = toml_row(path, "[all]".into(), a, &units)?;
+            row.name = "*".into();
+            Some(row)
+        }
+    };
+    let mut levels = Vec::with_capacity(f.level.len());
+    for (i, l) in f.level.iter().enumerate() {
+        let Some(name) = &l.name else {
+            return Err(Error::parse(
+                path,
+                format!("[[level]] #{}", i + 1),
+                "missing `name`",
+            ));
+        };
+        let loc = format!("[[level]] #{} '{name}'", i + 1);
+        levels.push(toml_row(path, loc, l, &units)?);
+    }
+    Ok(Table {
+        path: path.to_path_buf(),
+        all,
+        levels,
+    })
+}
+
+// ---------------------------------------------------------------- CSV
+
+/// Parse a CSV table: a header row `level, <column> [<unit>], ...` with
+/// stiffness columns `rx .. tz`, damping columns `c_rx .. c_tz` and ratio
+/// columns `ratio_rx .. ratio_tz` (unit `1`), then one row per level (`*`:
+/// every level). Empty cells are "not given". Linear form only.
+pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .comment(Some(b'#'))
+        .flexible(false)
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    let mut records = rdr.records();
+    let header = match records.next() {
+        Some(Ok(h)) => h,
+        Some(Err(e)) => return Err(Error::parse(path, "line 1", e.to_string())),
+        None => return Err(Error::parse(path, "line 1", "empty table (no header row)")),
+    };
+    let hline = header.position().map(|p| p.line()).unwrap_or(1);
+    // column -> (kind 0 stiffness / 1 damping / 2 ratio, dof, factor)
+    let mut cols: Vec<Option<(usize, usize, f64)>> = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
+    for (ci, h) in header.iter().enumerate() {
+        let loc = format!("line {hline}, column {}", ci + 1);
+        if ci == 0 {
+            if h != "level" {
+                return Err(Error::parse(
+                    path,
+                    loc,
+                    format!("first column must be `level`, found '{h}'"),
+                ));
+            }
+            cols.push(None);
+            continue;
+        }
+        let (name, unit) = match (h.find('['), h.ends_with(']')) {
+            (Some(o), true) => (h[..o].trim(), Some(h[o + 1..h.len() - 1].trim())),
+            _ => (h.trim(), None),
+        };
+        let (kind, dof) = if let Some(d) = name.strip_prefix("c_") {
+            (1, d)
+        } else if let Some(d) = name.strip_prefix("ratio_") {
+            (2, d)
+        } else {
+            (0, name)
+        };
+        let i = dof_index(dof).ok_or_else(|| {
+            Error::parse(
+                path,
+                &loc,
+                format!(
+                    "unknown column '{name}' (columns: rx..tz, c_rx..c_tz, ratio_rx..ratio_tz)"
+                ),
+            )
+        })?;
+        if !seen.insert(name.to_string()) {
+            return Err(Error::parse(
+                path,
+                &loc,
+                format!("column '{name}' given twice"),
+            ));
+        }
+        let Some(unit) = unit else {
+            return Err(Error::parse(
+                path,
+                &loc,
+                format!("column '{name}' has no unit: write it as `{name} [unit]`"),
+            ));
+        };
+        let factor = match kind {
+            2 => {
+                if unit != "1" {
+                    return Err(Error::parse(
+                        path,
+                        &loc,
+                        format!("ratio column '{name}' must have unit [1]"),
+                    ));
+                }
+                1.0
+            }
+            1 => unit_factor(
+                path,
+                name,
+                Some(unit),
+                if i < 3 { ROT_DAMP } else { TRANS_DAMP },
+            )
+            .map_err(|_| {
+                Error::parse(
+                    path,
+                    &loc,
+                    format!(
+                        "column '{name}': unit [{unit}] is not accepted (accepted: {})",
+                        if i < 3 {
+                            "N*m*s/rad, N*m*s/deg"
+                        } else {
+                            "N*s/m, N*s/mm"
+                        }
+                    ),
+                )
+            })?,
+            _ => unit_factor(
+                path,
+                name,
+                Some(unit),
+                if i < 3 { ROT_STIFF } else { TRANS_STIFF },
+            )
+            .map_err(|_| {
+                Error::parse(
+                    path,
+                    &loc,
+                    format!(
+                        "column '{name}': unit [{unit}] is not accepted (accepted: {})",
+                        if i < 3 {
+                            "N*m/rad, N*m/deg"
+                        } else {
+                            "N/m, N/mm"
+                        }
+                    ),
+                )
+            })?,
+        };
+        cols.push(Some((kind, i, factor)));
+    }
+    let mut all = None;
+    let mut levels = Vec::new();
+    for rec in records {
+        let rec = rec.map_err(|e| Error::parse(path, "CSV", e.to_string()))?;
+        let line = rec.position().map(|p| p.line()).unwrap_or(0);
+        let name = rec.get(0).unwrap_or("").to_string();
+        if name.is_empty() {
+            return Err(Error::parse(
+                path,
+                format!("line {line}"),
+                "empty level name",
+            ));
+        }
+        let loc = format!("line {line} '{name}'");
+        let mut row = Row {
+            name: name.clone(),
+            location: loc.clone(),
+            form: Some(Form::Linear),
+            ..Row::default()
+        };
+        for (ci, cell) in rec.iter().enumerate().skip(1) {
+            let Some(Some((kind, i, f))) = cols.get(ci) else {
+                continue;
+            };
+            if cell.is_empty() {
+                continue;
+            }
+            let v: f64 = cell.parse().map_err(|_| {
+                Error::parse(
+                    path,
+                    &loc,
+                    format!("column {}: '{cell}' is not a number", ci + 1),
+                )
+            })?;
+            if !v.is_finite() {
+                return Err(Error::parse(
+                    path,
+                    &loc,
+                    format!("column {}: not finite", ci + 1),
+                ));
+            }
+            match kind {
+                0 => row.stiffness[*i] = Some(v * f),
+                1 => row.damping[*i] = Some(v * f),
+                _ => row.ratio[*i] = Some(v),
+            }
+        }
+        if name == "*" {
+            if all.is_some() {
+                return Err(Error::parse(path, &loc, "a second `*` row"));
+            }
+            row.form = None;
+            all = Some(row);
+        } else {
+            levels.push(row);
+        }
+    }
+    Ok(Table {
+        path: path.to_path_buf(),
+        all,
+        levels,
+    })
+}
+
+/// Read a table file: `.csv` as CSV, anything else as TOML.
+pub fn read_table(path: &Path) -> Result<Table> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.len() > 64 * 1024 * 1024 {
+        return Err(Error::parse(
+            path,
+            "file",
+            "larger than 64 MiB: not a stiffness table",
+        ));
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    if is_csv(path) {
+        parse_csv(&text, path)
+    } else {
+        parse_toml(&text, path)
+    }
+}
+
+/// Whether a path names a CSV table (by extension).
+pub fn is_csv(path: &Path) -> bool {
+    path.extension()
+        .map(|e| e.eq_ignore_ascii_case("csv"))
+        .unwrap_or(false)
+}
+
+// ---------------------------------------------------------------- writers
+
+/// The `format` tag of TOML tables.
+pub const FORMAT_TAG: &str = "osim-spine stiffness table 1";
+
+/// A number as TOML/CSV text: shortest round-trip form, always a float literal.
+pub fn num(x: f64) -> String {
+    if x == 0.0 {
+        return "0.0".into();
+    }
+    format!("{x:?}")
+}
+
+fn dof_line(key: &str, v: &[f64; 6]) -> String {
+    let parts: Vec<String> = DOF_NAMES
+        .iter()
+        .zip(v)
+        .map(|(d, x)| format!("{d} = {}", num(*x)))
+        .collect();
+    format!("{key} = {{ {} }}\n", parts.join(", "))
+}
+
+fn toml_str(s: &str) -> String {
+    // basic TOML string with escapes
+    let mut o = String::from("\"");
+    for ch in s.chars() {
+        match ch {
+            '"' => o.push_str("\\\""),
+            '\\' => o.push_str("\\\\"),
+            '\n' => o.push_str("\\n"),
+            '\t' => o.push_str("\\t"),
+            c if (c as u32) < 0x20 => o.push_str(&format!("\\u{:04X}", c as u32)),
+            c => o.push(c),
+        }
+    }
+    o.push('"');
+    o
+}
+
+fn nums(v: &[f64]) -> String {
+    format!(
+        "[{}]",
+        v.iter().map(|x| num(*x)).collect::<Vec<_>>().join(", ")
+    )
+}
+
+/// Write per-level laws as a TOML table (SI units), in the given order.
+pub fn write_toml(model_name: &str, levels: &[(String, LevelLaw)]) -> String {
+    let mut s = String::new();
+    s.push_str(&format!(
+        "# Stiffness table listed by osim-spine from {model_name}\n"
+    ));
+    s.push_str(&format!("format = {}\n\n", toml_str(FORMAT_TAG)));
+    s.push_str("[units]\nrotational = \"N*m/rad\"\ntranslational = \"N/m\"\nrot_damping = \"N*m*s/rad\"\ntrans_damping = \"N*s/m\"\n");
+    for (name, law) in levels {
+        s.push_str("\n[[level]]\n");
+        s.push_str(&format!("name = {}\n", toml_str(name)));
+        s.push_str(&format!("form = \"{}\"\n", law.form().name()));
+        match law {
+            LevelLaw::Linear { k, c } => {
+                s.push_str(&dof_line("stiffness", k));
+                s.push_str(&dof_line("damping", c));
+            }
+            LevelLaw::Coupled { k, c } => {
+                s.push_str("matrix = [\n");
+                for r in k {
+                    s.push_str(&format!("  {},\n", nums(r)));
+                }
+                s.push_str("]\n");
+                s.push_str(&dof_line("damping", c));
+            }
+            LevelLaw::Expression { exprs, c } => {
+                let parts: Vec<String> = DOF_NAMES
+                    .iter()
+                    .zip(exprs.iter())
+                    .map(|(d, e)| format!("{d} = {}", toml_str(e)))
+                    .collect();
+                s.push_str(&format!("expressions = {{ {} }}\n", parts.join(", ")));
+                s.push_str(&dof_line("damping", c));
+            }
+            LevelLaw::Nonlinear { curves, c } => {
+                s.push_str(&dof_line("damping", c));
+                for (d, cv) in DOF_NAMES.iter().zip(curves.iter()) {
+                    s.push_str("[[level.curve]]\n");
+                    s.push_str(&format!("dof = \"{d}\"\n"));
+                    match cv {
+                        CurveSpec::Linear { k } => {
+                            s.push_str(&format!("kind = \"linear\"\nk = {}\n", num(*k)))
+                        }
+                        CurveSpec::Cubic { k, c } => s.push_str(&format!(
+                            "kind = \"cubic\"\nk = {}\nc = {}\n",
+                            num(*k),
+                            num(*c)
+                        )),
+                        CurveSpec::Sinh { k, a } => s.push_str(&format!(
+                            "kind = \"sinh\"\nk = {}\na = {}\n",
+                            num(*k),
+                            num(*a)
+                        )),
+                        CurveSpec::Bilinear { k_neg, k_pos } => s.push_str(&format!(
+                            "kind = \"bilinear\"\nk_neg = {}\nk_pos = {}\n",
+                            num(*k_neg),
+                            num(*k_pos)
+                        )),
+                        CurveSpec::Points { x, y, interp } => s.push_str(&format!(
+                            "kind = \"points\"\ninterp = \"{}\"\nx = {}\ny = {}\n",
+                            match interp {
+                                Interp::Linear => "linear",
+                                Interp::Spline => "spline",
+                            },
+                            nums(x),
+                            nums(y)
+                        )),
+                        CurveSpec::Polynomial { coefficients } => s.push_str(&format!(
+                            "kind = \"polynomial\"\ncoefficients = {}\n",
+                            nums(coefficients)
+                        )),
+                    }
+                }
+            }
+        }
+    }
+    s
+}
+
+/// Write linear laws as a CSV table (SI units). Errors when a level is not linear.
+pub fn write_csv(levels: &[(String, LevelLaw)]) -> Result<String> {
+    let mut s = String::from("level");
+    for d in DOF_NAMES {
+        let u = if d.starts_with('r') { "N*m/rad" } else { "N/m" };
+        s.push_str(&format!(",{d} [{u}]"));
+    }
+    for d in DOF_NAMES {
+        let u = if d.starts_with('r') {
+            "N*m*s/rad"
+        } else {
+            "N*s/m"
+        };
+        s.push_str(&format!(",c_{d} [{u}]"));
+    }
+    s.push('\n');
+    for (name, law) in levels {
+        let LevelLaw::Linear { k, c } = law else {
+            return Err(Error::invalid(
+                format!("level '{name}'"),
+                format!(
+                    "its bushing has the {} form, which CSV tables cannot hold: list as TOML",
+                    law.form().name()
+                ),
+            ));
+        };
+        if name.contains([',', '"', '\n', '#']) || name == "*" {
+            return Err(Error::invalid(
+                format!("level '{name}'"),
+                "this level name cannot be written to a CSV table: list as TOML",
+            ));
+        }
+        s.push_str(name);
+        for v in k.iter().chain(c.iter()) {
+            s.push(',');
+            s.push_str(&num(*v));
+        }
+        s.push('\n');
+    }
+    Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_are_toml_floats_and_round_trip() {
+        for x in [291.0, 68.8, 1e20, 1e-7, -3.5, 0.0, 2.3] {
+            let t = num(x);
+            let v: toml::Table = toml::from_str(&format!("v = {t}")).unwrap();
+            assert_eq!(v["v"].as_float().unwrap(), x, "{t}");
+        }
+    }
+
+    #[test]
+    fn units_convert_to_si() {
+        let t = "[units]\nrotational = \"N*m/deg\"\ntranslational = \"N/mm\"\nrot_damping = \"N*m*s/rad\"\ntrans_damping = \"N*s/m\"\n[[level]]\nname = \"A\"\nstiffness = { rx = 1.0, tx = 2 }\n";
+        let tab = parse_toml(t, Path::new("t.toml")).unwrap();
+        let r = &tab.levels[0];
+        assert!((r.stiffness[0].unwrap() - 180.0 / std::f64::consts::PI).abs() < 1e-12);
+        assert_eq!(r.stiffness[3], Some(2000.0));
+    }
+
+    #[test]
+    fn missing_and_unknown_units_are_rejected() {
+        let e = parse_toml("[[level]]\nname = \"A\"\n", Path::new("t.toml")).unwrap_err();
+        assert!(e.to_string().contains("[units]"), "{e}");
+        let e = parse_toml(
+            "[units]\nrotational = \"N*m/rad\"\ntranslational = \"lbf/in\"\nrot_damping = \"N*m*s/rad\"\ntrans_damping = \"N*s/m\"\n",
+            Path::new("t.toml"),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("lbf/in"), "{e}");
+        let e = parse_csv("level,rx\nA,1\n", Path::new("t.csv")).unwrap_err();
+        assert!(e.to_string().contains("no unit"), "{e}");
+    }
+}
