@@ -2,12 +2,13 @@
 //! experiments of `../shared/diagnose-dev/` whose truth is `none` (the
 //! nominal model's form is right, only its values are off), the calibrated
 //! nominal model reproduces the measurements to the noise level:
-//! - the calibrated global stiffness matches the withheld truth (the ratios
-//!   to nominal in truth.toml's notes) within 3%;
-//! - a richer model (independent per-level stiffness, 6x more parameters)
-//!   does not improve the fit significantly (F-test), i.e. what remains is
-//!   unstructured noise;
-//! - the residual is a few hundredths of a degree.
+//! 1. the calibrated global stiffness matches the withheld truth (the
+//!    ratios to nominal in truth.toml's notes) within 3%;
+//! 2. a richer model (independent per-level stiffness, 6x more parameters)
+//!    does not improve the fit significantly (F-test), i.e. what remains
+//!    is unstructured noise;
+//! 3. the residual is a few hundredths of a degree.
+//!
 //! It also records which definition of the rotation increment the data
 //! follow (the format's composed rotation vs the README's difference).
 

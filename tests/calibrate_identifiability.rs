@@ -43,19 +43,13 @@ fn synthesize(exp: &Experiment, truth: &[[f64; 3]], sd_deg: f64, seed: u64) -> E
     let noise = Normal::new(0.0, sd_deg.to_radians().max(1e-300)).unwrap();
     let mut out = exp.clone();
     for (r, pr) in out.rows.iter_mut().zip(&pred) {
-        for d in 0..6 {
-            r.values[d] = if d < 3 {
-                Some(
-                    pr[d]
-                        + if sd_deg > 0.0 {
-                            noise.sample(&mut rng)
-                        } else {
-                            0.0
-                        },
-                )
+        for (d, (v, p)) in r.values.iter_mut().zip(pr).enumerate() {
+            let e = if sd_deg > 0.0 && d < 3 {
+                noise.sample(&mut rng)
             } else {
-                None
+                0.0
             };
+            *v = (d < 3).then_some(p + e);
         }
     }
     out

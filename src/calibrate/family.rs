@@ -192,8 +192,11 @@ pub enum Parameterisation {
 pub struct StiffnessFamily {
     label: String,
     params: Vec<ParamInfo>,
-    /// Nominal diagonal stiffness of every bushing of the system.
+    /// Nominal diagonal stiffness of every bushing of the system (NaN for non-linear laws).
     nominal: Vec<[f64; 6]>,
+    /// First column of each bushing in `System::dtau_dstiffness`, and the total.
+    col_offset: Vec<usize>,
+    n_cols: usize,
     /// Per parameter: (bushing, dof, factor) with `k = factor * p`.
     map: Vec<Vec<(usize, usize, f64)>>,
     /// The levels the family acts on.
@@ -224,26 +227,39 @@ impl StiffnessFamily {
                 "no intervertebral level (a BushingForce between an adjacent pair of bodies) lies between the fixed body and the loaded bodies",
             ));
         }
+        // nominal diagonal stiffness of every bushing (non-linear laws: none),
+        // and each bushing's first column in `System::dtau_dstiffness`
         let mut nominal = Vec::new();
+        let mut linear = Vec::new();
+        let mut col_offset = Vec::new();
+        let mut col = 0;
         for i in 0..sys.bushing_names().count() {
             let Some(m) = sys.bushing_model(i) else {
                 continue;
             };
-            // Only linear (BushingForce) laws have a diagonal to calibrate;
-            // other laws get NaN, refused below when they are a level.
-            let k: [f64; 6] = match m {
-                crate::solver::BushingModel::Linear { .. } => {
-                    let p = m.stiffness_params();
-                    std::array::from_fn(|i| p.get(i).copied().unwrap_or(f64::NAN))
-                }
-                _ => [f64::NAN; 6],
-            };
-            nominal.push(k);
+            let p = m.stiffness_params();
+            col_offset.push(col);
+            col += p.len();
+            let is_linear = matches!(m, crate::solver::BushingModel::Linear { .. });
+            linear.push(is_linear);
+            nominal.push(if is_linear {
+                std::array::from_fn(|d| p.get(d).copied().unwrap_or(0.0))
+            } else {
+                [f64::NAN; 6]
+            });
+        }
+        for l in &levels {
+            if !linear.get(l.bushing).copied().unwrap_or(false) {
+                return Err(Error::invalid(
+                    format!("level {}", l.name),
+                    "its bushing is not a linear BushingForce: calibration parameterises linear stiffness only (non-linear and coupled forms are not calibrated yet)",
+                ));
+            }
         }
         for l in &levels {
             let k = nominal.get(l.bushing).copied().unwrap_or([0.0; 6]);
             for &d in dofs {
-                if !(k[d] > 0.0) {
+                if k[d].is_nan() || k[d] <= 0.0 {
                     return Err(Error::invalid(
                         format!("level {}", l.name),
                         format!(
@@ -347,6 +363,8 @@ impl StiffnessFamily {
             label,
             params,
             nominal,
+            col_offset,
+            n_cols: col,
             map,
             levels,
             dofs: dofs.to_vec(),
@@ -370,6 +388,11 @@ impl StiffnessFamily {
     /// The family's label (`uniform`, `ratio`, `per-level`).
     pub fn label_str(&self) -> &str {
         &self.label
+    }
+
+    /// The parameters (same as [`ModelFamily::params`]).
+    pub fn params_info(&self) -> &[ParamInfo] {
+        &self.params
     }
 
     /// Nominal parameter values.
@@ -402,8 +425,14 @@ impl ModelFamily for StiffnessFamily {
                 format!("expected {} parameters, got {}", self.params.len(), p.len()),
             ));
         }
-        for (i, k) in self.bushing_stiffness(p).into_iter().enumerate() {
-            sys.set_bushing_stiffness(i, k)?;
+        let k = self.bushing_stiffness(p);
+        let mut touched: Vec<usize> = self.map.iter().flatten().map(|e| e.0).collect();
+        touched.sort_unstable();
+        touched.dedup();
+        for b in touched {
+            if let Some(kb) = k.get(b) {
+                sys.set_bushing_stiffness(b, *kb)?;
+            }
         }
         Ok(())
     }
@@ -418,13 +447,12 @@ impl ModelFamily for StiffnessFamily {
         ws: &mut Workspace,
         out: &mut DMatrix<f64>,
     ) -> Result<()> {
-        let nb = self.nominal.len();
-        let mut dk = DMatrix::zeros(sys.n_dofs(), 6 * nb);
+        let mut dk = DMatrix::zeros(sys.n_dofs(), self.n_cols);
         sys.dtau_dstiffness(q, ws, &mut dk)?;
         out.fill(0.0);
         for (j, entries) in self.map.iter().enumerate() {
             for &(b, d, f) in entries {
-                let col = 6 * b + d;
+                let col = self.col_offset.get(b).copied().unwrap_or(0) + d;
                 for i in 0..sys.n_dofs() {
                     out[(i, j)] += f * dk[(i, col)];
                 }

@@ -7,6 +7,7 @@ use rand_chacha::ChaCha8Rng;
 
 /// `n` points in `[0,1)^dim`: each coordinate has exactly one point in each
 /// of the `n` equal strata, strata paired across coordinates at random.
+#[allow(clippy::needless_range_loop)]
 pub fn unit(n: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut pts = vec![vec![0.0; dim]; n];

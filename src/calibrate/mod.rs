@@ -15,5 +15,6 @@ pub mod lm;
 pub mod measure;
 pub mod problem;
 pub mod report;
+pub mod sensitivity;
 pub mod setup;
 pub mod validate;

@@ -364,6 +364,7 @@ impl Evaluator {
     }
 
     /// `dq/dp = -T^{-1} d tau/d p` with the tangent factorised by the last solve.
+    #[allow(clippy::needless_range_loop)]
     fn dq_dp(
         &mut self,
         pb: &Problem,

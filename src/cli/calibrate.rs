@@ -12,7 +12,7 @@ use crate::calibrate::problem::Problem;
 use crate::calibrate::report::{self, FitSummary};
 use crate::calibrate::setup::{self, Setup};
 use crate::calibrate::validate;
-use crate::personalise::linear::set_linear_bushing_stiffness;
+use crate::personalise::{self, LevelLaw};
 use crate::util::write_atomic;
 use anyhow::Context;
 use clap::Args as ClapArgs;
@@ -131,6 +131,32 @@ fn summary(pb: &Problem, pred: &[[f64; 6]]) -> FitSummary {
     }
 }
 
+/// Write calibrated linear stiffness into the document through the
+/// stiffness writer of `osim-spine stiffness` (damping kept).
+fn write_linear_laws(
+    doc: &mut crate::osim::Document,
+    values: &[(String, [f64; 6])],
+) -> anyhow::Result<()> {
+    let levels = personalise::levels(doc)?;
+    let path = doc.path().to_path_buf();
+    let mut laws = Vec::new();
+    for (bushing, k) in values {
+        let Some(level) = levels.iter().find(|l| &l.bushing == bushing) else {
+            anyhow::bail!(
+                "{}: bushing '{bushing}' is not a level of the model",
+                path.display()
+            );
+        };
+        let Some(e) = doc.component("ForceSet", bushing) else {
+            anyhow::bail!("{}: bushing '{bushing}' not found", path.display());
+        };
+        let c = personalise::read_law(e, &path)?.damping();
+        laws.push((level.clone(), LevelLaw::Linear { k: *k, c }));
+    }
+    personalise::apply(doc, &laws)?;
+    Ok(())
+}
+
 fn setup_from(a: &Args) -> anyhow::Result<Setup> {
     Ok(Setup {
         params: setup::parse_params(&a.params)?,
@@ -225,7 +251,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         .filter_map(|l| Some((names.get(l.bushing)?.clone(), *stiff.get(l.bushing)?)))
         .collect();
     let mut doc = exp.doc.clone();
-    set_linear_bushing_stiffness(&mut doc, &level_values)?;
+    write_linear_laws(&mut doc, &level_values)?;
     let rep = Report {
         tool: concat!("osim-spine ", env!("CARGO_PKG_VERSION")),
         experiment: ExperimentInfo {

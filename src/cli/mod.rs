@@ -12,6 +12,7 @@ pub mod evaluate;
 pub mod generate;
 pub mod info;
 pub mod mean_shape;
+pub mod sensitivity;
 pub mod simulate;
 pub mod stiffness;
 pub mod variability;
@@ -35,6 +36,10 @@ pub enum Command {
     /// held-out design, candidate effects, verdict, held-out shrink;
     /// diagnosis.json, report.md, SVG figures, improved .osim.
     Diagnose(diagnose::Args),
+    /// Joint-pose sensitivity of a calibration: landmark noise propagated
+    /// to the joint frames (Latin hypercube), every sample re-calibrated;
+    /// spread of stiffness and error, two-factor (pose x stiffness) analysis.
+    Sensitivity(sensitivity::Args),
     /// Summarise a model: bodies, joints, coordinates, forces, muscles, markers, meshes.
     Info(info::Args),
     /// Convert a model (any version -> canonical 4.x) or a mesh file.
@@ -72,6 +77,7 @@ pub fn main() -> i32 {
     let result: anyhow::Result<i32> = match cli.command {
         Command::Calibrate(a) => calibrate::run(a),
         Command::Diagnose(a) => diagnose::run(a),
+        Command::Sensitivity(a) => sensitivity::run(a),
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Base(a) => base::run(a),

@@ -4,7 +4,6 @@
 //!
 //! | file | what lives there |
 //! |---|---|
-//! | `linear` | [`linear::set_linear_bushing_stiffness`]: BushingForce stiffness values into a document (used by `calibrate`) |
 //! | `table` | the TOML/CSV table formats: [`Table`] (read, units to SI) and the `--list` writers |
 //! | `mod` (here) | levels of a model ([`levels`]), reading a bushing's law ([`read_law`]), merging a table with a model and validating ([`resolve`]), writing laws into the document ([`apply`]) |
 //!
@@ -29,7 +28,6 @@
 //! expression `i` is `sum_j K_ij * var_j`; expression -> the six strings.
 //! A bushing whose law does not change is left untouched (byte for byte).
 
-pub mod linear;
 pub mod table;
 
 pub use table::{read_table, CurveSpec, Form, Interp, LevelLaw, Row, Table};

@@ -822,46 +822,9 @@ impl Workspace {
 }
 
 impl System {
-    /// Replace the diagonal stiffness `(rx, ry, rz, tx, ty, tz)` of a linear
-    /// bushing without rebuilding the system (calibration changes stiffness
-    /// parameters thousands of times). Values must be finite.
-    pub fn set_bushing_stiffness(&mut self, i: usize, k: [f64; 6]) -> Result<()> {
-        let n = self.bushings.len();
-        let Some(b) = self.bushings.get_mut(i) else {
-            return Err(Error::invalid(
-                "solver",
-                format!("bushing index {i} out of range ({n} bushings)"),
-            ));
-        };
-        if !k.iter().all(|v| v.is_finite()) {
-            return Err(Error::invalid(
-                format!("bushing '{}'", b.name),
-                "stiffness must be finite",
-            ));
-        }
-        match &mut b.model {
-            BushingModel::Linear {
-                rot_stiffness,
-                trans_stiffness,
-                ..
-            } => {
-                *rot_stiffness = Vector3::new(k[0], k[1], k[2]);
-                *trans_stiffness = Vector3::new(k[3], k[4], k[5]);
-            }
-            _ => {
-                return Err(Error::invalid(
-                    format!("bushing '{}'", b.name),
-                    "set_bushing_stiffness needs a linear (BushingForce) law",
-                ))
-            }
-        }
-        b.law = Law::from_model(&b.model);
-        Ok(())
-    }
-
-    /// Replace the force law of bushing `i` (any [`BushingModel`]) without
-    /// rebuilding the system; the damping is taken from the new law. The
-    /// law is validated first.
+    /// Replace the force law of bushing `i` without rebuilding the system
+    /// (calibration changes stiffness parameters thousands of times). The
+    /// law is validated; frames and the fast path are unchanged.
     pub fn set_bushing_model(&mut self, i: usize, model: BushingModel) -> Result<()> {
         let n = self.bushings.len();
         let Some(b) = self.bushings.get_mut(i) else {
@@ -873,10 +836,39 @@ impl System {
         model
             .validate()
             .map_err(|m| Error::invalid(format!("bushing '{}'", b.name), m))?;
-        b.law = Law::from_model(&model);
+        b.law = super::law::Law::from_model(&model);
         b.c = model.damping();
         b.model = model;
         Ok(())
+    }
+
+    /// Replace the diagonal stiffness `(rx, ry, rz, tx, ty, tz)` of a linear
+    /// bushing (an error for other laws), keeping its damping.
+    pub fn set_bushing_stiffness(&mut self, i: usize, k: [f64; 6]) -> Result<()> {
+        let Some(b) = self.bushings.get(i) else {
+            return Err(Error::invalid(
+                "solver",
+                format!("bushing index {i} out of range"),
+            ));
+        };
+        let BushingModel::Linear {
+            rot_damping,
+            trans_damping,
+            ..
+        } = &b.model
+        else {
+            return Err(Error::invalid(
+                format!("bushing '{}'", b.name),
+                "not a linear BushingForce: its stiffness is not six numbers",
+            ));
+        };
+        let model = BushingModel::Linear {
+            rot_stiffness: Vector3::new(k[0], k[1], k[2]),
+            trans_stiffness: Vector3::new(k[3], k[4], k[5]),
+            rot_damping: *rot_damping,
+            trans_damping: *trans_damping,
+        };
+        self.set_bushing_model(i, model)
     }
 
     /// Poses `(X_B1F, X_B2M)` of bushing `i`'s two frames in their bodies.

@@ -1,0 +1,182 @@
+//! `osim-spine sensitivity EXPERIMENT [--params ...] [--samples 500]
+//! [--landmark-sd MM] [--seed S] [--jobs N] --out DIR`: the joint-pose
+//! sensitivity study of [`crate::calibrate::sensitivity`]: landmark noise
+//! propagated to joint frames (Latin hypercube), every sample re-calibrated,
+//! spread of stiffness and error, two-factor (pose x stiffness) analysis.
+//! Writes `sensitivity.json` and `spread.svg`.
+
+use crate::calibrate::experiment::Experiment;
+use crate::calibrate::measure::Convention;
+use crate::calibrate::sensitivity::{self, SensitivityOptions, SensitivityReport};
+use crate::calibrate::setup::{self, Setup};
+use crate::util::write_atomic;
+use anyhow::Context;
+use clap::Args as ClapArgs;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// Arguments of `sensitivity`.
+#[derive(Debug, ClapArgs)]
+pub struct Args {
+    /// Experiment folder.
+    pub experiment: PathBuf,
+    /// Parameterisation (uniform, ratio:TABLE, per-level).
+    #[arg(long, default_value = "uniform", value_name = "KIND")]
+    pub params: String,
+    /// DoFs in the cost (default: the measured rotations).
+    #[arg(long, value_name = "rx,ry,rz,...")]
+    pub dofs: Option<String>,
+    /// Weights per DoF.
+    #[arg(long, value_name = "rx=1,...")]
+    pub weights: Option<String>,
+    /// Number of landmark sets (joint-pose samples).
+    #[arg(long, default_value_t = 500)]
+    pub samples: usize,
+    /// Landmark SD per coordinate, millimetres.
+    #[arg(long, default_value_t = 1.0, value_name = "MM")]
+    pub landmark_sd: f64,
+    /// Seed of the Latin hypercube.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// Output folder.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+/// Run `sensitivity`.
+pub fn run(a: Args) -> anyhow::Result<i32> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(a.jobs.unwrap_or(0))
+        .build()
+        .context("starting the worker threads")?;
+    pool.install(|| run_inner(&a))
+}
+
+fn run_inner(a: &Args) -> anyhow::Result<i32> {
+    if !(a.landmark_sd.is_finite() && a.landmark_sd >= 0.0) {
+        anyhow::bail!("--landmark-sd must be a finite number of millimetres >= 0");
+    }
+    let setup = Setup {
+        params: setup::parse_params(&a.params)?,
+        dofs: a.dofs.as_deref().map(setup::parse_dofs).transpose()?,
+        translations: false,
+        weights: match &a.weights {
+            Some(w) => setup::parse_weights(w)?,
+            None => [None; 6],
+        },
+        convention: Convention::Composed,
+    };
+    let exp = Arc::new(Experiment::read(&a.experiment)?);
+    eprintln!(
+        "sensitivity: {} samples, landmark SD {} mm, {}",
+        a.samples, a.landmark_sd, a.params
+    );
+    let rep = sensitivity::run(
+        exp.clone(),
+        &setup,
+        &SensitivityOptions {
+            samples: a.samples,
+            landmark_sd: a.landmark_sd * 1e-3,
+            seed: a.seed,
+            progress: true,
+            ..SensitivityOptions::default()
+        },
+    )?;
+    let json = serde_json::to_string_pretty(&rep)? + "\n";
+    let svg = spread_svg(
+        &rep,
+        &format!(
+            "{}: joint-pose sensitivity ({} mm)",
+            exp.name, a.landmark_sd
+        ),
+    );
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    write_atomic(&a.out.join("sensitivity.json"), json.as_bytes())?;
+    write_atomic(&a.out.join("spread.svg"), svg.as_bytes())?;
+    eprintln!(
+        "sensitivity: {} of {} samples in the reduced dataset; rotation RMSE median {:.4} (reference {:.4})",
+        rep.reduced, rep.samples, rep.rmse.median, rep.reference_rmse
+    );
+    for s in &rep.params {
+        eprintln!(
+            "  {:<14} reference {:>10.3}  median {:>10.3}  95% range [{:.3}, {:.3}]",
+            s.name, s.reference, s.median, s.p2_5, s.p97_5
+        );
+    }
+    if let Some(t) = &rep.two_factor {
+        eprintln!(
+            "  two-factor (RMSE): pose {:.1}%, stiffness {:.1}%, interaction {:.1}%",
+            100.0 * t.share_pose,
+            100.0 * t.share_stiffness,
+            100.0 * t.share_interaction
+        );
+    }
+    eprintln!("sensitivity: written to {}", a.out.display());
+    Ok(0)
+}
+
+/// Box plot of each parameter (value / reference, log axis) over the reduced dataset.
+fn spread_svg(rep: &SensitivityReport, title: &str) -> String {
+    let n = rep.params.len();
+    let (left, top, bottom) = (60.0, 50.0, 100.0);
+    let slot = 50.0f64.max(500.0 / n.max(1) as f64).min(90.0);
+    let w = left + 20.0 + slot * n as f64;
+    let h = 400.0;
+    let ratios: Vec<f64> = rep
+        .params
+        .iter()
+        .flat_map(|s| [s.min / s.reference, s.max / s.reference])
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .collect();
+    let lo = ratios.iter().fold(0.9f64, |m, v| m.min(*v)).log10();
+    let hi = ratios.iter().fold(1.1f64, |m, v| m.max(*v)).log10();
+    let sy = |v: f64| top + (h - top - bottom) * (1.0 - (v.max(1e-300).log10() - lo) / (hi - lo));
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{:.0}\" y=\"20\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n<text x=\"{:.0}\" y=\"36\" text-anchor=\"middle\">stiffness / reference calibration (log): box 25-75%, whiskers 2.5-97.5%, dots min/max ({} of {} samples)</text>",
+        w / 2.0,
+        title.replace('&', "&amp;").replace('<', "&lt;"),
+        w / 2.0,
+        rep.reduced,
+        rep.samples
+    );
+    for t in [lo, 0.0, hi] {
+        let v = 10f64.powf(t);
+        let y = sy(v);
+        let _ = writeln!(
+            s,
+            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{v:.3}</text>",
+            w - 20.0,
+            left - 4.0,
+            y + 3.0
+        );
+    }
+    for (k, p) in rep.params.iter().enumerate() {
+        let xc = left + slot * (k as f64 + 0.5);
+        let r = p.reference;
+        let _ = writeln!(
+            s,
+            "<line x1=\"{xc:.1}\" y1=\"{:.1}\" x2=\"{xc:.1}\" y2=\"{:.1}\" stroke=\"black\"/>\n<rect x=\"{:.1}\" y=\"{:.1}\" width=\"16\" height=\"{:.1}\" fill=\"#9ecae1\" stroke=\"black\"/>\n<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"#d62728\" stroke-width=\"2\"/>\n<circle cx=\"{xc:.1}\" cy=\"{:.1}\" r=\"2\"/><circle cx=\"{xc:.1}\" cy=\"{:.1}\" r=\"2\"/>\n<text transform=\"translate({xc:.1},{:.1}) rotate(-60)\" text-anchor=\"end\">{}</text>",
+            sy(p.p2_5 / r),
+            sy(p.p97_5 / r),
+            xc - 8.0,
+            sy(p.p75 / r),
+            (sy(p.p25 / r) - sy(p.p75 / r)).max(0.5),
+            xc - 8.0,
+            sy(p.median / r),
+            xc + 8.0,
+            sy(p.median / r),
+            sy(p.min / r),
+            sy(p.max / r),
+            h - bottom + 14.0,
+            p.name
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}
