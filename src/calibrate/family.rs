@@ -598,6 +598,41 @@ pub fn read_ratio_table(path: &std::path::Path) -> Result<RatioTable> {
 mod tests {
     use super::*;
 
+    /// Regression: the fast-path bushing reads rx, rz wrapped into
+    /// (-pi, pi]; d tau / d k must use the same angles, or a Newton solution
+    /// 2 pi away (same pose) gives a wrong Jacobian.
+    #[test]
+    fn dtau_dp_is_the_same_for_coordinates_two_pi_apart() {
+        let p = std::path::Path::new("../shared/diagnose-dev/dev-07");
+        if !p.exists() {
+            eprintln!("SKIP: ../shared/diagnose-dev not found");
+            return;
+        }
+        let exp = crate::calibrate::experiment::Experiment::read(p).unwrap();
+        let mut sys = System::new(&exp.spec).unwrap();
+        let fixed = sys.body_index("sacrum").unwrap();
+        let top = sys.body_index("thoracic12").unwrap();
+        let levels = find_levels(&sys, fixed, &[top]);
+        let fam =
+            StiffnessFamily::new(&sys, levels, &[0, 1, 2], &Parameterisation::PerLevel).unwrap();
+        let pv = fam.params_nominal();
+        fam.apply(&pv, &mut sys).unwrap();
+        let mut ws = Workspace::new(&sys);
+        let mut q: Vec<f64> = (0..sys.n_dofs())
+            .map(|i| 0.01 * (i as f64 % 5.0 - 2.0))
+            .collect();
+        let loads = crate::solver::LoadSet::empty();
+        let mut a = DMatrix::zeros(sys.n_dofs(), pv.len());
+        fam.dtau_dp(&pv, &mut sys, &q, &loads, &mut ws, &mut a)
+            .unwrap();
+        let rz = sys.dof_of("L3_L4_rz").unwrap();
+        q[rz] += 2.0 * std::f64::consts::PI;
+        let mut b = DMatrix::zeros(sys.n_dofs(), pv.len());
+        fam.dtau_dp(&pv, &mut sys, &q, &loads, &mut ws, &mut b)
+            .unwrap();
+        assert!((&a - &b).amax() < 1e-12, "{}", (&a - &b).amax());
+    }
+
     #[test]
     fn reads_the_shipped_zhang_template_and_csv() {
         let t =

@@ -56,6 +56,12 @@ pub struct StartResult {
     pub iterations: usize,
     pub evaluations: usize,
     pub stop: Option<LmStop>,
+    /// Projected gradient inf-norm at the end point (log-parameters).
+    pub grad_inf: f64,
+    /// Ended at a first-order point (small projected gradient); a start that
+    /// did not (e.g. stalled where trial points have no equilibrium) is kept
+    /// in the record but is not a local minimum.
+    pub converged: bool,
     /// Index of the local minimum it reached.
     pub minimum: Option<usize>,
     pub error: Option<String>,
@@ -246,6 +252,8 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
                 iterations: r.iterations,
                 evaluations: ev.evaluations,
                 stop: Some(r.stop),
+                grad_inf: r.grad_inf,
+                converged: r.converged(),
                 minimum: None,
                 error: None,
             },
@@ -256,6 +264,8 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
                 iterations: 0,
                 evaluations: ev.evaluations,
                 stop: None,
+                grad_inf: f64::NAN,
+                converged: false,
                 minimum: None,
                 error: Some(e.to_string()),
             },
@@ -270,9 +280,15 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
         b.finish_and_clear();
     }
     // cluster, best first
+    // local minima: converged starts; if none converged, the best ends
     let mut order: Vec<usize> = (0..results.len())
-        .filter(|&i| results[i].error.is_none())
+        .filter(|&i| results[i].error.is_none() && results[i].converged)
         .collect();
+    if order.is_empty() {
+        order = (0..results.len())
+            .filter(|&i| results[i].error.is_none())
+            .collect();
+    }
     if order.is_empty() {
         let msg = results
             .iter()

@@ -307,12 +307,16 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     write_atomic(&a.out.join("params.svg"), params_svg.as_bytes())?;
     let unit = exp.units.angle;
     eprintln!(
-        "calibrate: rotation RMSE {:.4} {unit} (nominal model {:.4} {unit}); {} local minim{} from {} starts; condition number {:.3e}",
+        "calibrate: rotation RMSE {:.4} {unit} (nominal model {:.4} {unit}); {} local minim{} from {} starts{}; condition number {:.3e}",
         rep.fit.rotation_rmse,
         rep.nominal_fit.rotation_rmse,
         cal.minima.len(),
         if cal.minima.len() == 1 { "um" } else { "a" },
         a.starts,
+        match cal.starts.iter().filter(|s| !s.converged).count() {
+            0 => String::new(),
+            k => format!(" ({k} start(s) did not converge: see report.json)"),
+        },
         cal.identifiability.condition_number
     );
     for e in &cal.estimates {

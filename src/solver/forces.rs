@@ -373,7 +373,7 @@ pub(crate) fn load_wrenches<T: Scalar>(loads: &LoadSet, kb: &mut KinBuf<T>) {
 
 /// Wrap an angle into (-pi, pi] (shifting by a constant keeps derivatives).
 #[inline]
-fn wrap<T: Scalar>(a: T) -> T {
+pub(crate) fn wrap<T: Scalar>(a: T) -> T {
     let r = a.re();
     if r > -std::f64::consts::PI && r <= std::f64::consts::PI {
         return a;

@@ -384,7 +384,15 @@ impl System {
             let p = b.model.stiffness_params();
             let (x1, x2, qr, qt, d) = match b.fast {
                 Some(s) => {
-                    let d: [f64; 6] = std::array::from_fn(|k| q[s + k]);
+                    // the deflection angles as the fast path reads them
+                    // (rx, rz wrapped into (-pi, pi], like add_fast_bushings)
+                    let d: [f64; 6] = std::array::from_fn(|k| {
+                        if k == 0 || k == 2 {
+                            forces::wrap(q[s + k])
+                        } else {
+                            q[s + k]
+                        }
+                    });
                     (None, None, Vector3::zeros(), Vector3::zeros(), d)
                 }
                 None => {
