@@ -15,7 +15,6 @@
 //! | [`calibrate`] | experiments, stiffness calibration, sensitivity studies |
 //! | [`evaluate`] | model accuracy against patient truth (thesis metrics) |
 //! | [`diagnose`] | sim-to-real gap diagnosis |
-//! | [`report`] | JSON/SVG/Markdown reports |
 //! | [`util`] | atomic output, small shared helpers |
 
 pub mod build;
@@ -28,7 +27,6 @@ pub mod landmarks;
 pub mod mesh;
 pub mod osim;
 pub mod personalise;
-pub mod report;
 pub mod solver;
 pub mod util;
 

@@ -1,1 +1,0 @@
-//! Reports: JSON, SVG figures and Markdown.
