@@ -471,20 +471,31 @@ pub struct ModelMetrics {
     pub sacral_slope_deg: Option<f64>,
 }
 
+impl ModelShape {
+    /// The generator's sacral registration (identity for a model without one).
+    fn registration_isometry(&self) -> Isometry3<f64> {
+        self.registration
+            .as_ref()
+            .map(|r| r.isometry())
+            .unwrap_or_else(Isometry3::identity)
+    }
+
+    /// Levels with a centre in both the model and the truth, in level order.
+    fn common_levels(&self, truth: &Truth) -> Vec<Level> {
+        truth
+            .centres
+            .keys()
+            .filter(|l| self.centres.contains_key(l))
+            .copied()
+            .collect()
+    }
+}
+
 /// The transform taking the truth (its own frame, OpenSim axes, m) into
 /// the model's ground: the generator's registration, then [`Align`].
 pub fn truth_transform(m: &ModelShape, truth: &Truth, align: Align) -> Isometry3<f64> {
-    let x_reg = m
-        .registration
-        .as_ref()
-        .map(|r| r.isometry())
-        .unwrap_or_else(Isometry3::identity);
-    let common: Vec<Level> = truth
-        .centres
-        .keys()
-        .filter(|l| m.centres.contains_key(l))
-        .copied()
-        .collect();
+    let x_reg = m.registration_isometry();
+    let common = m.common_levels(truth);
     let x_align = match align {
         Align::Sacrum => Isometry3::identity(),
         Align::L5 => {
@@ -524,17 +535,8 @@ pub fn evaluate_model(
     align: Align,
     cobb_ends: Option<(Level, Level)>,
 ) -> Result<ModelMetrics> {
-    let x_reg = m
-        .registration
-        .as_ref()
-        .map(|r| r.isometry())
-        .unwrap_or_else(Isometry3::identity);
-    let common: Vec<Level> = truth
-        .centres
-        .keys()
-        .filter(|l| m.centres.contains_key(l))
-        .copied()
-        .collect();
+    let x_reg = m.registration_isometry();
+    let common = m.common_levels(truth);
     if common.is_empty() {
         return Err(Error::invalid(
             &m.name,
