@@ -1,7 +1,9 @@
 //! `osim-spine stiffness` from the command line: acceptance 2 (`--list`
 //! then `--table` of its own output reproduces the model byte for byte, for
 //! OpenSim-written models and for models holding every form) and acceptance
-//! 3 (bad tables are rejected naming the offending row, nothing written).
+//! 3 (bad tables are rejected naming the offending row, nothing written),
+//! each checked by one function per acceptance on the dev specimen and on
+//! the project's base model `base_model/base.osim`.
 
 mod common;
 
@@ -75,6 +77,30 @@ fn forms_tables() -> Vec<(&'static str, String)> {
     ]
 }
 
+/// Acceptance 2 on one model: `--list` then `--table` reproduces it (TOML
+/// and CSV), and so does every model the tool writes from it, one per form.
+fn assert_model_round_trips(model: &Path, dir: &Path, label: &str) {
+    assert_round_trip(model, dir, label, true);
+    for (tag, table) in forms_tables() {
+        let tag_full = format!("{label}_{tag}");
+        let (out, o) = apply(model, &table, dir, &tag_full, "toml");
+        assert!(
+            o.status.success(),
+            "{tag_full}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        assert_round_trip(&out, dir, &tag_full, false);
+        let text = list(&out, "toml");
+        assert!(
+            text.contains(&format!(
+                "form = \"{}\"",
+                if tag == "sinh" { "nonlinear" } else { tag }
+            )),
+            "{tag_full}:\n{text}"
+        );
+    }
+}
+
 #[test]
 fn list_then_table_reproduces_models_byte_for_byte() {
     let (Some(chain), Some(spec)) = (
@@ -86,25 +112,15 @@ fn list_then_table_reproduces_models_byte_for_byte() {
     let dir = tempfile::tempdir().unwrap();
     // OpenSim-written models (numbers as OpenSim prints them: 68.799999999999997)
     assert_round_trip(&chain, dir.path(), "chain17", true);
-    assert_round_trip(&spec, dir.path(), "specimen", true);
-    // models written by the tool, one per form, and one with mixed forms
-    for (tag, table) in forms_tables() {
-        let (out, o) = apply(&spec, &table, dir.path(), tag, "toml");
-        assert!(
-            o.status.success(),
-            "{tag}: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-        assert_round_trip(&out, dir.path(), tag, false);
-        let text = list(&out, "toml");
-        assert!(
-            text.contains(&format!(
-                "form = \"{}\"",
-                if tag == "sinh" { "nonlinear" } else { tag }
-            )),
-            "{tag}:\n{text}"
-        );
-    }
+    // the specimen and the models written from it, one per form
+    assert_model_round_trips(&spec, dir.path(), "specimen");
+}
+
+#[test]
+fn base_model_list_then_table_reproduces_it_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = common::repo_root().join("base_model/base.osim");
+    assert_model_round_trips(&base, dir.path(), "base_model");
 }
 
 #[test]
@@ -148,11 +164,10 @@ fn applied_values_are_listed_back() {
     );
 }
 
-#[test]
-fn bad_tables_are_rejected_naming_the_row_and_nothing_is_written() {
-    let Some(spec) = common::shared("diagnose-dev/dev-01/specimen.osim") else {
-        return;
-    };
+/// Acceptance 3 on one model (which must have the levels L1_L2 to L5_S1):
+/// each bad table is rejected naming the offending row, nothing is written;
+/// a softening curve is accepted with `--allow-softening`.
+fn assert_bad_tables_rejected(spec: &Path, label: &str) {
     let dir = tempfile::tempdir().unwrap();
     let lin = "stiffness = { rx = 68.8, ry = 291, rz = 51.0, tx = 149000, ty = 1890000, tz = 135000 }\ndamping = { rx = 2.3, ry = 2.3, rz = 2.3, tx = 1000, ty = 1000, tz = 1000 }\n";
     let cases: Vec<(&str, String, &str, &[&str])> = vec![
@@ -171,13 +186,16 @@ fn bad_tables_are_rejected_naming_the_row_and_nothing_is_written() {
         ("bad_expression", format!("{UNITS}[[level]]\nname = \"L5_S1\"\nform = \"expression\"\nexpressions = {{ rx = \"68.8*theta_q\", ry = \"1\", rz = \"1\", tx = \"1\", ty = \"1\", tz = \"1\" }}\n"), "toml", &["'L5_S1'", "theta_q"]),
     ];
     for (tag, table, ext, needles) in cases {
-        let (out, o) = apply(&spec, &table, dir.path(), tag, ext);
+        let (out, o) = apply(spec, &table, dir.path(), tag, ext);
         let err = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "{tag}: accepted");
+        assert!(!o.status.success(), "{label} {tag}: accepted");
         for n in needles {
-            assert!(err.contains(n), "{tag}: message lacks '{n}': {err}");
+            assert!(err.contains(n), "{label} {tag}: message lacks '{n}': {err}");
         }
-        assert!(!out.exists(), "{tag}: output written despite the error");
+        assert!(
+            !out.exists(),
+            "{label} {tag}: output written despite the error"
+        );
     }
     // the softening curve is accepted when asked for
     let table = format!("{UNITS}[[level]]\nname = \"L1_L2\"\nform = \"nonlinear\"\n{lin}[[level.curve]]\ndof = \"rx\"\nkind = \"points\"\nx = [-0.1, 0.0, 0.1, 0.2]\ny = [-5.0, 0.0, 5.0, 4.0]\n");
@@ -186,7 +204,7 @@ fn bad_tables_are_rejected_naming_the_row_and_nothing_is_written() {
     let out = dir.path().join("soft.osim");
     let o = run(&[
         "stiffness",
-        s(&spec),
+        s(spec),
         "--table",
         s(&t),
         "--out",
@@ -195,6 +213,20 @@ fn bad_tables_are_rejected_naming_the_row_and_nothing_is_written() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(out.exists());
+}
+
+#[test]
+fn bad_tables_are_rejected_naming_the_row_and_nothing_is_written() {
+    let Some(spec) = common::shared("diagnose-dev/dev-01/specimen.osim") else {
+        return;
+    };
+    assert_bad_tables_rejected(&spec, "specimen");
+}
+
+#[test]
+fn base_model_bad_tables_are_rejected_naming_the_row_and_nothing_is_written() {
+    let base = common::repo_root().join("base_model/base.osim");
+    assert_bad_tables_rejected(&base, "base_model");
 }
 
 #[test]

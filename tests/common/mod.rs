@@ -66,12 +66,15 @@ pub fn opensim_python() -> Option<PathBuf> {
 
 /// Run a script from `tests/py/` with the OpenSim Python and the given
 /// arguments; returns its stdout parsed as JSON. Panics with the script's
-/// stderr when it fails (a test failure, not a skip).
+/// stderr when it fails (a test failure, not a skip). NumPy's BLAS runs
+/// single-threaded: the scripts solve small systems, and a threaded BLAS
+/// on a loaded 2-core machine made each 102 x 102 solve take up to 0.5 s.
 pub fn run_py(python: &Path, script: &str, args: &[&str]) -> serde_json::Value {
     let script_path = repo_root().join("tests/py").join(script);
     let out = Command::new(python)
         .arg(&script_path)
         .args(args)
+        .env("OPENBLAS_NUM_THREADS", "1")
         .output()
         .expect("failed to start python");
     if !out.status.success() {
