@@ -173,6 +173,9 @@ fn centre_error_grows_with_palpation_noise_and_cobb_stays_near_the_truth() {
     for w in medians.windows(2) {
         assert!(w[0] < w[1], "not monotone in the noise: {medians:?}");
     }
+    // A linear error propagation: twice the noise, about twice the error.
+    let ratio = medians[3] / medians[2];
+    assert!((1.4..2.8).contains(&ratio), "{medians:?}");
 }
 
 #[test]
@@ -304,7 +307,7 @@ fn cli_with_truth_is_deterministic_and_reports_failures() {
     let stdout = run("o1", "1", &["--write-models"]);
     run("o2", "2", &[]);
     assert!(
-        stdout.contains("no model: operator C repetition 1"),
+        stdout.contains("no model for ") && stdout.contains("operator C repetition 1"),
         "{stdout}"
     );
     for name in [

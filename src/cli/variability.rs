@@ -210,9 +210,7 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
         }
         for row in p.rows.iter().filter(|r| !r.ok) {
             println!(
-                "  no model: operator {} repetition {} ({}): {}",
-                row.operator,
-                row.repetition,
+                "  no model for {}: {}",
                 row.source,
                 row.error.as_deref().unwrap_or("")
             );

@@ -537,7 +537,7 @@ fn group(kind: &str, within: &str, rows: &[&PalpationModel]) -> GroupSummary {
 /// (Cobb angle, lordosis, deg) and `model_centre_rmse_groups.svg` (centre
 /// RMSE per group).
 pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
-    use crate::landmarks::variability::boxplot_svg;
+    use crate::landmarks::variability::{boxplot_svg, boxplot_svg_axis};
     let ms: Vec<&ModelMetrics> = p.rows.iter().filter_map(|r| r.metrics.as_ref()).collect();
     let col = |f: &dyn Fn(&ModelMetrics) -> Option<f64>| -> Vec<f64> {
         ms.iter().filter_map(|m| f(m)).collect()
@@ -563,7 +563,7 @@ pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
             ),
         ],
     );
-    let r2 = boxplot_svg(
+    let r2 = boxplot_svg_axis(
         &format!("Curve R2 vs the {refname} ({n} models)"),
         "R2",
         &[
@@ -576,8 +576,9 @@ pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
                 col(&|m| m.frontal.as_ref().map(|c| c.r2)),
             ),
         ],
+        false,
     );
-    let angles = boxplot_svg(
+    let angles = boxplot_svg_axis(
         &format!(
             "Cobb angle ({}) and lumbar lordosis ({n} models)",
             p.cobb_ends
@@ -590,6 +591,7 @@ pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
             ),
             ("lordosis".into(), col(&|m| m.lordosis_deg)),
         ],
+        false,
     );
     let groups: Vec<(String, Vec<f64>)> = p
         .groups

@@ -24,10 +24,13 @@
 //!   Friedman when blocks are complete, Skillings-Mack otherwise
 //!   ([`super::stats`]); when p < 0.05 the one-to-many Nemenyi test against
 //!   the first operator / first repetition;
-//! - `model_propagation`: the thesis's Tables 5.6/5.8 (vertebral-centre
-//!   RMSE, curve RMSE and R^2, Cobb angle, lordosis of one generated model
-//!   per palpation) need the patient model generator, which does not exist
-//!   yet: the section is `null` with a note until it does.
+//! - `model_propagation` (with [`compute`]/[`run`] given a base model):
+//!   the thesis's Tables 5.6-5.8, one generated model per palpation
+//!   evaluated against the truth or the consensus model, median and IQR
+//!   overall, intra- and inter-operator ([`crate::evaluate::propagation`]).
+//!
+//! Figures: [`boxplot_svg`] draws every box plot (the per-landmark IQRs
+//! here, the model metrics in [`crate::evaluate::propagation::boxplots`]).
 
 use super::stats::{self, Icc};
 use super::{Code, LandmarkId, LandmarkSet, Level};
@@ -468,6 +471,17 @@ fn nice_step(span: f64) -> f64 {
 /// rounded to a 1/2/5 tick step. Non-finite values are ignored; an empty
 /// series gets its label and no box. Deterministic text.
 pub fn boxplot_svg(title: &str, y_label: &str, series: &[(String, Vec<f64>)]) -> String {
+    boxplot_svg_axis(title, y_label, series, true)
+}
+
+/// [`boxplot_svg`], with the value axis fitted to the data alone when
+/// `include_zero` is false.
+pub fn boxplot_svg_axis(
+    title: &str,
+    y_label: &str,
+    series: &[(String, Vec<f64>)],
+    include_zero: bool,
+) -> String {
     let slot_w = 120.0;
     let (left, right, top, bottom) = (60.0, 20.0, 40.0, 50.0);
     let w = (left + right + slot_w * series.len().max(1) as f64).max(560.0);
@@ -482,7 +496,17 @@ pub fn boxplot_svg(title: &str, y_label: &str, series: &[(String, Vec<f64>)]) ->
         })
         .collect();
     let all = series.iter().flat_map(|(_, v)| v.iter().copied());
-    let (dmin, dmax) = all.fold((0.0f64, 0.0f64), |(a, b), x| (a.min(x), b.max(x)));
+    let start = if include_zero {
+        (0.0f64, 0.0f64)
+    } else {
+        (f64::INFINITY, f64::NEG_INFINITY)
+    };
+    let (dmin, dmax) = all.fold(start, |(a, b), x| (a.min(x), b.max(x)));
+    let (dmin, dmax) = if dmin.is_finite() {
+        (dmin, dmax)
+    } else {
+        (0.0, 1.0)
+    };
     let dmax = if dmax - dmin < 1e-12 {
         dmin + 1.0
     } else {
@@ -515,7 +539,7 @@ pub fn boxplot_svg(title: &str, y_label: &str, series: &[(String, Vec<f64>)]) ->
             y = sy(t)
         ));
     }
-    if ymin < 0.0 {
+    if ymin < 0.0 && ymax > 0.0 {
         s.push_str(&format!(
             "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{}\" y2=\"{y:.1}\" stroke=\"#bbbbbb\" stroke-dasharray=\"4 3\"/>\n",
             w - right,
