@@ -627,3 +627,33 @@ pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
         ("model_centre_rmse_groups.svg".into(), by_group),
     ]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::landmarks::Code;
+    use std::path::PathBuf;
+
+    #[test]
+    fn median_set_takes_coordinate_medians_of_the_majority_landmarks() {
+        let pal = |dx: f64, extra: bool| {
+            let mut set = LandmarkSet::new();
+            set.insert(Level::L1, Code::SEC, Point3::new(0.1 + dx, 0.2, -dx));
+            if extra {
+                set.insert(Level::L1, Code::IEC, Point3::new(1.0, 1.0, 1.0));
+            }
+            PalpationSet {
+                operator: "A".into(),
+                repetition: 1,
+                source: PathBuf::from("x"),
+                set,
+            }
+        };
+        let pals = [pal(-0.003, false), pal(0.0, true), pal(0.010, false)];
+        let (m, left_out) = median_set(&pals);
+        assert_eq!(m.len(), 1);
+        let p = m.get(Level::L1, Code::SEC).unwrap();
+        assert!((p - Point3::new(0.1, 0.2, 0.0)).norm() < 1e-15);
+        assert_eq!(left_out, vec![LandmarkId::new(Level::L1, Code::IEC)]);
+    }
+}

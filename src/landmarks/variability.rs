@@ -692,3 +692,50 @@ pub fn run(
     }
     Ok(c)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn attr(svg: &str, tag: &str, name: &str) -> f64 {
+        let at = svg.find(tag).unwrap();
+        let rest = &svg[at..];
+        let k = rest.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
+        let end = rest[k..].find('"').unwrap();
+        rest[k..k + end].parse().unwrap()
+    }
+
+    #[test]
+    fn box_spans_the_quartiles_on_the_axis() {
+        // 1..=5: quartiles (type 7) 2 and 4; axis 0..5 in steps of 1.
+        let svg = boxplot_svg("t", "mm", &[("a".into(), vec![5.0, 1.0, 3.0, 2.0, 4.0])]);
+        let (top, bottom, h) = (40.0, 50.0, 380.0);
+        let sy = |v: f64| top + (h - top - bottom) * (1.0 - v / 5.0);
+        let y = attr(&svg, "<rect x=", "y");
+        let height = attr(&svg, "<rect x=", "height");
+        assert!((y - sy(4.0)).abs() < 0.06, "{y}");
+        assert!((y + height - sy(2.0)).abs() < 0.11, "{height}");
+        assert!(svg.contains(">5</text>") && !svg.contains(">6</text>"));
+    }
+
+    #[test]
+    fn box_plot_survives_empty_and_non_finite_series() {
+        let svg = boxplot_svg_axis(
+            "a & b",
+            "deg",
+            &[
+                ("empty".into(), vec![]),
+                ("nan".into(), vec![f64::NAN, f64::INFINITY]),
+                ("neg".into(), vec![-40.0, -41.0, -39.5]),
+            ],
+            false,
+        );
+        assert!(svg.starts_with("<svg") && svg.ends_with("</svg>\n"));
+        assert!(svg.contains("a &amp; b"));
+        assert_eq!(svg.matches("<rect x=").count(), 1);
+        assert!(!svg.contains("NaN") && !svg.contains("inf"));
+        assert_eq!(nice_step(4.0), 1.0);
+        assert_eq!(nice_step(0.04), 0.01);
+        assert_eq!(nice_step(30.0), 10.0);
+    }
+}
