@@ -41,7 +41,11 @@ pub struct Args {
     /// Reference of the model metrics: truth centres CSV (`level,x,y,z`,
     /// `# units:`, `# frame:`) or a folder of vertebral-body meshes. Without
     /// it: the consensus model of the per-landmark median landmark set.
-    #[arg(long, value_name = "CENTRES.csv|MESH_DIR")]
+    #[arg(
+        long,
+        value_name = "CENTRES.csv|MESH_DIR",
+        conflicts_with = "no_models"
+    )]
     pub truth: Option<PathBuf>,
     /// Truth landmark set (truth Cobb angle, apex, lordosis; Cobb ends).
     #[arg(long, value_name = "FILE")]
@@ -66,7 +70,7 @@ pub struct Args {
     #[arg(long, value_name = "N")]
     pub jobs: Option<usize>,
     /// Also write every palpation's model into `DIR/models/`.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "no_models")]
     pub write_models: bool,
 }
 
