@@ -131,7 +131,12 @@ fn cli_writes_json_and_svg_and_refuses_bad_input() {
     let out = d.path().join("out");
     let mut args: Vec<String> = vec!["variability".into()];
     args.extend(files.iter().map(|f| f.display().to_string()));
-    args.extend(["--out".into(), out.display().to_string()]);
+    // Landmark statistics only (the models: tests/variability_models.rs).
+    args.extend([
+        "--no-models".into(),
+        "--out".into(),
+        out.display().to_string(),
+    ]);
     let o = std::process::Command::new(common::bin())
         .args(&args)
         .output()
@@ -141,6 +146,7 @@ fn cli_writes_json_and_svg_and_refuses_bad_input() {
         serde_json::from_slice(&std::fs::read(out.join("variability.json")).unwrap()).unwrap();
     assert_eq!(json["palpations"], 6);
     assert!(json["model_propagation"].is_null());
+    assert!(!out.join("model_errors_boxplot.svg").exists());
     let svg = std::fs::read_to_string(out.join("iqr_boxplot.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("Euclidean"));
     // Byte-identical on a second run.

@@ -5,11 +5,7 @@
 //! `DIR/curves_{frontal,sagittal}.svg` (Fig. 5.7), atomically, after
 //! everything is computed.
 
-use crate::error::Error;
-use crate::evaluate::{
-    centres_from_meshes, evaluate, load_model, read_centres_csv, Align, CentreDef, Truth,
-};
-use crate::landmarks::{Frame, Level, Units};
+use crate::evaluate::{evaluate, load_model, load_truth, parse_cobb_ends, Align, CentreDef};
 use std::path::PathBuf;
 
 /// Arguments of `evaluate`.
@@ -50,55 +46,14 @@ pub struct Args {
 
 /// Run `evaluate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
-    let ends = match &args.cobb_ends {
-        None => None,
-        Some(s) => {
-            let bad = || {
-                Error::invalid(
-                    "--cobb-ends",
-                    format!("'{s}' is not UPPER,LOWER (e.g. T12,L4)"),
-                )
-            };
-            let (a, b) = s.split_once(',').ok_or_else(bad)?;
-            let (u, l): (Level, Level) =
-                (a.parse().map_err(|_| bad())?, b.parse().map_err(|_| bad())?);
-            if u > l || l.is_sacrum() {
-                return Err(bad().into());
-            }
-            Some((u, l))
-        }
-    };
-    let centres = if args.truth.is_dir() {
-        let units = args
-            .truth_units
-            .as_deref()
-            .and_then(Units::parse_label)
-            .ok_or_else(|| {
-                Error::invalid("--truth-units", "truth meshes need --truth-units mm|m")
-            })?;
-        let frame = args
-            .truth_frame
-            .as_deref()
-            .and_then(Frame::parse_label)
-            .ok_or_else(|| {
-                Error::invalid(
-                    "--truth-frame",
-                    "truth meshes need --truth-frame LPS|RAS|opensim",
-                )
-            })?;
-        centres_from_meshes(&args.truth, units, frame, args.centre)?
-    } else {
-        read_centres_csv(&args.truth)?
-    };
-    let landmarks = match &args.truth_landmarks {
-        Some(p) => Some(crate::landmarks::io::load(p)?),
-        None => None,
-    };
-    let truth = Truth {
-        source: args.truth.display().to_string(),
-        centres,
-        landmarks,
-    };
+    let ends = args.cobb_ends.as_deref().map(parse_cobb_ends).transpose()?;
+    let truth = load_truth(
+        &args.truth,
+        args.truth_units.as_deref(),
+        args.truth_frame.as_deref(),
+        args.truth_landmarks.as_deref(),
+        args.centre,
+    )?;
     let mut models = Vec::new();
     for m in &args.model {
         models.push(load_model(m, args.centre)?);

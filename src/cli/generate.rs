@@ -16,17 +16,7 @@ use crate::osim::model::Geometry;
 use crate::osim::Document;
 use std::path::{Path, PathBuf};
 
-/// Check codes that refuse a landmark file (the set cannot be read
-/// unambiguously or is anatomically inverted: parse errors, units/frame
-/// contradictions or undetectable, duplicates, missing landmarks or levels,
-/// left/right or anterior/posterior swaps, levels out of order). Other
-/// error findings of `osim-spine check` (plausibility ranges, endplate
-/// centre outside its outline, overlaps) are printed as warnings: severe
-/// deformities and coarse meshes can trip them legitimately.
-pub const BLOCKING: [&str; 13] = [
-    "LM001", "LM002", "LM003", "LM006", "LM007", "LM012", "LM020", "LM021", "LM022", "LM030",
-    "LM032", "LM037", "LM040",
-];
+pub use crate::landmarks::check::GENERATE_BLOCKING as BLOCKING;
 
 /// Arguments of `generate`.
 #[derive(Debug, clap::Args)]
@@ -154,45 +144,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "model".into());
-    let mut files: Vec<(PathBuf, Vec<u8>)> =
-        vec![(args.out.clone(), g.doc.to_xml_string().into_bytes())];
-    let model = g.doc.model()?;
-    let mut seen = std::collections::BTreeSet::new();
-    for b in &model.bodies {
-        for geo in &b.geometry {
-            let Geometry::Mesh { mesh_file, .. } = geo else {
-                continue;
-            };
-            if mesh_file.is_empty() || !seen.insert(mesh_file.clone()) {
-                continue;
-            }
-            let rel = check_relative(mesh_file).map_err(|why| {
-                Error::invalid(
-                    base_path.display().to_string(),
-                    format!("mesh_file '{mesh_file}' {why}"),
-                )
-            })?;
-            match resolve(&base_path, mesh_file, &[]) {
-                MeshLookup::Found(p) => {
-                    let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
-                    files.push((dir.join("Geometry").join(rel), bytes));
-                }
-                MeshLookup::Missing => {
-                    return Err(Error::invalid(
-                        base_path.display().to_string(),
-                        format!(
-                            "mesh file '{mesh_file}' of body {} not found beside the base model",
-                            b.name
-                        ),
-                    )
-                    .into())
-                }
-                MeshLookup::Escapes(why) => {
-                    return Err(Error::invalid(base_path.display().to_string(), why).into())
-                }
-            }
-        }
-    }
+    let mut files = model_files(&base_path, &g.doc, &args.out)?;
     files.push((
         dir.join(format!("{stem}_report.json")),
         serde_json::to_string_pretty(&g.report)?.into_bytes(),
@@ -238,4 +190,57 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     }
     println!("wrote {} files to {}", files.len(), dir.display());
     Ok(0)
+}
+
+/// The bytes of a generated model written to `out` (.osim): the model,
+/// then each mesh it references (read beside the base model at
+/// `base_path`) under `Geometry/` beside `out`.
+pub fn model_files(
+    base_path: &Path,
+    doc: &Document,
+    out: &Path,
+) -> crate::Result<Vec<(PathBuf, Vec<u8>)>> {
+    let dir = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let mut files: Vec<(PathBuf, Vec<u8>)> =
+        vec![(out.to_path_buf(), doc.to_xml_string().into_bytes())];
+    let model = doc.model()?;
+    let mut seen = std::collections::BTreeSet::new();
+    for b in &model.bodies {
+        for geo in &b.geometry {
+            let Geometry::Mesh { mesh_file, .. } = geo else {
+                continue;
+            };
+            if mesh_file.is_empty() || !seen.insert(mesh_file.clone()) {
+                continue;
+            }
+            let rel = check_relative(mesh_file).map_err(|why| {
+                Error::invalid(
+                    base_path.display().to_string(),
+                    format!("mesh_file '{mesh_file}' {why}"),
+                )
+            })?;
+            match resolve(base_path, mesh_file, &[]) {
+                MeshLookup::Found(p) => {
+                    let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
+                    files.push((dir.join("Geometry").join(rel), bytes));
+                }
+                MeshLookup::Missing => {
+                    return Err(Error::invalid(
+                        base_path.display().to_string(),
+                        format!(
+                            "mesh file '{mesh_file}' of body {} not found beside the base model",
+                            b.name
+                        ),
+                    ))
+                }
+                MeshLookup::Escapes(why) => {
+                    return Err(Error::invalid(base_path.display().to_string(), why))
+                }
+            }
+        }
+    }
+    Ok(files)
 }

@@ -56,7 +56,9 @@ pub enum Command {
     /// Exit 0 clean, 1 errors, 2 warnings only (1 with --strict).
     Check(check::Args),
     /// Repeated-palpation statistics: IQRs, ICC(2,1), Shapiro-Wilk,
-    /// Friedman/Skillings-Mack with Nemenyi post hoc; JSON + SVG.
+    /// Friedman/Skillings-Mack with Nemenyi post hoc; one model per
+    /// palpation with median/IQR of centre RMSE, curve fits, Cobb angle and
+    /// lordosis (overall, intra- and inter-operator); JSON + SVG.
     Variability(variability::Args),
     /// Generate a patient-specific scoliotic model from a landmark set
     /// (sacral registration, per-vertebra anisotropic scaling and pose,

@@ -1,7 +1,20 @@
 //! `osim-spine variability FILES... --out DIR`: repeated-palpation
-//! statistics (`variability.json`, `iqr_boxplot.svg`).
+//! statistics and their propagation to the model (thesis chapter 5,
+//! Tables 5.5-5.8). Writes `variability.json`, `iqr_boxplot.svg` and, with
+//! the models (default; `--no-models` skips them), the model box plots
+//! `model_errors_boxplot.svg`, `model_r2_boxplot.svg`,
+//! `model_angles_boxplot.svg`, `model_centre_rmse_groups.svg`; with
+//! `--write-models` also `models/<operator>_<repetition>.osim` (+ reports and
+//! `models/Geometry/`). Everything is computed first, then written
+//! atomically.
 
+use crate::build::generate::Method;
+use crate::evaluate::propagation::PropagationOptions;
+use crate::evaluate::{load_truth, parse_cobb_ends, Align, CentreDef};
 use crate::landmarks::variability;
+use crate::osim::Document;
+use anyhow::Context;
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 /// Arguments of `variability`.
@@ -15,24 +28,197 @@ pub struct Args {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
+    /// Landmark statistics only: no model per palpation.
+    #[arg(long)]
+    pub no_models: bool,
+    /// Base model for the models: a folder holding one .osim (and its
+    /// meshes), or an .osim file.
+    #[arg(long, value_name = "DIR", default_value = "base_model")]
+    pub base: PathBuf,
+    /// Vertebra pose fit of the generator: lsq or thesis.
+    #[arg(long, default_value = "lsq")]
+    pub method: String,
+    /// Reference of the model metrics: truth centres CSV (`level,x,y,z`,
+    /// `# units:`, `# frame:`) or a folder of vertebral-body meshes. Without
+    /// it: the consensus model of the per-landmark median landmark set.
+    #[arg(
+        long,
+        value_name = "CENTRES.csv|MESH_DIR",
+        conflicts_with = "no_models"
+    )]
+    pub truth: Option<PathBuf>,
+    /// Truth landmark set (truth Cobb angle, apex, lordosis; Cobb ends).
+    #[arg(long, value_name = "FILE")]
+    pub truth_landmarks: Option<PathBuf>,
+    /// Units of truth meshes (mm or m).
+    #[arg(long, value_name = "mm|m")]
+    pub truth_units: Option<String>,
+    /// Frame of truth meshes (LPS, RAS, opensim).
+    #[arg(long, value_name = "FRAME")]
+    pub truth_frame: Option<String>,
+    /// Superimposition of the reference on each model: rigid, l5 (thesis), sacrum.
+    #[arg(long, value_enum, default_value = "rigid")]
+    pub align: Align,
+    /// Vertebral centre: endplates or sphere (thesis).
+    #[arg(long, value_enum, default_value = "endplates")]
+    pub centre: CentreDef,
+    /// Cobb end vertebrae `UPPER,LOWER` for every model (default: the
+    /// reference's automatic ends).
+    #[arg(long, value_name = "UPPER,LOWER")]
+    pub cobb_ends: Option<String>,
+    /// Worker threads for the models (default: all cores).
+    #[arg(long, value_name = "N")]
+    pub jobs: Option<usize>,
+    /// Also write every palpation's model into `DIR/models/`.
+    #[arg(long, conflicts_with = "no_models")]
+    pub write_models: bool,
+}
+
+/// A file-name-safe stem for a palpation's model.
+fn model_stem(label: &str) -> String {
+    let s: String = label
+        .trim_start_matches("operator ")
+        .replace(" repetition ", "_rep")
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    format!("op{s}")
 }
 
 /// Run; returns the exit code.
 pub fn run(args: &Args) -> anyhow::Result<i32> {
-    let r = variability::run(&args.files, &args.out)?;
+    let jobs = args.jobs.unwrap_or(0);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(jobs)
+        .build()
+        .context("starting the worker threads")?;
+    pool.install(|| run_inner(args))
+}
+
+fn run_inner(args: &Args) -> anyhow::Result<i32> {
+    let mut base_path = None;
+    let models = if args.no_models {
+        None
+    } else {
+        let method: Method = args.method.parse()?;
+        let truth = match &args.truth {
+            Some(t) => Some(load_truth(
+                t,
+                args.truth_units.as_deref(),
+                args.truth_frame.as_deref(),
+                args.truth_landmarks.as_deref(),
+                args.centre,
+            )?),
+            None => None,
+        };
+        let cobb_ends = args.cobb_ends.as_deref().map(parse_cobb_ends).transpose()?;
+        let bp = super::generate::base_file(&args.base).with_context(|| {
+            format!(
+                "base model for the per-palpation models (--base {}; --no-models skips them)",
+                args.base.display()
+            )
+        })?;
+        let base = Document::read(&bp)?;
+        base_path = Some(bp);
+        Some((
+            base,
+            PropagationOptions {
+                method,
+                truth,
+                align: args.align,
+                centre: args.centre,
+                cobb_ends,
+                progress: true,
+                keep_models: args.write_models,
+            },
+        ))
+    };
+    let c = variability::compute(&args.files, models.as_ref().map(|(b, o)| (b, o)))?;
+    // Everything computed: gather the bytes, then write.
+    let mut files: BTreeMap<PathBuf, Vec<u8>> = BTreeMap::new();
+    for (p, b) in variability::output_files(&c)? {
+        files.insert(args.out.join(p), b);
+    }
+    if let Some(bp) = &base_path {
+        let mdir = args.out.join("models");
+        for (label, g) in &c.models {
+            let stem = model_stem(label);
+            for (p, b) in
+                super::generate::model_files(bp, &g.doc, &mdir.join(format!("{stem}.osim")))?
+            {
+                files.insert(p, b);
+            }
+            files.insert(
+                mdir.join(format!("{stem}_report.json")),
+                serde_json::to_string_pretty(&g.report)?.into_bytes(),
+            );
+        }
+    }
+    for (p, b) in &files {
+        crate::util::write_atomic(p, b)?;
+    }
+    let r = &c.report;
     println!(
-        "{} palpations, {} operators, {} landmarks; wrote {} and {}",
+        "{} palpations, {} operators, {} landmarks; wrote {} files to {}",
         r.palpations,
         r.operators.len(),
         r.landmarks.len(),
-        args.out.join("variability.json").display(),
-        args.out.join("iqr_boxplot.svg").display()
+        files.len(),
+        args.out.display()
     );
     for s in r.summary.iter().filter(|s| s.group == "all") {
         println!(
             "  IQR {:<9} median {:.2} mm, IQR of IQRs {:.2} mm, max {:.2} mm",
             s.axis, s.median_mm, s.iqr_mm, s.max_mm
         );
+    }
+    if let Some(p) = &r.model_propagation {
+        println!(
+            "  models: {} of {} palpations ({} method), reference: {} ({}); Cobb ends {}",
+            p.models, p.palpations, p.method, p.reference.kind, p.reference.source, p.cobb_ends
+        );
+        let mi = |m: &Option<crate::evaluate::MedIqr>| {
+            m.as_ref()
+                .map(|m| format!("{:.2} ({:.2})", m.median, m.iqr))
+                .unwrap_or_else(|| "-".into())
+        };
+        println!(
+            "  {:<22} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}",
+            "group (median (IQR))",
+            "centre RMSE mm",
+            "sag. curve mm",
+            "front. curve mm",
+            "sag. R2",
+            "front. R2",
+            "Cobb deg",
+            "lordosis deg"
+        );
+        for g in &p.groups {
+            println!(
+                "  {:<22} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}",
+                format!("{} {}", g.kind, g.within),
+                mi(&g.centre_rmse_mm),
+                mi(&g.sagittal_curve_rmse_mm),
+                mi(&g.frontal_curve_rmse_mm),
+                mi(&g.sagittal_r2),
+                mi(&g.frontal_r2),
+                mi(&g.cobb_deg),
+                mi(&g.lordosis_deg),
+            );
+        }
+        for row in p.rows.iter().filter(|r| !r.ok) {
+            println!(
+                "  no model for {}: {}",
+                row.source,
+                row.error.as_deref().unwrap_or("")
+            );
+        }
     }
     for n in &r.notes {
         println!("  note: {n}");

@@ -39,6 +39,7 @@
 
 pub mod metrics;
 pub mod plot;
+pub mod propagation;
 
 use crate::build::base::kin::Kinematics;
 use crate::build::generate::Registration;
@@ -427,6 +428,61 @@ pub fn centres_from_meshes(
     Ok(out)
 }
 
+/// Load the truth of `evaluate`/`variability --truth`: a centres CSV, or a
+/// folder of vertebral-body meshes (which need `units` and `frame`), plus
+/// an optional truth landmark set (for the truth's Cobb angle, apex and
+/// lordosis).
+pub fn load_truth(
+    path: &Path,
+    units: Option<&str>,
+    frame: Option<&str>,
+    landmarks: Option<&Path>,
+    def: CentreDef,
+) -> Result<Truth> {
+    let centres = if path.is_dir() {
+        let units = units.and_then(Units::parse_label).ok_or_else(|| {
+            Error::invalid("--truth-units", "truth meshes need --truth-units mm|m")
+        })?;
+        let frame = frame.and_then(Frame::parse_label).ok_or_else(|| {
+            Error::invalid(
+                "--truth-frame",
+                "truth meshes need --truth-frame LPS|RAS|opensim",
+            )
+        })?;
+        centres_from_meshes(path, units, frame, def)?
+    } else {
+        read_centres_csv(path)?
+    };
+    let landmarks = match landmarks {
+        Some(p) => Some(crate::landmarks::io::load(p)?),
+        None => None,
+    };
+    Ok(Truth {
+        source: path.display().to_string(),
+        centres,
+        landmarks,
+    })
+}
+
+/// Parse `--cobb-ends UPPER,LOWER` (upper at or above lower, not S1).
+pub fn parse_cobb_ends(s: &str) -> Result<(Level, Level)> {
+    let bad = || {
+        Error::invalid(
+            "--cobb-ends",
+            format!("'{s}' is not UPPER,LOWER (e.g. T12,L4)"),
+        )
+    };
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let (u, l): (Level, Level) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if u > l || l.is_sacrum() {
+        return Err(bad());
+    }
+    Ok((u, l))
+}
+
 /// How the truth is superimposed on the model after the registration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
@@ -632,7 +688,8 @@ pub struct MeanSd {
     pub n: usize,
 }
 
-fn med_iqr(v: &[f64]) -> Option<MedIqr> {
+/// Median and IQR (type 7) of the finite values (`None` when there are none).
+pub fn med_iqr(v: &[f64]) -> Option<MedIqr> {
     let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
     Some(MedIqr {
         median: metrics::quantile(&v, 0.5)?,
@@ -641,7 +698,8 @@ fn med_iqr(v: &[f64]) -> Option<MedIqr> {
     })
 }
 
-fn mean_sd(v: &[f64]) -> Option<MeanSd> {
+/// Mean, SD, min and max of the finite values (`None` when there are none).
+pub fn mean_sd(v: &[f64]) -> Option<MeanSd> {
     let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
     if v.is_empty() {
         return None;

@@ -162,6 +162,19 @@ fn mm(x: f64) -> f64 {
     x * 1e3
 }
 
+/// Check codes that refuse a landmark set for model generation (`generate`,
+/// each palpation of `variability`): the set cannot be read
+/// unambiguously or is anatomically inverted: parse errors, units/frame
+/// contradictions or undetectable, duplicates, missing landmarks or levels,
+/// left/right or anterior/posterior swaps, levels out of order. Other
+/// error findings of `osim-spine check` (plausibility ranges, endplate
+/// centre outside its outline, overlaps) are printed as warnings: severe
+/// deformities and coarse meshes can trip them legitimately.
+pub const GENERATE_BLOCKING: [&str; 13] = [
+    "LM001", "LM002", "LM003", "LM006", "LM007", "LM012", "LM020", "LM021", "LM022", "LM030",
+    "LM032", "LM037", "LM040",
+];
+
 /// Check a file: read, detect, validate. Never fails: a malformed file is
 /// an LM001 finding.
 pub fn check_file(path: &Path) -> CheckReport {

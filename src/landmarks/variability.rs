@@ -24,14 +24,19 @@
 //!   Friedman when blocks are complete, Skillings-Mack otherwise
 //!   ([`super::stats`]); when p < 0.05 the one-to-many Nemenyi test against
 //!   the first operator / first repetition;
-//! - `model_propagation`: the thesis's Tables 5.6/5.8 (vertebral-centre
-//!   RMSE, curve RMSE and R^2, Cobb angle, lordosis of one generated model
-//!   per palpation) need the patient model generator, which does not exist
-//!   yet: the section is `null` with a note until it does.
+//! - `model_propagation` (with [`compute`]/[`run`] given a base model):
+//!   the thesis's Tables 5.6-5.8, one generated model per palpation
+//!   evaluated against the truth or the consensus model, median and IQR
+//!   overall, intra- and inter-operator ([`crate::evaluate::propagation`]).
+//!
+//! Figures: [`boxplot_svg`] draws every box plot (the per-landmark IQRs
+//! here, the model metrics in [`crate::evaluate::propagation::boxplots`]).
 
 use super::stats::{self, Icc};
 use super::{Code, LandmarkId, LandmarkSet, Level};
 use crate::error::{Error, Result};
+use crate::evaluate::propagation::{self, ModelPropagation, PropagationOptions};
+use crate::osim::Document;
 use crate::util::write_atomic;
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
@@ -171,8 +176,9 @@ pub struct VariabilityReport {
     pub normality: Vec<NormalityEntry>,
     pub normality_rejected_at_5pct: usize,
     pub friedman: Vec<FriedmanEntry>,
-    /// Not computed yet (needs the model generator).
-    pub model_propagation: Option<serde_json::Value>,
+    /// Thesis Tables 5.6-5.8: one model per palpation
+    /// ([`crate::evaluate::propagation`]); `None` when not asked for.
+    pub model_propagation: Option<ModelPropagation>,
     pub notes: Vec<String>,
 }
 
@@ -412,74 +418,146 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
         normality_rejected_at_5pct: rejected,
         friedman,
         model_propagation: None,
-        notes: vec![
-            "model_propagation (thesis Tables 5.6 and 5.8: vertebral-centre RMSE, curve RMSE and R2, Cobb angle, lordosis per generated model) is not computed: it needs the patient model generator".into(),
-        ],
+        notes: Vec::new(),
     })
 }
 
 /// SVG box plot of the per-landmark IQRs in X, Y, Z and Euclidean
-/// (thesis Figure 5.5): boxes at the quartiles, median line, whiskers to
-/// the furthest value within 1.5 IQR, outliers as points.
+/// (thesis Figure 5.5), drawn by [`boxplot_svg`].
 pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
-    let (w, h) = (560.0, 380.0);
-    let (left, right, top, bottom) = (60.0, 20.0, 40.0, 50.0);
-    let series: Vec<Vec<f64>> = (0..4)
+    let series: Vec<(String, Vec<f64>)> = (0..4)
         .map(|a| {
-            report
-                .landmarks
-                .iter()
-                .map(|l| l.iqr_mm[a])
-                .filter(|v| v.is_finite())
-                .collect()
+            (
+                AXES[a].to_string(),
+                report
+                    .landmarks
+                    .iter()
+                    .map(|l| l.iqr_mm[a])
+                    .filter(|v| v.is_finite())
+                    .collect(),
+            )
         })
         .collect();
-    let ymax = series
+    boxplot_svg(
+        &format!(
+            "IQR of repeated palpations per landmark ({} palpations)",
+            report.palpations
+        ),
+        "IQR (mm)",
+        &series,
+    )
+}
+
+/// Tick step of a "nice" axis (1, 2 or 5 times a power of ten) for `span`.
+fn nice_step(span: f64) -> f64 {
+    let raw = (span / 5.0).max(1e-12);
+    let p = 10f64.powf(raw.log10().floor());
+    let m = raw / p;
+    let k = if m <= 1.0 {
+        1.0
+    } else if m <= 2.0 {
+        2.0
+    } else if m <= 5.0 {
+        5.0
+    } else {
+        10.0
+    };
+    k * p
+}
+
+/// A plain SVG box plot, one box per `(label, values)` series: boxes at
+/// the quartiles (type 7), median line, whiskers to the furthest value
+/// within 1.5 IQR, outliers as circles. The value axis includes 0 and is
+/// rounded to a 1/2/5 tick step. Non-finite values are ignored; an empty
+/// series gets its label and no box. Deterministic text.
+pub fn boxplot_svg(title: &str, y_label: &str, series: &[(String, Vec<f64>)]) -> String {
+    boxplot_svg_axis(title, y_label, series, true)
+}
+
+/// [`boxplot_svg`], with the value axis fitted to the data alone when
+/// `include_zero` is false.
+pub fn boxplot_svg_axis(
+    title: &str,
+    y_label: &str,
+    series: &[(String, Vec<f64>)],
+    include_zero: bool,
+) -> String {
+    let slot_w = 120.0;
+    let (left, right, top, bottom) = (60.0, 20.0, 40.0, 50.0);
+    let w = (left + right + slot_w * series.len().max(1) as f64).max(560.0);
+    let h = 380.0;
+    let series: Vec<(&str, Vec<f64>)> = series
         .iter()
-        .flatten()
-        .copied()
-        .fold(1.0f64, f64::max)
-        .mul_add(1.1, 0.0)
-        .ceil();
-    let sy = |v: f64| top + (h - top - bottom) * (1.0 - v / ymax);
-    let slot = (w - left - right) / 4.0;
+        .map(|(n, v)| {
+            (
+                n.as_str(),
+                v.iter().copied().filter(|x| x.is_finite()).collect(),
+            )
+        })
+        .collect();
+    let all = series.iter().flat_map(|(_, v)| v.iter().copied());
+    let start = if include_zero {
+        (0.0f64, 0.0f64)
+    } else {
+        (f64::INFINITY, f64::NEG_INFINITY)
+    };
+    let (dmin, dmax) = all.fold(start, |(a, b), x| (a.min(x), b.max(x)));
+    let (dmin, dmax) = if dmin.is_finite() {
+        (dmin, dmax)
+    } else {
+        (0.0, 1.0)
+    };
+    let dmax = if dmax - dmin < 1e-12 {
+        dmin + 1.0
+    } else {
+        dmax
+    };
+    let step = nice_step(dmax - dmin);
+    let ymin = (dmin / step).floor() * step;
+    let ymax = (dmax / step).ceil() * step;
+    let sy = |v: f64| top + (h - top - bottom) * (1.0 - (v - ymin) / (ymax - ymin));
+    let slot = (w - left - right) / series.len().max(1) as f64;
+    let decimals = (-step.log10().floor()).max(0.0) as usize;
     let mut s = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{}\" y=\"22\" text-anchor=\"middle\" font-size=\"14\">IQR of repeated palpations per landmark ({} palpations)</text>\n",
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{}\" y=\"22\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n",
         w / 2.0,
-        report.palpations
+        xml_escape(title)
     );
     // Axis and ticks.
     s.push_str(&format!(
         "<line x1=\"{left}\" y1=\"{top}\" x2=\"{left}\" y2=\"{}\" stroke=\"black\"/>\n",
         h - bottom
     ));
-    let step = if ymax > 10.0 {
-        (ymax / 5.0).ceil()
-    } else {
-        1.0
-    };
-    let mut t = 0.0;
-    while t <= ymax + 1e-9 {
+    let ticks = ((ymax - ymin) / step).round() as i64;
+    for i in 0..=ticks {
+        let t = ymin + step * i as f64;
         s.push_str(&format!(
-            "<line x1=\"{}\" y1=\"{y:.1}\" x2=\"{left}\" y2=\"{y:.1}\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">{t}</text>\n",
+            "<line x1=\"{}\" y1=\"{y:.1}\" x2=\"{left}\" y2=\"{y:.1}\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">{t:.decimals$}</text>\n",
             left - 4.0,
             left - 6.0,
             sy(t) + 4.0,
             y = sy(t)
         ));
-        t += step;
+    }
+    if ymin < 0.0 && ymax > 0.0 {
+        s.push_str(&format!(
+            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{}\" y2=\"{y:.1}\" stroke=\"#bbbbbb\" stroke-dasharray=\"4 3\"/>\n",
+            w - right,
+            y = sy(0.0)
+        ));
     }
     s.push_str(&format!(
-        "<text x=\"16\" y=\"{:.1}\" transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">IQR (mm)</text>\n",
+        "<text x=\"16\" y=\"{:.1}\" transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">{}</text>\n",
         (top + h - bottom) / 2.0,
-        (top + h - bottom) / 2.0
+        (top + h - bottom) / 2.0,
+        xml_escape(y_label)
     ));
-    for (i, v) in series.iter().enumerate() {
+    for (i, (name, v)) in series.iter().enumerate() {
         let cx = left + slot * (i as f64 + 0.5);
         s.push_str(&format!(
             "<text x=\"{cx:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>\n",
             h - bottom + 18.0,
-            AXES[i]
+            xml_escape(name)
         ));
         let (Some(q1), Some(q2), Some(q3)) = (
             stats::quantile(v, 0.25),
@@ -499,7 +577,7 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
             .copied()
             .filter(|x| *x <= q3 + 1.5 * iqr)
             .fold(f64::NEG_INFINITY, f64::max);
-        let bw = slot * 0.5;
+        let bw = (slot * 0.5).min(80.0);
         s.push_str(&format!(
             "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{bw:.1}\" height=\"{:.1}\" fill=\"#9ecae1\" stroke=\"black\"/>\n",
             cx - bw / 2.0,
@@ -535,15 +613,129 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
     s
 }
 
-/// Compute everything, then write `variability.json` and `iqr_boxplot.svg`
-/// into `out_dir` (atomically, nothing written on error).
-pub fn run(paths: &[PathBuf], out_dir: &Path) -> Result<VariabilityReport> {
+fn xml_escape(t: &str) -> String {
+    t.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// Everything `variability` computes, not yet written.
+#[derive(Debug, Clone)]
+pub struct Computed {
+    pub report: VariabilityReport,
+    /// `(file name, SVG)`: `iqr_boxplot.svg`, and the model box plots
+    /// ([`propagation::boxplots`]) with the propagation.
+    pub figures: Vec<(String, String)>,
+    /// Generated models `(label, model)` when kept.
+    pub models: Vec<(String, crate::build::generate::Generated)>,
+}
+
+/// Load the palpations and compute the statistics, and with `models`
+/// (base model, options) the model propagation.
+pub fn compute(
+    paths: &[PathBuf],
+    models: Option<(&Document, &PropagationOptions)>,
+) -> Result<Computed> {
     let pals = load_palpations(paths)?;
-    let report = analyse(&pals)?;
-    let json = serde_json::to_string_pretty(&report)
+    let mut report = analyse(&pals)?;
+    let mut kept = Vec::new();
+    match models {
+        Some((base, opts)) => {
+            let p = propagation::propagate(&pals, base, opts)?;
+            if p.report.failed > 0 {
+                report.notes.push(format!(
+                    "{} of {} palpations gave no model (see model_propagation.rows)",
+                    p.report.failed, p.report.palpations
+                ));
+            }
+            report.model_propagation = Some(p.report);
+            kept = p.models;
+        }
+        None => report
+            .notes
+            .push("model_propagation (thesis Tables 5.6-5.8) not computed (--no-models)".into()),
+    }
+    let mut figures = vec![("iqr_boxplot.svg".to_string(), iqr_boxplot_svg(&report))];
+    if let Some(p) = &report.model_propagation {
+        figures.extend(propagation::boxplots(p));
+    }
+    Ok(Computed {
+        report,
+        figures,
+        models: kept,
+    })
+}
+
+/// The files of a computed report, relative to the output folder:
+/// `variability.json` and the figures.
+pub fn output_files(c: &Computed) -> Result<Vec<(PathBuf, Vec<u8>)>> {
+    let json = serde_json::to_string_pretty(&c.report)
         .map_err(|e| Error::invalid("variability report", e.to_string()))?;
-    let svg = iqr_boxplot_svg(&report);
-    write_atomic(&out_dir.join("variability.json"), json.as_bytes())?;
-    write_atomic(&out_dir.join("iqr_boxplot.svg"), svg.as_bytes())?;
-    Ok(report)
+    let mut out = vec![(PathBuf::from("variability.json"), json.into_bytes())];
+    for (name, svg) in &c.figures {
+        out.push((PathBuf::from(name), svg.clone().into_bytes()));
+    }
+    Ok(out)
+}
+
+/// Compute everything, then write `variability.json` and the figures
+/// into `out_dir` (atomically, nothing written on error).
+pub fn run(
+    paths: &[PathBuf],
+    out_dir: &Path,
+    models: Option<(&Document, &PropagationOptions)>,
+) -> Result<Computed> {
+    let c = compute(paths, models)?;
+    for (p, b) in output_files(&c)? {
+        write_atomic(&out_dir.join(p), &b)?;
+    }
+    Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn attr(svg: &str, tag: &str, name: &str) -> f64 {
+        let at = svg.find(tag).unwrap();
+        let rest = &svg[at..];
+        let k = rest.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
+        let end = rest[k..].find('"').unwrap();
+        rest[k..k + end].parse().unwrap()
+    }
+
+    #[test]
+    fn box_spans_the_quartiles_on_the_axis() {
+        // 1..=5: quartiles (type 7) 2 and 4; axis 0..5 in steps of 1.
+        let svg = boxplot_svg("t", "mm", &[("a".into(), vec![5.0, 1.0, 3.0, 2.0, 4.0])]);
+        let (top, bottom, h) = (40.0, 50.0, 380.0);
+        let sy = |v: f64| top + (h - top - bottom) * (1.0 - v / 5.0);
+        let y = attr(&svg, "<rect x=", "y");
+        let height = attr(&svg, "<rect x=", "height");
+        assert!((y - sy(4.0)).abs() < 0.06, "{y}");
+        assert!((y + height - sy(2.0)).abs() < 0.11, "{height}");
+        assert!(svg.contains(">5</text>") && !svg.contains(">6</text>"));
+    }
+
+    #[test]
+    fn box_plot_survives_empty_and_non_finite_series() {
+        let svg = boxplot_svg_axis(
+            "a & b",
+            "deg",
+            &[
+                ("empty".into(), vec![]),
+                ("nan".into(), vec![f64::NAN, f64::INFINITY]),
+                ("neg".into(), vec![-40.0, -41.0, -39.5]),
+            ],
+            false,
+        );
+        assert!(svg.starts_with("<svg") && svg.ends_with("</svg>\n"));
+        assert!(svg.contains("a &amp; b"));
+        assert_eq!(svg.matches("<rect x=").count(), 1);
+        assert!(!svg.contains("NaN") && !svg.contains("inf"));
+        assert_eq!(nice_step(4.0), 1.0);
+        assert_eq!(nice_step(0.04), 0.01);
+        assert_eq!(nice_step(30.0), 10.0);
+    }
 }

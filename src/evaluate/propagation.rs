@@ -1,0 +1,659 @@
+//! Propagation of palpation variability to the model (`osim-spine
+//! variability`, thesis chapter 5, Tables 5.6-5.8): one patient model per
+//! palpation ([`crate::build::generate`], in memory), each evaluated with
+//! the metrics of [`crate::evaluate`] (vertebral-centre RMSE, per-level
+//! errors, sagittal and frontal 4th-order curve RMSE and R2, Cobb angle,
+//! apex, lumbar lordosis).
+//!
+//! **Reference.** With a truth (`--truth`: CT centres or vertebral-body
+//! meshes, as `evaluate` takes them) every model is compared with it. Without,
+//! the reference is the **consensus model**: the model generated from the
+//! per-landmark median landmark set (coordinate-wise median over the
+//! palpations holding the landmark; a landmark held by half of the
+//! palpations or fewer is left out). Its centres and markers are brought
+//! back into the palpations' frame through its own sacral registration, so
+//! each palpation's model meets the reference through its own registration
+//! exactly as it would meet a CT truth; the report names the reference used.
+//! The consensus is generated in both cases (its automatic Cobb end
+//! vertebrae are the default ends when no truth landmarks give them).
+//!
+//! **Cobb ends** are the same for every model (as in the thesis, which
+//! measured T12-L4 on all models): `--cobb-ends`, else the automatic ends
+//! of the reference (truth landmarks, else consensus model), else automatic
+//! per model.
+//!
+//! **Groups** (thesis Table 5.6): `overall` (all models), `intra` (the
+//! models of one operator with two or more repetitions) and `inter` (the
+//! models of one repetition number that two or more operators have; the
+//! thesis used the 3rd). Each gives the median and IQR (type 7) of every
+//! metric, mean/SD/min/max of Cobb angle and lordosis (Table 5.8) and the
+//! apex counts; `levels` gives Table 5.7 over all models.
+//!
+//! A palpation whose landmark set fails the generator's blocking checks
+//! ([`crate::landmarks::check::GENERATE_BLOCKING`]) or whose generation or
+//! evaluation fails is listed with its error and left out of the
+//! statistics; only when every palpation fails is it an error. Models are
+//! generated in parallel (rayon, the caller's thread pool) and collected in
+//! palpation order, so the report is deterministic.
+
+use super::{
+    centre_definition, evaluate_model, mean_sd, med_iqr, metrics, summarise, truth_transform,
+    Align, CentreDef, LevelSummary, MeanSd, MedIqr, ModelMetrics, ModelShape, Truth,
+};
+use crate::build::generate::{generate, GenerateOptions, Generated, Method};
+use crate::error::{Error, Result};
+use crate::landmarks::check::{check_completeness, check_set, Severity, GENERATE_BLOCKING};
+use crate::landmarks::variability::PalpationSet;
+use crate::landmarks::{LandmarkId, LandmarkSet, Level};
+use crate::osim::Document;
+use nalgebra::Point3;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// Options of [`propagate`].
+#[derive(Debug, Clone)]
+pub struct PropagationOptions {
+    /// Vertebra pose fit of the generator.
+    pub method: Method,
+    /// External truth (CT); `None`: the consensus model is the reference.
+    pub truth: Option<Truth>,
+    /// Superimposition of the reference on each model (see [`Align`]).
+    pub align: Align,
+    /// Vertebral-centre definition (models and reference).
+    pub centre: CentreDef,
+    /// Fixed Cobb end vertebrae (upper, lower).
+    pub cobb_ends: Option<(Level, Level)>,
+    /// Progress bar on stderr (drawn only on a terminal, 4+ palpations).
+    pub progress: bool,
+    /// Keep the generated models (to write them).
+    pub keep_models: bool,
+}
+
+impl Default for PropagationOptions {
+    fn default() -> Self {
+        PropagationOptions {
+            method: Method::Lsq,
+            truth: None,
+            align: Align::Rigid,
+            centre: CentreDef::default(),
+            cobb_ends: None,
+            progress: false,
+            keep_models: false,
+        }
+    }
+}
+
+/// One palpation's model.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PalpationModel {
+    pub operator: String,
+    pub repetition: u32,
+    pub source: String,
+    /// Generated and evaluated.
+    pub ok: bool,
+    /// Why not, when not.
+    pub error: Option<String>,
+    /// Landmarks the generator rejected as outliers (`<LEVEL>_<CODE> (mm)`).
+    pub outliers: Vec<String>,
+    /// RMS landmark-to-model residual (mm).
+    pub landmark_rms_mm: Option<f64>,
+    /// The metrics against the reference (as `evaluate` reports them).
+    pub metrics: Option<ModelMetrics>,
+}
+
+/// Median and IQR of the model metrics over a group of palpations.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct GroupSummary {
+    /// `overall`, `intra` or `inter`.
+    pub kind: String,
+    /// `all`, `operator A` or `repetition 3`.
+    pub within: String,
+    /// Palpations in the group, and how many gave a model.
+    pub palpations: usize,
+    pub models: usize,
+    pub centre_rmse_mm: Option<MedIqr>,
+    pub sagittal_curve_rmse_mm: Option<MedIqr>,
+    pub frontal_curve_rmse_mm: Option<MedIqr>,
+    pub sagittal_r2: Option<MedIqr>,
+    pub frontal_r2: Option<MedIqr>,
+    pub cobb_deg: Option<MedIqr>,
+    pub lordosis_deg: Option<MedIqr>,
+    /// Table 5.8.
+    pub cobb_mean_sd_deg: Option<MeanSd>,
+    pub lordosis_mean_sd_deg: Option<MeanSd>,
+    /// Apex level -> number of models.
+    pub apex_counts: BTreeMap<String, usize>,
+}
+
+/// The reference the models were compared with.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Reference {
+    /// `truth` or `consensus`.
+    pub kind: String,
+    pub source: String,
+    /// Levels with a reference centre.
+    pub levels: Vec<String>,
+    /// The reference's own Cobb angle, apex and lordosis (truth landmarks
+    /// or consensus model markers; `None` without them).
+    pub cobb: Option<metrics::Cobb>,
+    pub apex: Option<String>,
+    pub lordosis_deg: Option<f64>,
+}
+
+/// The consensus (per-landmark median) landmark set and its model.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Consensus {
+    pub landmarks: usize,
+    /// Landmarks held by half of the palpations or fewer (left out).
+    pub left_out: Vec<String>,
+    /// Whether its model could be generated, and the error when not.
+    pub generated: bool,
+    pub error: Option<String>,
+    pub outliers: Vec<String>,
+}
+
+/// The `model_propagation` section of the variability report.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ModelPropagation {
+    pub reference: Reference,
+    pub consensus: Consensus,
+    pub method: Method,
+    pub align: Align,
+    pub vertebral_centre: &'static str,
+    /// The Cobb end vertebrae used for every model (`UPPER-LOWER`) and
+    /// where they come from (`given`, `truth landmarks`, `consensus model`),
+    /// or `automatic per model`.
+    pub cobb_ends: String,
+    pub palpations: usize,
+    pub models: usize,
+    pub failed: usize,
+    pub groups: Vec<GroupSummary>,
+    /// Per-level absolute errors over all models (Table 5.7).
+    pub levels: Vec<LevelSummary>,
+    /// One row per palpation, in input order.
+    pub rows: Vec<PalpationModel>,
+}
+
+/// The result of [`propagate`]: the report section, and the generated
+/// models (label, model) when [`PropagationOptions::keep_models`].
+#[derive(Debug, Clone)]
+pub struct Propagated {
+    pub report: ModelPropagation,
+    pub models: Vec<(String, Generated)>,
+}
+
+/// Per-landmark median set: coordinate-wise median over the palpations
+/// holding the landmark; landmarks held by at most half are left out.
+pub fn median_set(pals: &[PalpationSet]) -> (LandmarkSet, Vec<LandmarkId>) {
+    let mut pts: BTreeMap<LandmarkId, Vec<Point3<f64>>> = BTreeMap::new();
+    for p in pals {
+        for (id, q) in &p.set.points {
+            pts.entry(*id).or_default().push(*q);
+        }
+    }
+    let mut set = LandmarkSet::new();
+    let mut left_out = Vec::new();
+    for (id, v) in pts {
+        if v.len() * 2 <= pals.len() {
+            left_out.push(id);
+            continue;
+        }
+        let coord = |k: usize| {
+            let c: Vec<f64> = v.iter().map(|p| p.coords[k]).collect();
+            crate::landmarks::stats::median(&c)
+        };
+        if let (Some(x), Some(y), Some(z)) = (coord(0), coord(1), coord(2)) {
+            set.points.insert(id, Point3::new(x, y, z));
+        } else {
+            left_out.push(id);
+        }
+    }
+    (set, left_out)
+}
+
+/// The blocking findings of the landmark checks on a resolved set
+/// (those `generate` refuses a file for), as one message.
+fn blocking_findings(set: &LandmarkSet) -> Option<String> {
+    let lines = BTreeMap::new();
+    let mut f = check_completeness(set, &lines);
+    f.extend(check_set(set, &lines));
+    let msgs: Vec<String> = f
+        .iter()
+        .filter(|f| f.severity == Severity::Error && GENERATE_BLOCKING.contains(&f.code.as_str()))
+        .map(|f| format!("{} {}", f.code, f.message))
+        .collect();
+    (!msgs.is_empty()).then(|| {
+        format!(
+            "the landmark set fails its checks (see `osim-spine check`): {}",
+            msgs.join("; ")
+        )
+    })
+}
+
+/// Check, generate (no self-check, no views) and take the shape of one
+/// landmark set.
+fn model_of(
+    base: &Document,
+    set: &LandmarkSet,
+    label: &str,
+    opts: &PropagationOptions,
+) -> Result<(Generated, ModelShape)> {
+    if let Some(msg) = blocking_findings(set) {
+        return Err(Error::invalid(label, msg));
+    }
+    let g = generate(
+        base,
+        set,
+        label,
+        &GenerateOptions {
+            method: opts.method,
+            self_check: false,
+            views: false,
+            ..GenerateOptions::default()
+        },
+        None,
+    )?;
+    let mut shape =
+        ModelShape::from_document(&g.doc, Some(g.report.registration.clone()), opts.centre)?;
+    shape.name = label.to_string();
+    Ok((g, shape))
+}
+
+/// The consensus model as a truth in the palpations' frame: its centres
+/// of the landmarked levels and its markers, moved back through its own
+/// registration.
+fn consensus_truth(g: &Generated, shape: &ModelShape, source: String) -> Truth {
+    let back = g.report.registration.isometry().inverse();
+    let landmarked: Vec<Level> = g
+        .report
+        .levels_from_landmarks
+        .iter()
+        .filter_map(|l| l.parse().ok())
+        .collect();
+    Truth {
+        source,
+        centres: shape
+            .centres
+            .iter()
+            .filter(|(l, _)| landmarked.contains(l))
+            .map(|(l, p)| (*l, back * p))
+            .collect(),
+        landmarks: Some(shape.landmarks.transformed(
+            back.rotation.to_rotation_matrix().matrix(),
+            &back.translation.vector,
+        )),
+    }
+}
+
+/// The label of a palpation (also its model's name).
+pub fn label(p: &PalpationSet) -> String {
+    format!("operator {} repetition {}", p.operator, p.repetition)
+}
+
+/// Generate and evaluate one model per palpation (see the module docs).
+pub fn propagate(
+    pals: &[PalpationSet],
+    base: &Document,
+    opts: &PropagationOptions,
+) -> Result<Propagated> {
+    if pals.is_empty() {
+        return Err(Error::invalid("variability", "no palpations"));
+    }
+    // ---- consensus
+    let (mset, left_out) = median_set(pals);
+    let csource = format!(
+        "consensus model (per-landmark median of {} palpations)",
+        pals.len()
+    );
+    let consensus = model_of(base, &mset, "consensus (per-landmark median)", opts);
+    let cinfo = Consensus {
+        landmarks: mset.len(),
+        left_out: left_out.iter().map(|i| i.to_string()).collect(),
+        generated: consensus.is_ok(),
+        error: consensus.as_ref().err().map(|e| e.to_string()),
+        outliers: consensus
+            .as_ref()
+            .map(|(g, _)| g.report.outliers.clone())
+            .unwrap_or_default(),
+    };
+    let (truth, kind) = match (&opts.truth, &consensus) {
+        (Some(t), _) => (t.clone(), "truth"),
+        (None, Ok((g, shape))) => (consensus_truth(g, shape, csource), "consensus"),
+        (None, Err(e)) => {
+            return Err(Error::invalid(
+                "variability",
+                format!(
+                    "the consensus model (per-landmark median set), the reference of the model \
+                     metrics without --truth, cannot be generated: {e}"
+                ),
+            ))
+        }
+    };
+    // ---- reference Cobb, apex, lordosis and the Cobb ends, measured in
+    // the consensus model's frame (where the models are) when it exists.
+    let x_ref = consensus
+        .as_ref()
+        .ok()
+        .map(|(_, shape)| truth_transform(shape, &truth, opts.align))
+        .unwrap_or_else(nalgebra::Isometry3::identity);
+    let ref_landmarks = truth.landmarks.as_ref().map(|s| {
+        s.transformed(
+            x_ref.rotation.to_rotation_matrix().matrix(),
+            &x_ref.translation.vector,
+        )
+    });
+    let ref_centres: BTreeMap<Level, Point3<f64>> =
+        truth.centres.iter().map(|(l, p)| (*l, x_ref * p)).collect();
+    let ref_cobb = ref_landmarks
+        .as_ref()
+        .and_then(|s| metrics::cobb(s, opts.cobb_ends));
+    let ref_apex = ref_cobb
+        .as_ref()
+        .and_then(|c| metrics::apex(&ref_centres, c.upper.parse().ok()?, c.lower.parse().ok()?));
+    let parse_ends = |c: &metrics::Cobb| -> Option<(Level, Level)> {
+        Some((c.upper.parse().ok()?, c.lower.parse().ok()?))
+    };
+    let (ends, ends_from) = match opts.cobb_ends {
+        Some(e) => (Some(e), "given"),
+        None => match ref_cobb.as_ref().and_then(parse_ends) {
+            Some(e) if kind == "truth" => (Some(e), "truth landmarks"),
+            Some(e) => (Some(e), "consensus model"),
+            None => match consensus
+                .as_ref()
+                .ok()
+                .and_then(|(_, s)| metrics::cobb(&s.landmarks, None))
+                .as_ref()
+                .and_then(parse_ends)
+            {
+                Some(e) => (Some(e), "consensus model"),
+                None => (None, "automatic per model"),
+            },
+        },
+    };
+    let cobb_ends = match ends {
+        Some((u, l)) => format!("{u}-{l} ({ends_from})"),
+        None => ends_from.to_string(),
+    };
+    // ---- one model per palpation
+    let bar = if opts.progress && pals.len() >= 4 {
+        let b = indicatif::ProgressBar::new(pals.len() as u64);
+        if let Ok(st) = indicatif::ProgressStyle::with_template(
+            "variability models {bar:30} {pos}/{len} {elapsed}",
+        ) {
+            b.set_style(st);
+        }
+        b
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let results: Vec<Result<(Generated, ModelMetrics)>> = pals
+        .par_iter()
+        .map(|p| {
+            let name = label(p);
+            let r = model_of(base, &p.set, &name, opts).and_then(|(g, shape)| {
+                let m = evaluate_model(&shape, &truth, opts.align, ends)?;
+                Ok((g, m))
+            });
+            bar.inc(1);
+            r
+        })
+        .collect();
+    bar.finish_and_clear();
+    let mut rows = Vec::new();
+    let mut models = Vec::new();
+    for (p, r) in pals.iter().zip(results) {
+        let source = p.source.display().to_string();
+        match r {
+            Ok((g, m)) => {
+                rows.push(PalpationModel {
+                    operator: p.operator.clone(),
+                    repetition: p.repetition,
+                    source,
+                    ok: true,
+                    error: None,
+                    outliers: g.report.outliers.clone(),
+                    landmark_rms_mm: Some(g.report.landmark_rms_mm),
+                    metrics: Some(m),
+                });
+                if opts.keep_models {
+                    models.push((label(p), g));
+                }
+            }
+            Err(e) => rows.push(PalpationModel {
+                operator: p.operator.clone(),
+                repetition: p.repetition,
+                source,
+                ok: false,
+                error: Some(e.to_string()),
+                outliers: Vec::new(),
+                landmark_rms_mm: None,
+                metrics: None,
+            }),
+        }
+    }
+    let ok = rows.iter().filter(|r| r.ok).count();
+    if ok == 0 {
+        let errs: Vec<String> = rows
+            .iter()
+            .map(|r| {
+                format!(
+                    "{} ({}): {}",
+                    label_of(r),
+                    r.source,
+                    r.error.as_deref().unwrap_or("")
+                )
+            })
+            .collect();
+        return Err(Error::invalid(
+            "variability",
+            format!(
+                "no palpation gave a model (use --no-models for the landmark statistics alone):\n  {}",
+                errs.join("\n  ")
+            ),
+        ));
+    }
+    // ---- groups
+    let mut groups = vec![group("overall", "all", &rows.iter().collect::<Vec<_>>())];
+    let mut by_op: BTreeMap<&str, Vec<&PalpationModel>> = BTreeMap::new();
+    let mut by_rep: BTreeMap<u32, Vec<&PalpationModel>> = BTreeMap::new();
+    for r in &rows {
+        by_op.entry(r.operator.as_str()).or_default().push(r);
+        by_rep.entry(r.repetition).or_default().push(r);
+    }
+    for (op, mut v) in by_op {
+        if v.len() >= 2 {
+            v.sort_by_key(|r| r.repetition);
+            groups.push(group("intra", &format!("operator {op}"), &v));
+        }
+    }
+    for (rep, mut v) in by_rep {
+        if v.len() >= 2 {
+            v.sort_by(|a, b| a.operator.cmp(&b.operator));
+            groups.push(group("inter", &format!("repetition {rep}"), &v));
+        }
+    }
+    let all: Vec<ModelMetrics> = rows.iter().filter_map(|r| r.metrics.clone()).collect();
+    let levels = summarise(&all).levels;
+    Ok(Propagated {
+        report: ModelPropagation {
+            reference: Reference {
+                kind: kind.into(),
+                source: truth.source.clone(),
+                levels: truth.centres.keys().map(|l| l.to_string()).collect(),
+                cobb: ref_cobb,
+                apex: ref_apex.map(|l| l.to_string()),
+                lordosis_deg: ref_landmarks.as_ref().and_then(metrics::lordosis),
+            },
+            consensus: cinfo,
+            method: opts.method,
+            align: opts.align,
+            vertebral_centre: centre_definition(opts.centre),
+            cobb_ends,
+            palpations: pals.len(),
+            models: ok,
+            failed: pals.len() - ok,
+            groups,
+            levels,
+            rows,
+        },
+        models,
+    })
+}
+
+fn label_of(r: &PalpationModel) -> String {
+    format!("operator {} repetition {}", r.operator, r.repetition)
+}
+
+/// Summary of one group of rows.
+fn group(kind: &str, within: &str, rows: &[&PalpationModel]) -> GroupSummary {
+    let ms: Vec<ModelMetrics> = rows.iter().filter_map(|r| r.metrics.clone()).collect();
+    let s = summarise(&ms);
+    let cobb: Vec<f64> = ms
+        .iter()
+        .filter_map(|m| m.cobb.as_ref().map(|c| c.angle_deg))
+        .collect();
+    let lord: Vec<f64> = ms.iter().filter_map(|m| m.lordosis_deg).collect();
+    GroupSummary {
+        kind: kind.into(),
+        within: within.into(),
+        palpations: rows.len(),
+        models: ms.len(),
+        centre_rmse_mm: s.centre_rmse_mm,
+        sagittal_curve_rmse_mm: s.sagittal_curve_rmse_mm,
+        frontal_curve_rmse_mm: s.frontal_curve_rmse_mm,
+        sagittal_r2: s.sagittal_r2,
+        frontal_r2: s.frontal_r2,
+        cobb_deg: med_iqr(&cobb),
+        lordosis_deg: med_iqr(&lord),
+        cobb_mean_sd_deg: mean_sd(&cobb),
+        lordosis_mean_sd_deg: mean_sd(&lord),
+        apex_counts: s.apex_counts,
+    }
+}
+
+/// Box plots of the model metrics over all models (`(file name, svg)`):
+/// `model_errors_boxplot.svg` (centre RMSE, sagittal and frontal curve
+/// RMSE, mm), `model_r2_boxplot.svg` (curve R2), `model_angles_boxplot.svg`
+/// (Cobb angle, lordosis, deg) and `model_centre_rmse_groups.svg` (centre
+/// RMSE per group).
+pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
+    use crate::landmarks::variability::{boxplot_svg, boxplot_svg_axis};
+    let ms: Vec<&ModelMetrics> = p.rows.iter().filter_map(|r| r.metrics.as_ref()).collect();
+    let col = |f: &dyn Fn(&ModelMetrics) -> Option<f64>| -> Vec<f64> {
+        ms.iter().filter_map(|m| f(m)).collect()
+    };
+    let refname = if p.reference.kind == "truth" {
+        "truth"
+    } else {
+        "consensus model"
+    };
+    let n = ms.len();
+    let errors = boxplot_svg(
+        &format!("Model errors vs the {refname} ({n} models)"),
+        "mm",
+        &[
+            ("centre RMSE".into(), col(&|m| Some(m.centre_rmse_mm))),
+            (
+                "sagittal curve RMSE".into(),
+                col(&|m| m.sagittal.as_ref().map(|c| c.rmse_mm)),
+            ),
+            (
+                "frontal curve RMSE".into(),
+                col(&|m| m.frontal.as_ref().map(|c| c.rmse_mm)),
+            ),
+        ],
+    );
+    let r2 = boxplot_svg_axis(
+        &format!("Curve R2 vs the {refname} ({n} models)"),
+        "R2",
+        &[
+            (
+                "sagittal R2".into(),
+                col(&|m| m.sagittal.as_ref().map(|c| c.r2)),
+            ),
+            (
+                "frontal R2".into(),
+                col(&|m| m.frontal.as_ref().map(|c| c.r2)),
+            ),
+        ],
+        false,
+    );
+    let angles = boxplot_svg_axis(
+        &format!(
+            "Cobb angle ({}) and lumbar lordosis ({n} models)",
+            p.cobb_ends
+        ),
+        "deg",
+        &[
+            (
+                "Cobb angle".into(),
+                col(&|m| m.cobb.as_ref().map(|c| c.angle_deg)),
+            ),
+            ("lordosis".into(), col(&|m| m.lordosis_deg)),
+        ],
+        false,
+    );
+    let groups: Vec<(String, Vec<f64>)> = p
+        .groups
+        .iter()
+        .map(|g| {
+            let name = match g.kind.as_str() {
+                "overall" => "overall".to_string(),
+                "intra" => format!("intra {}", g.within.trim_start_matches("operator ")),
+                _ => format!("inter rep {}", g.within.trim_start_matches("repetition ")),
+            };
+            let v = p
+                .rows
+                .iter()
+                .filter(|r| match g.kind.as_str() {
+                    "overall" => true,
+                    "intra" => g.within == format!("operator {}", r.operator),
+                    _ => g.within == format!("repetition {}", r.repetition),
+                })
+                .filter_map(|r| r.metrics.as_ref().map(|m| m.centre_rmse_mm))
+                .collect();
+            (name, v)
+        })
+        .collect();
+    let by_group = boxplot_svg(
+        &format!("Vertebral-centre RMSE vs the {refname} per group"),
+        "centre RMSE (mm)",
+        &groups,
+    );
+    vec![
+        ("model_errors_boxplot.svg".into(), errors),
+        ("model_r2_boxplot.svg".into(), r2),
+        ("model_angles_boxplot.svg".into(), angles),
+        ("model_centre_rmse_groups.svg".into(), by_group),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::landmarks::Code;
+    use std::path::PathBuf;
+
+    #[test]
+    fn median_set_takes_coordinate_medians_of_the_majority_landmarks() {
+        let pal = |dx: f64, extra: bool| {
+            let mut set = LandmarkSet::new();
+            set.insert(Level::L1, Code::SEC, Point3::new(0.1 + dx, 0.2, -dx));
+            if extra {
+                set.insert(Level::L1, Code::IEC, Point3::new(1.0, 1.0, 1.0));
+            }
+            PalpationSet {
+                operator: "A".into(),
+                repetition: 1,
+                source: PathBuf::from("x"),
+                set,
+            }
+        };
+        let pals = [pal(-0.003, false), pal(0.0, true), pal(0.010, false)];
+        let (m, left_out) = median_set(&pals);
+        assert_eq!(m.len(), 1);
+        let p = m.get(Level::L1, Code::SEC).unwrap();
+        assert!((p - Point3::new(0.1, 0.2, 0.0)).norm() < 1e-15);
+        assert_eq!(left_out, vec![LandmarkId::new(Level::L1, Code::IEC)]);
+    }
+}
