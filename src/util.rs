@@ -1,4 +1,7 @@
-//! Small shared helpers: atomic output and deterministic number formatting.
+//! Small shared helpers: atomic output, deterministic number formatting,
+//! and reports at a stated precision ([`report`]).
+
+pub mod report;
 
 use crate::error::{Error, Result};
 use std::io::Write;
