@@ -1,7 +1,9 @@
 //! Small shared helpers: atomic output, deterministic number formatting,
-//! and reports at a stated precision ([`report`]).
+//! reports at a stated precision ([`report`]) and the shared SVG figures
+//! ([`svg`]).
 
 pub mod report;
+pub mod svg;
 
 use crate::error::{Error, Result};
 use std::io::Write;
