@@ -168,14 +168,11 @@ pub fn rebuild_ivd_joint(
             builders::coordinate(&cname(s), d, range)
         })
         .collect();
-    let axes: [Element; 6] = std::array::from_fn(|i| {
-        let label = if i < 3 {
-            format!("rotation{}", i + 1)
-        } else {
-            format!("translation{}", i - 2)
-        };
-        builders::transform_axis(&label, &axes_dirs[i % 3], Some(&cname(COORD_SUFFIXES[i])))
-    });
+    let cn = COORD_SUFFIXES.map(cname);
+    let axes = builders::transform_axes(
+        &std::array::from_fn(|i| axes_dirs[i % 3]),
+        std::array::from_fn(|i| Some(cn[i].as_str())),
+    );
     let new_joint = builders::custom_joint(
         &joint.name,
         parent_frame.clone(),
@@ -249,11 +246,7 @@ pub fn weld_joint(name: &str, parent: &str, child: &str, x: &Isometry3<f64>) -> 
         &Vector3::zeros(),
         &Vector3::zeros(),
     );
-    Element::new("WeldJoint")
-        .with_attr("name", name)
-        .with_prop("socket_parent_frame", format!("{parent}_offset"))
-        .with_prop("socket_child_frame", format!("{child}_offset"))
-        .with_child(Element::new("frames").with_child(pf).with_child(cf))
+    builders::weld_joint(name, pf, cf)
 }
 
 #[cfg(test)]
