@@ -1,4 +1,9 @@
-//! Small shared helpers: atomic output and deterministic number formatting.
+//! Small shared helpers: atomic output, deterministic number formatting,
+//! reports at a stated precision ([`report`]) and the shared SVG figures
+//! ([`svg`]).
+
+pub mod report;
+pub mod svg;
 
 use crate::error::{Error, Result};
 use std::io::Write;

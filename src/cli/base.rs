@@ -191,7 +191,8 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         let fmt = crate::mesh::Format::from_path(&path)?;
         files.push((path, crate::mesh::to_bytes(fmt, mesh)));
     }
-    let json = serde_json::to_string_pretty(&built.report)?;
+    // Reported figures at a stated precision (the .osim keeps full precision).
+    let json = crate::util::report::to_json_pretty(&built.report)?;
     files.push((args.out.join("base_report.json"), json.into_bytes()));
     for (name, svg) in &built.views {
         files.push((args.out.join(name), svg.clone().into_bytes()));

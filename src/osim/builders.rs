@@ -127,6 +127,34 @@ pub fn custom_joint(
         .with_child(st)
 }
 
+/// The six `<TransformAxis>` of a SpatialTransform, named rotation1..3 and
+/// translation1..3, on the directions `dirs`, each driven by its
+/// coordinate (or by none: a constant zero axis).
+pub fn transform_axes(dirs: &[Vector3<f64>; 6], coordinates: [Option<&str>; 6]) -> [Element; 6] {
+    std::array::from_fn(|i| {
+        let label = if i < 3 {
+            format!("rotation{}", i + 1)
+        } else {
+            format!("translation{}", i - 2)
+        };
+        transform_axis(&label, &dirs[i], coordinates[i])
+    })
+}
+
+/// `<WeldJoint>` between its two offset frames (built with
+/// [`offset_frame`]; the sockets name them).
+pub fn weld_joint(name: &str, parent_frame: Element, child_frame: Element) -> Element {
+    Element::new("WeldJoint")
+        .with_attr("name", name)
+        .with_prop("socket_parent_frame", parent_frame.name_attr().to_string())
+        .with_prop("socket_child_frame", child_frame.name_attr().to_string())
+        .with_child(
+            Element::new("frames")
+                .with_child(parent_frame)
+                .with_child(child_frame),
+        )
+}
+
 /// The usual spine CustomJoint: coordinates `<prefix>_rx, _ry, _rz, _tx,
 /// _ty, _tz` on axes X, Y, Z of the parent frame (rotations body-fixed
 /// X-Y-Z), each with range `rot_range` / `trans_range`.
@@ -151,14 +179,11 @@ pub fn custom_joint_6dof(
             )
         })
         .collect();
-    let axes: [Element; 6] = std::array::from_fn(|i| {
-        let label = if i < 3 {
-            format!("rotation{}", i + 1)
-        } else {
-            format!("translation{}", i - 2)
-        };
-        transform_axis(&label, &ax[i % 3], Some(&format!("{prefix}_{}", names[i])))
-    });
+    let cn = names.map(|n| format!("{prefix}_{n}"));
+    let axes = transform_axes(
+        &std::array::from_fn(|i| ax[i % 3]),
+        std::array::from_fn(|i| Some(cn[i].as_str())),
+    );
     custom_joint(name, parent_frame, child_frame, coords, axes)
 }
 

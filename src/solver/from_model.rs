@@ -184,6 +184,75 @@ pub fn ignored_forces(model: &Model) -> Vec<String> {
 impl SystemSpec {
     /// Build the solver description of an OpenSim model.
     pub fn from_model(model: &Model) -> Result<SystemSpec> {
+        let mut spec = SystemSpec::kinematics_from_model(model)?;
+        let file = model.file.display().to_string();
+        let body_idx: BTreeMap<&str, usize> = model
+            .bodies
+            .iter()
+            .enumerate()
+            .map(|(i, b)| (b.name.as_str(), i))
+            .collect();
+        let mut bushings = Vec::new();
+        for f in &model.forces {
+            match f {
+                Force::Bushing(b) => {
+                    let owner = format!("/forceset/{}", b.name);
+                    let ctx = format!("{file}: BushingForce '{}'", b.name);
+                    let frame = |socket: &str| -> Result<FrameSpec> {
+                        let (bn, x) = model.resolve_frame(&owner, socket)?;
+                        let body = if bn == "ground" {
+                            None
+                        } else {
+                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
+                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
+                            })?)
+                        };
+                        Ok(FrameSpec { body, transform: x })
+                    };
+                    bushings.push(BushingSpec {
+                        name: b.name.clone(),
+                        frame1: frame(&b.socket_frame1)?,
+                        frame2: frame(&b.socket_frame2)?,
+                        model: BushingModel::Linear {
+                            rot_stiffness: b.rotational_stiffness,
+                            trans_stiffness: b.translational_stiffness,
+                            rot_damping: b.rotational_damping,
+                            trans_damping: b.translational_damping,
+                        },
+                    });
+                }
+                Force::OtherBushing(b) => {
+                    let owner = format!("/forceset/{}", b.name);
+                    let ctx = format!("{file}: {} '{}'", b.class, b.name);
+                    let frame = |socket: &str| -> Result<FrameSpec> {
+                        let (bn, x) = model.resolve_frame(&owner, socket)?;
+                        let body = if bn == "ground" {
+                            None
+                        } else {
+                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
+                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
+                            })?)
+                        };
+                        Ok(FrameSpec { body, transform: x })
+                    };
+                    bushings.push(BushingSpec {
+                        name: b.name.clone(),
+                        frame1: frame(&b.socket_frame1)?,
+                        frame2: frame(&b.socket_frame2)?,
+                        model: other_bushing_model(b, &ctx)?,
+                    });
+                }
+                _ => {}
+            }
+        }
+        spec.bushings = bushings;
+        Ok(spec)
+    }
+
+    /// The kinematic part of [`SystemSpec::from_model`]: bodies, joints,
+    /// coordinates and gravity, no force elements (so models whose forces
+    /// the solver does not model still have forward kinematics).
+    pub fn kinematics_from_model(model: &Model) -> Result<SystemSpec> {
         let file = model.file.display().to_string();
         let mut body_idx: BTreeMap<&str, usize> = BTreeMap::new();
         let mut bodies = Vec::with_capacity(model.bodies.len());
@@ -336,64 +405,11 @@ impl SystemSpec {
                 kind,
             });
         }
-        let mut bushings = Vec::new();
-        for f in &model.forces {
-            match f {
-                Force::Bushing(b) => {
-                    let owner = format!("/forceset/{}", b.name);
-                    let ctx = format!("{file}: BushingForce '{}'", b.name);
-                    let frame = |socket: &str| -> Result<FrameSpec> {
-                        let (bn, x) = model.resolve_frame(&owner, socket)?;
-                        let body = if bn == "ground" {
-                            None
-                        } else {
-                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
-                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
-                            })?)
-                        };
-                        Ok(FrameSpec { body, transform: x })
-                    };
-                    bushings.push(BushingSpec {
-                        name: b.name.clone(),
-                        frame1: frame(&b.socket_frame1)?,
-                        frame2: frame(&b.socket_frame2)?,
-                        model: BushingModel::Linear {
-                            rot_stiffness: b.rotational_stiffness,
-                            trans_stiffness: b.translational_stiffness,
-                            rot_damping: b.rotational_damping,
-                            trans_damping: b.translational_damping,
-                        },
-                    });
-                }
-                Force::OtherBushing(b) => {
-                    let owner = format!("/forceset/{}", b.name);
-                    let ctx = format!("{file}: {} '{}'", b.class, b.name);
-                    let frame = |socket: &str| -> Result<FrameSpec> {
-                        let (bn, x) = model.resolve_frame(&owner, socket)?;
-                        let body = if bn == "ground" {
-                            None
-                        } else {
-                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
-                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
-                            })?)
-                        };
-                        Ok(FrameSpec { body, transform: x })
-                    };
-                    bushings.push(BushingSpec {
-                        name: b.name.clone(),
-                        frame1: frame(&b.socket_frame1)?,
-                        frame2: frame(&b.socket_frame2)?,
-                        model: other_bushing_model(b, &ctx)?,
-                    });
-                }
-                _ => {}
-            }
-        }
         Ok(SystemSpec {
             bodies,
             joints,
             coordinates,
-            bushings,
+            bushings: Vec::new(),
             gravity: model.gravity,
         })
     }

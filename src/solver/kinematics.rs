@@ -3,11 +3,60 @@
 //! the joint's child body per unit speed, as Plücker coordinates about the
 //! ground origin in ground axes). With dual-number scalars the same code
 //! yields exact derivatives (Jacobians, time derivatives of the subspace).
+//!
+//! [`System::body_transforms`] and [`System::joint_transform`] are the f64
+//! entry points for geometric work outside the solver (the base builder's
+//! default and test poses, muscle paths, views): one forward kinematics for
+//! the whole crate.
 
 use super::scalar::{rot_axis, v3, Scalar};
 use super::system::{AxisSource, Joint, KinBuf, Pose, System};
-use nalgebra::{Matrix3, Matrix6, Vector3};
+use crate::error::{Error, Result};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Rotation3, Translation3, UnitQuaternion, Vector3};
 use num_dual::Dual64;
+
+impl Pose<f64> {
+    /// The same transform as an isometry.
+    pub fn to_isometry(&self) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::from(self.p),
+            UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(self.r)),
+        )
+    }
+}
+
+impl System {
+    /// Pose in ground (`X_GB`) of every body at the free dofs `q`, in
+    /// system order (parent before child) with the body names. Allocates
+    /// its own buffers: for occasional geometric work, not inner loops.
+    pub fn body_transforms(&self, q: &[f64]) -> Result<Vec<(String, Isometry3<f64>)>> {
+        self.check_q(q)?;
+        let mut kb = KinBuf::<f64>::new(self);
+        kb.q.copy_from_slice(q);
+        forward(self, &mut kb);
+        Ok(self
+            .bodies
+            .iter()
+            .zip(&kb.x_gb)
+            .map(|(b, x)| (b.name.clone(), x.to_isometry()))
+            .collect())
+    }
+
+    /// The transform `X_FM` across the joint named `joint` (from its parent
+    /// frame F to its child frame M) at the free dofs `q`.
+    pub fn joint_transform(&self, joint: &str, q: &[f64]) -> Result<Isometry3<f64>> {
+        self.check_q(q)?;
+        let j = self
+            .bodies
+            .iter()
+            .map(|b| &b.joint)
+            .find(|j| j.name == joint)
+            .ok_or_else(|| Error::invalid("solver", format!("no joint named '{joint}'")))?;
+        let own = q.get(j.dof_start..j.dof_start + j.dof_count).unwrap_or(&[]);
+        let mut local = [[Vector3::zeros(); 2]; 6];
+        Ok(joint_local(j, own, &mut local).to_isometry())
+    }
+}
 
 /// Compute `kb.x_gb` and `kb.h` from `kb.q`.
 pub fn forward<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {

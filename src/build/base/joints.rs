@@ -22,7 +22,6 @@
 //!   otherwise it owns two frames that coincide at the default pose, so it
 //!   is undeflected there either way.
 
-use super::kin::{joint_transform, Values};
 use super::template::IvdParams;
 use crate::error::{Error, Result};
 use crate::landmarks::Level;
@@ -76,7 +75,8 @@ fn offset_frame_from(name: &str, body: &str, x: &Isometry3<f64>) -> Element {
 
 /// Rebuild the IVD joint `joint` (element `el`, resolved frames `jf`)
 /// between `upper` (child) and `lower` (parent) with the parameters `p`.
-/// `generic_defaults` holds the generic model's default coordinate values.
+/// `x0` is the generic joint's transform (parent frame F to child frame M)
+/// at the generic model's default coordinate values.
 pub fn rebuild_ivd_joint(
     el: &Element,
     joint: &Joint,
@@ -84,13 +84,12 @@ pub fn rebuild_ivd_joint(
     upper: Level,
     lower: Level,
     p: &IvdParams,
-    generic_defaults: &Values,
+    x0: &Isometry3<f64>,
 ) -> Result<RebuiltJoint> {
     let ctx = format!("joint {}", joint.name);
     let prefix = joint_prefix(upper, lower);
     let cname = |s: &str| format!("{prefix}_{s}");
     // Generic default pose across the joint.
-    let x0 = joint_transform(joint, generic_defaults)?;
     let ang = xyz_angles(&x0.rotation.to_rotation_matrix());
     let t = x0.translation.vector;
     let defaults = [ang.x, ang.y, ang.z, t.x, t.y, t.z];
@@ -169,14 +168,11 @@ pub fn rebuild_ivd_joint(
             builders::coordinate(&cname(s), d, range)
         })
         .collect();
-    let axes: [Element; 6] = std::array::from_fn(|i| {
-        let label = if i < 3 {
-            format!("rotation{}", i + 1)
-        } else {
-            format!("translation{}", i - 2)
-        };
-        builders::transform_axis(&label, &axes_dirs[i % 3], Some(&cname(COORD_SUFFIXES[i])))
-    });
+    let cn = COORD_SUFFIXES.map(cname);
+    let axes = builders::transform_axes(
+        &std::array::from_fn(|i| axes_dirs[i % 3]),
+        std::array::from_fn(|i| Some(cn[i].as_str())),
+    );
     let new_joint = builders::custom_joint(
         &joint.name,
         parent_frame.clone(),
@@ -250,11 +246,7 @@ pub fn weld_joint(name: &str, parent: &str, child: &str, x: &Isometry3<f64>) -> 
         &Vector3::zeros(),
         &Vector3::zeros(),
     );
-    Element::new("WeldJoint")
-        .with_attr("name", name)
-        .with_prop("socket_parent_frame", format!("{parent}_offset"))
-        .with_prop("socket_child_frame", format!("{child}_offset"))
-        .with_child(Element::new("frames").with_child(pf).with_child(cf))
+    builders::weld_joint(name, pf, cf)
 }
 
 #[cfg(test)]

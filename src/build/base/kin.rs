@@ -1,128 +1,47 @@
-//! Forward kinematics on a typed [`Model`] snapshot, enough for the base
-//! builder's geometric work (default poses, test poses, muscle paths): body
-//! poses in ground for given coordinate values, for Weld, Pin, Free and
-//! Custom joints, computed as OpenSim does
-//! (`X_GB = X_GP X_PF X_FM(q) inv(X_BM)`, CustomJoint rotations as
-//! successive body-fixed rotations about the TransformAxis axes, the
-//! translation along the parent joint frame's axes).
+//! Geometric helpers of the base builder (also used by `generate` and
+//! `evaluate`): body poses in ground for coordinate values given by name,
+//! computed by the solver's forward kinematics
+//! ([`crate::solver::System::body_transforms`], the one FK of the crate),
+//! and muscle path points at a pose.
 
 use crate::error::{Error, Result};
-use crate::osim::model::{Joint, JointFrames, JointKind, Muscle, PathPointKind};
+use crate::osim::model::{Muscle, PathPointKind};
 use crate::osim::Model;
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use crate::solver::{System, SystemSpec};
+use nalgebra::{Isometry3, Point3};
 use std::collections::BTreeMap;
 
 /// Coordinate values by name (rad or m).
 pub type Values = BTreeMap<String, f64>;
 
-/// Joint frames resolved once, joints in an order where every parent body
-/// is placed before its child.
+/// Forward kinematics of a typed [`Model`]: the solver's [`System`] built
+/// from the model's bodies, joints and coordinates (no forces), with every
+/// coordinate free so that any coordinate value given is honoured (locked
+/// ones included).
 pub struct Kinematics<'a> {
     model: &'a Model,
-    frames: Vec<JointFrames>,
-    order: Vec<usize>,
-}
-
-/// Transform across a joint, from its parent frame F to its child frame M.
-pub fn joint_transform(joint: &Joint, q: &Values) -> Result<Isometry3<f64>> {
-    let val = |c: &str| -> Result<f64> {
-        q.get(c).copied().ok_or_else(|| {
-            Error::invalid(
-                format!("joint {}", joint.name),
-                format!("no value for coordinate '{c}'"),
-            )
-        })
-    };
-    let coord = |i: usize| -> Result<f64> {
-        let c = joint.coordinates.get(i).ok_or_else(|| {
-            Error::invalid(
-                format!("joint {}", joint.name),
-                format!("{} needs coordinate {}", joint.class, i + 1),
-            )
-        })?;
-        val(&c.name)
-    };
-    match &joint.kind {
-        JointKind::Weld => Ok(Isometry3::identity()),
-        JointKind::Pin => Ok(Isometry3::rotation(Vector3::z() * coord(0)?)),
-        JointKind::Free => {
-            let r =
-                crate::osim::model::body_fixed_xyz(&Vector3::new(coord(0)?, coord(1)?, coord(2)?));
-            Ok(Isometry3::from_parts(
-                Translation3::new(coord(3)?, coord(4)?, coord(5)?),
-                UnitQuaternion::from_rotation_matrix(&r),
-            ))
-        }
-        JointKind::Custom { axes } => {
-            let mut rot = UnitQuaternion::identity();
-            let mut p = Vector3::zeros();
-            for (i, ax) in axes.iter().enumerate() {
-                let x = match ax.coordinates.first() {
-                    Some(c) => val(c)?,
-                    None => 0.0,
-                };
-                let f = ax.function.eval(x);
-                let Some(dir) = ax.axis.try_normalize(1e-12) else {
-                    return Err(Error::invalid(
-                        format!("joint {}", joint.name),
-                        format!("{} has a zero axis", ax.name),
-                    ));
-                };
-                if i < 3 {
-                    rot *= UnitQuaternion::from_scaled_axis(dir * f);
-                } else {
-                    p += dir * f;
-                }
-            }
-            Ok(Isometry3::from_parts(Translation3::from(p), rot))
-        }
-        JointKind::Other => Err(Error::invalid(
-            format!("joint {}", joint.name),
-            format!("joint class {} is not supported here", joint.class),
-        )),
-    }
+    sys: System,
 }
 
 impl<'a> Kinematics<'a> {
-    /// Resolve the joint frames and a parent-before-child order.
+    /// Build the kinematic system of `model`.
     pub fn new(model: &'a Model) -> Result<Kinematics<'a>> {
-        let frames = model.joint_frames()?;
-        let mut placed: Vec<&str> = vec!["ground"];
-        let mut order = Vec::new();
-        let mut left: Vec<usize> = (0..frames.len()).collect();
-        while !left.is_empty() {
-            let before = left.len();
-            left.retain(|&i| {
-                if placed.contains(&frames[i].parent_body.as_str()) {
-                    order.push(i);
-                    placed.push(frames[i].child_body.as_str());
-                    false
-                } else {
-                    true
-                }
-            });
-            if left.len() == before {
-                return Err(Error::invalid(
-                    model.file.display().to_string(),
-                    "joint graph is not a tree rooted at ground",
-                ));
-            }
+        let mut spec = SystemSpec::kinematics_from_model(model)?;
+        for c in spec.coordinates.iter_mut() {
+            c.locked = false;
         }
-        Ok(Kinematics {
-            model,
-            frames,
-            order,
-        })
+        let sys = System::new(&spec).map_err(|e| {
+            Error::invalid(
+                model.file.display().to_string(),
+                format!("forward kinematics: {e}"),
+            )
+        })?;
+        Ok(Kinematics { model, sys })
     }
 
     /// The model.
     pub fn model(&self) -> &Model {
         self.model
-    }
-
-    /// Resolved joint frames, in model joint order.
-    pub fn frames(&self) -> &[JointFrames] {
-        &self.frames
     }
 
     /// Every coordinate at its default value.
@@ -133,24 +52,37 @@ impl<'a> Kinematics<'a> {
             .collect()
     }
 
+    /// The solver's free-dof vector for coordinate values by name; every
+    /// coordinate a joint uses needs a value.
+    fn dofs(&self, q: &Values) -> Result<Vec<f64>> {
+        (0..self.sys.n_dofs())
+            .map(|i| {
+                let name = self.sys.dof_name(i);
+                q.get(name).copied().ok_or_else(|| {
+                    Error::invalid(
+                        self.model.file.display().to_string(),
+                        format!("no value for coordinate '{name}'"),
+                    )
+                })
+            })
+            .collect()
+    }
+
     /// Pose of every body (and "ground") in ground.
     pub fn body_poses(&self, q: &Values) -> Result<BTreeMap<String, Isometry3<f64>>> {
-        let mut out = BTreeMap::new();
+        let mut out: BTreeMap<String, Isometry3<f64>> = self
+            .sys
+            .body_transforms(&self.dofs(q)?)?
+            .into_iter()
+            .collect();
         out.insert("ground".to_string(), Isometry3::identity());
-        for &i in &self.order {
-            let jf = &self.frames[i];
-            let j = &self.model.joints[i];
-            let x_gp = out.get(&jf.parent_body).copied().ok_or_else(|| {
-                Error::invalid(
-                    format!("joint {}", j.name),
-                    format!("parent body '{}' not placed", jf.parent_body),
-                )
-            })?;
-            let x_fm = joint_transform(j, q)?;
-            let x_gb = x_gp * jf.parent_in_body * x_fm * jf.child_in_body.inverse();
-            out.insert(jf.child_body.clone(), x_gb);
-        }
         Ok(out)
+    }
+
+    /// Transform across the joint named `joint`, from its parent frame F to
+    /// its child frame M, at `q`.
+    pub fn joint_transform(&self, joint: &str, q: &Values) -> Result<Isometry3<f64>> {
+        self.sys.joint_transform(joint, &self.dofs(q)?)
     }
 }
 

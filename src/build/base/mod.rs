@@ -42,7 +42,7 @@ use crate::osim::model::{Geometry, Model};
 use crate::osim::xml::Node;
 use crate::osim::Document;
 use kin::{Kinematics, Values};
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Point3, Vector3};
 use sanity::{SanityRow, Segment};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
@@ -210,39 +210,6 @@ pub(crate) fn body_level_index(body: &str) -> Option<usize> {
     Level::from_body_name(body).map(|l| l.index())
 }
 
-/// Pose of `body` in ground by walking its joint chain at values `q`.
-fn chain_pose(
-    model: &Model,
-    frames: &[crate::osim::model::JointFrames],
-    body: &str,
-    q: &Values,
-) -> Result<Isometry3<f64>> {
-    let mut x = Isometry3::identity();
-    let mut cur = body.to_string();
-    for _ in 0..=frames.len() {
-        if cur == "ground" {
-            return Ok(x);
-        }
-        let (i, jf) = frames
-            .iter()
-            .enumerate()
-            .find(|(_, f)| f.child_body == cur)
-            .ok_or_else(|| {
-                Error::invalid(
-                    model.file.display().to_string(),
-                    format!("body '{cur}' has no parent joint"),
-                )
-            })?;
-        let x_fm = kin::joint_transform(&model.joints[i], q)?;
-        x = jf.parent_in_body * x_fm * jf.child_in_body.inverse() * x;
-        cur = jf.parent_body.clone();
-    }
-    Err(Error::invalid(
-        model.file.display().to_string(),
-        "cyclic joint graph",
-    ))
-}
-
 fn mesh_of(
     model: &Model,
     body: &str,
@@ -358,8 +325,16 @@ pub fn build_base(
         })
         .ok_or_else(|| Error::invalid(&gfile, "no joint between 'pelvis' and 'sacrum'"))?;
     // Generic default poses of the pelvis and sacrum.
-    let x_pelvis = chain_pose(&model, &frames, "pelvis", &gdefaults)?;
-    let x_sacrum = chain_pose(&model, &frames, "sacrum", &gdefaults)?;
+    let gkin = Kinematics::new(&model)?;
+    let gposes = gkin.body_poses(&gdefaults)?;
+    let pose_of = |b: &str| {
+        gposes
+            .get(b)
+            .copied()
+            .ok_or_else(|| Error::invalid(&gfile, format!("body '{b}' has no pose")))
+    };
+    let x_pelvis = pose_of("pelvis")?;
+    let x_sacrum = pose_of("sacrum")?;
 
     // ---- 2. meshes and sanity
     let mut missing_meshes = Vec::new();
@@ -501,7 +476,8 @@ pub fn build_base(
             .ok_or_else(|| {
                 Error::invalid(&gfile, format!("joint element '{}' not found", j.name))
             })?;
-        let r = joints::rebuild_ivd_joint(el, j, &frames[i], up, low, &opts.ivd, &gdefaults)?;
+        let x0 = gkin.joint_transform(&j.name, &gdefaults)?;
+        let r = joints::rebuild_ivd_joint(el, j, &frames[i], up, low, &opts.ivd, &x0)?;
         for (old, new) in &r.renames {
             renames.insert(old.clone(), (j.name.clone(), new.clone()));
         }

@@ -1,44 +1,49 @@
-//! SVG views of the base model at its default pose (ground frame): frontal
-//! (seen from the front: horizontal axis = ground Z, the subject's right, on
-//! the viewer's left) and sagittal (horizontal axis = ground X, anterior to
-//! the right). Mesh vertices are grey dots, wrap spheres blue outlines,
-//! palpated markers red (right side / midline) and green (left side) dots.
+//! SVG views of the base model at its default pose (ground frame), drawn by
+//! the shared [`crate::util::svg`]: frontal (seen from the front, the
+//! subject's right on the viewer's left) and sagittal (anterior to the
+//! right), in mm. Vertebra and sacrum meshes are grey silhouettes, wrap
+//! spheres blue outlines at their radius, palpated markers red (right side
+//! / midline) and green (left side) dots.
 
 use super::wrap::SphereRow;
 use super::MarkerRow;
 use crate::mesh::TriMesh;
+use crate::util::svg::{Circles, Figure, Series, Silhouette, View};
 use nalgebra::{Isometry3, Point3};
-use plotters::prelude::*;
+use plotters::style::{RGBColor, BLUE, GREEN, RED};
 use std::collections::BTreeMap;
 
-/// (file name, title, horizontal coordinate of a point).
-type View = (&'static str, &'static str, fn(&Point3<f64>) -> f64);
-
-/// Render the two views: `[(file name, svg)]`.
+/// Render the two views: `[(file name, svg)]` (`view_frontal.svg`,
+/// `view_sagittal.svg`).
 pub fn render(
     poses: &BTreeMap<String, Isometry3<f64>>,
     meshes: &[(String, &TriMesh)],
     markers: &[MarkerRow],
     spheres: &[SphereRow],
 ) -> Vec<(String, String)> {
-    let mut pts: Vec<Point3<f64>> = Vec::new();
+    let mut triangles = Vec::new();
     for (body, m) in meshes {
-        if let Some(x) = poses.get(body) {
-            pts.extend(m.vertices.iter().map(|p| x * p));
-        }
+        let Some(x) = poses.get(body) else { continue };
+        let world: Vec<Point3<f64>> = m.vertices.iter().map(|p| x * p).collect();
+        triangles.extend(m.triangles.iter().filter_map(|t| {
+            Some([
+                *world.get(t[0] as usize)?,
+                *world.get(t[1] as usize)?,
+                *world.get(t[2] as usize)?,
+            ])
+        }));
     }
-    let mk: Vec<(Point3<f64>, bool)> = markers
-        .iter()
-        .filter_map(|r| {
-            let x = poses.get(&r.body)?;
-            let left = r.name.ends_with('L');
-            Some((
-                x * Point3::new(r.location[0], r.location[1], r.location[2]),
-                left,
-            ))
-        })
-        .collect();
-    let sp: Vec<(Point3<f64>, f64)> = spheres
+    let marker = |left: bool| -> Vec<Point3<f64>> {
+        markers
+            .iter()
+            .filter(|r| r.name.ends_with('L') == left)
+            .filter_map(|r| {
+                let x = poses.get(&r.body)?;
+                Some(x * Point3::new(r.location[0], r.location[1], r.location[2]))
+            })
+            .collect()
+    };
+    let circles = spheres
         .iter()
         .filter_map(|s| {
             let x = poses.get(&s.body)?;
@@ -48,87 +53,32 @@ pub fn render(
             ))
         })
         .collect();
-    let views: [View; 2] = [
-        (
-            "view_frontal.svg",
-            "frontal (from anterior; subject's right on the left)",
-            |p| -p.z,
-        ),
-        (
-            "view_sagittal.svg",
-            "sagittal (from the right; anterior to the right)",
-            |p| p.x,
-        ),
-    ];
-    views
+    let mut f = Figure::new("base model");
+    f.size = (700, 900);
+    f.silhouettes.push(Silhouette {
+        label: "vertebra and sacrum meshes".into(),
+        colour: RGBColor(190, 190, 190),
+        triangles,
+    });
+    f.circles.push(Circles {
+        label: "wrap spheres".into(),
+        colour: BLUE,
+        circles,
+    });
+    for (left, colour, label) in [
+        (false, RED, "markers (right, midline)"),
+        (true, GREEN, "markers (left)"),
+    ] {
+        f.series.push(Series {
+            label: label.into(),
+            colour,
+            points: marker(left),
+            radius: 3,
+            line: false,
+        });
+    }
+    View::BOTH
         .iter()
-        .map(|(file, title, h)| (file.to_string(), draw(title, *h, &pts, &mk, &sp)))
+        .map(|v| (format!("view_{}.svg", v.name()), f.draw(*v)))
         .collect()
-}
-
-fn draw(
-    title: &str,
-    h: fn(&Point3<f64>) -> f64,
-    pts: &[Point3<f64>],
-    mk: &[(Point3<f64>, bool)],
-    sp: &[(Point3<f64>, f64)],
-) -> String {
-    let all = pts.iter().chain(mk.iter().map(|(p, _)| p));
-    let (mut h0, mut h1, mut v0, mut v1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for p in all {
-        h0 = h0.min(h(p));
-        h1 = h1.max(h(p));
-        v0 = v0.min(p.y);
-        v1 = v1.max(p.y);
-    }
-    if h0 > h1 {
-        (h0, h1, v0, v1) = (-0.1, 0.1, 0.0, 0.5);
-    }
-    // Equal scales on both axes.
-    let span = (h1 - h0).max(v1 - v0) * 1.05 + 1e-3;
-    let (hc, vc) = (0.5 * (h0 + h1), 0.5 * (v0 + v1));
-    let (w, ht) = (700u32, 900u32);
-    let hspan = span * w as f64 / ht as f64;
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (w, ht)).into_drawing_area();
-        let _ = root.fill(&WHITE);
-        let chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 16))
-            .margin(10)
-            .x_label_area_size(30)
-            .y_label_area_size(50)
-            .build_cartesian_2d(
-                (hc - 0.5 * hspan)..(hc + 0.5 * hspan),
-                (vc - 0.5 * span)..(vc + 0.5 * span),
-            );
-        let Ok(mut chart) = chart else {
-            return svg_fallback(title);
-        };
-        let _ = chart.configure_mesh().x_desc("m").y_desc("Y (m)").draw();
-        let _ = chart.draw_series(
-            pts.iter()
-                .map(|p| Circle::new((h(p), p.y), 1, RGBColor(150, 150, 150).filled())),
-        );
-        let px_per_m = ht as f64 / span;
-        let _ = chart.draw_series(sp.iter().map(|(c, r)| {
-            Circle::new(
-                (h(c), c.y),
-                (r * px_per_m * 0.9).max(1.0) as i32,
-                BLUE.stroke_width(1),
-            )
-        }));
-        let _ = chart.draw_series(mk.iter().map(|(p, left)| {
-            let col = if *left { GREEN } else { RED };
-            Circle::new((h(p), p.y), 3, col.filled())
-        }));
-        let _ = root.present();
-    }
-    svg
-}
-
-fn svg_fallback(title: &str) -> String {
-    format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\"><text x=\"10\" y=\"20\">{title}</text></svg>"
-    )
 }

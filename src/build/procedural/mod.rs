@@ -228,37 +228,16 @@ fn build_document(
                 builders::coordinate(n, 0.0, r)
             })
             .collect();
-        let axes: [Element; 6] = std::array::from_fn(|i| {
-            let label = if i < 3 {
-                format!("rotation{}", i + 1)
-            } else {
-                format!("translation{}", i - 2)
-            };
-            builders::transform_axis(&label, &axes_v[i], Some(names[i]))
-        });
+        let axes = builders::transform_axes(&axes_v, names.map(Some));
         builders::custom_joint("ground_pelvis", pf, cf, coords, axes)
     };
     doc.insert_component("JointSet", gp)?;
     let so = sk.pelvis.sacrum_origin.coords;
-    let weld = Element::new("WeldJoint")
-        .with_attr("name", "sacral")
-        .with_prop("socket_parent_frame", "pelvis_offset")
-        .with_prop("socket_child_frame", "sacrum_offset")
-        .with_child(
-            Element::new("frames")
-                .with_child(builders::offset_frame(
-                    "pelvis_offset",
-                    "/bodyset/pelvis",
-                    &so,
-                    &z,
-                ))
-                .with_child(builders::offset_frame(
-                    "sacrum_offset",
-                    "/bodyset/sacrum",
-                    &z,
-                    &z,
-                )),
-        );
+    let weld = builders::weld_joint(
+        "sacral",
+        builders::offset_frame("pelvis_offset", "/bodyset/pelvis", &so, &z),
+        builders::offset_frame("sacrum_offset", "/bodyset/sacrum", &z, &z),
+    );
     doc.insert_component("JointSet", weld)?;
     for j in sk.joints.iter().rev() {
         let upper = j.upper.body_name();
@@ -280,14 +259,19 @@ fn build_document(
             .map(|n| builders::coordinate(n, 0.0, ROT_RANGE))
             .collect();
         let rot = [Vector3::z(), Vector3::x(), Vector3::y()];
-        let axes: [Element; 6] = std::array::from_fn(|i| {
-            if i < 3 {
-                builders::transform_axis(&format!("rotation{}", i + 1), &rot[i], Some(&cn[i]))
-            } else {
-                let ax = [Vector3::x(), Vector3::y(), Vector3::z()][i - 3];
-                builders::transform_axis(&format!("translation{}", i - 2), &ax, None)
-            }
-        });
+        let dirs = [
+            rot[0],
+            rot[1],
+            rot[2],
+            Vector3::x(),
+            Vector3::y(),
+            Vector3::z(),
+        ];
+        let axes = builders::transform_axes(
+            &dirs,
+            [Some(&cn[0]), Some(&cn[1]), Some(&cn[2]), None, None, None]
+                .map(|c| c.map(String::as_str)),
+        );
         doc.insert_component(
             "JointSet",
             builders::custom_joint(&j.name, pf, cf, coords, axes),
