@@ -2,8 +2,12 @@
 //! OpenSim 4.6's `opensim.Model(path)` on the same machine in the same run.
 //!
 //! `cargo bench --bench osim_io`: criterion groups for parse, typed model
-//! and write, then a plain median-of-10 table including OpenSim (when a
-//! Python with `opensim` is found: `$OSIM_SPINE_PYTHON` or `.venv/bin/python`).
+//! and write, then a plain median-of-10 table (read, write, read + write,
+//! read + typed model + write) and, in the same run, the median of 10
+//! `opensim.Model(path)` with the speed-up ratios (when a Python with
+//! `opensim` is found: `$OSIM_SPINE_PYTHON` or `.venv/bin/python`).
+//! `benches/osim_io_vs_opensim.py` does the same side by side with the
+//! release binary (`osim-spine convert`), one process per run.
 
 use criterion::{criterion_group, Criterion};
 use osim_spine::osim::Document;
@@ -55,21 +59,35 @@ fn table() {
     let Some(path) = cyclist() else { return };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.osim");
-    let mut rw = Vec::new();
-    let mut rmw = Vec::new();
+    let (mut rw, mut rmw, mut r, mut w) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for _ in 0..10 {
         let t = Instant::now();
         let d = Document::read(&path).unwrap();
         d.write(&out).unwrap();
         rw.push(t.elapsed().as_secs_f64());
+        drop(d);
         let t = Instant::now();
         let d = Document::read(&path).unwrap();
         d.model().unwrap();
         d.write(&out).unwrap();
         rmw.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        let d = Document::read(&path).unwrap();
+        r.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        d.write(&out).unwrap();
+        w.push(t.elapsed().as_secs_f64());
     }
     let (a, b) = (median(rw), median(rmw));
-    println!("\ncyclist model, median of 10:");
+    println!("\ncyclist model, median of 10 (wall clock):");
+    println!(
+        "  osim-spine read:                       {:8.1} ms",
+        median(r) * 1e3
+    );
+    println!(
+        "  osim-spine write (atomic, fsync):      {:8.1} ms",
+        median(w) * 1e3
+    );
     println!(
         "  osim-spine read + write:               {:8.1} ms",
         a * 1e3
@@ -85,7 +103,11 @@ fn table() {
                 o * 1e3
             );
             println!(
-                "  speed-up (read+model+write vs OpenSim load): {:.1}x",
+                "  speed-up, read + write vs OpenSim load:               {:.1}x",
+                o / a
+            );
+            println!(
+                "  speed-up, read + typed model + write vs OpenSim load: {:.1}x",
                 o / b
             );
         }

@@ -261,19 +261,41 @@ struct LineCounter<'a> {
     line: usize,
 }
 
+/// Number of `\n` bytes in `b` (byte-wide accumulators so the compiler
+/// vectorises it: this runs over the whole document once per parse).
+fn count_newlines(b: &[u8]) -> usize {
+    b.chunks(255)
+        .map(|c| c.iter().fold(0u8, |n, &x| n + u8::from(x == b'\n')) as usize)
+        .sum()
+}
+
 impl LineCounter<'_> {
     fn line_at(&mut self, pos: usize) -> usize {
         let pos = pos.min(self.bytes.len());
         if pos >= self.pos {
-            self.line += self.bytes[self.pos..pos]
-                .iter()
-                .filter(|&&b| b == b'\n')
-                .count();
+            self.line += self.bytes.get(self.pos..pos).map_or(0, count_newlines);
         } else {
-            self.line = 1 + self.bytes[..pos].iter().filter(|&&b| b == b'\n').count();
+            self.line = 1 + self.bytes.get(..pos).map_or(0, count_newlines);
         }
         self.pos = pos;
         self.line
+    }
+}
+
+/// `part` as a `&str` when it is a sub-slice of `text` (what quick-xml hands
+/// out when it reads from a `&str`): no UTF-8 re-validation, only a
+/// char-boundary check. `None` when `part` lies elsewhere.
+fn sub_str<'t>(text: &'t str, part: &[u8]) -> Option<&'t str> {
+    let off = (part.as_ptr() as usize).checked_sub(text.as_ptr() as usize)?;
+    text.get(off..off.checked_add(part.len())?)
+}
+
+/// `part` as UTF-8 text: borrowed from `text` when it is a sub-slice of it,
+/// validated otherwise.
+fn utf8<'a>(text: &'a str, part: &'a [u8]) -> std::result::Result<&'a str, std::str::Utf8Error> {
+    match sub_str(text, part) {
+        Some(s) => Ok(s),
+        None => std::str::from_utf8(part),
     }
 }
 
@@ -286,6 +308,46 @@ fn resolve_entity(name: &str) -> Option<&'static str> {
         "quot" => "\"",
         _ => return None,
     })
+}
+
+/// An element being parsed: its children are the tail of the shared
+/// `kids` buffer from `start` on, moved into one exactly-sized vector when
+/// the element closes (no per-element regrowth).
+struct Open {
+    el: Element,
+    start: usize,
+}
+
+/// Whether a node is markup (element, comment, processing instruction) as
+/// opposed to character data.
+fn is_markup(n: &Node) -> bool {
+    !matches!(n, Node::Text(_) | Node::CData(_))
+}
+
+/// Append `node` to the children of the innermost open element (the tail
+/// of `kids` from `start`).
+fn push_child(kids: &mut Vec<Node>, start: usize, node: Node) {
+    let last = if kids.len() > start {
+        kids.last_mut()
+    } else {
+        None
+    };
+    match (&node, last) {
+        // Merge adjacent text (quick-xml splits text at entity references).
+        (Node::Text(t), Some(Node::Text(prev))) => {
+            prev.push_str(t);
+            return;
+        }
+        // Whitespace beside markup is formatting (the writer regenerates it):
+        // do not keep it. Whitespace-only content of a text-only element is
+        // kept until markup shows up beside it.
+        (Node::Text(t), Some(prev)) if is_markup(prev) && t.trim().is_empty() => return,
+        (n, Some(Node::Text(prev))) if is_markup(n) && prev.trim().is_empty() => {
+            kids.pop();
+        }
+        _ => {}
+    }
+    kids.push(node);
 }
 
 /// Parse XML text. `path` is used in error messages only.
@@ -317,42 +379,21 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
     let mut prolog = Vec::new();
     let mut epilog = Vec::new();
     let mut root: Option<Element> = None;
-    let mut stack: Vec<Element> = Vec::new();
+    let mut stack: Vec<Open> = Vec::with_capacity(32);
+    // Children of all open elements, innermost last.
+    let mut kids: Vec<Node> = Vec::with_capacity(1024);
 
     // Append a node to the innermost open element, or to prolog/epilog.
     fn push_node(
-        stack: &mut [Element],
+        stack: &[Open],
+        kids: &mut Vec<Node>,
         root_done: bool,
         prolog: &mut Vec<Node>,
         epilog: &mut Vec<Node>,
         node: Node,
     ) {
-        if let Some(top) = stack.last_mut() {
-            // Merge adjacent text (quick-xml splits text at entity references).
-            if let (Node::Text(t), Some(Node::Text(prev))) = (&node, top.children.last_mut()) {
-                prev.push_str(t);
-                return;
-            }
-            // Whitespace beside markup is formatting (the writer regenerates
-            // it): do not keep it. Whitespace-only content of a text-only
-            // element is kept until markup shows up beside it.
-            let is_markup = !matches!(node, Node::Text(_) | Node::CData(_));
-            if is_markup {
-                if let Some(Node::Text(prev)) = top.children.last() {
-                    if prev.trim().is_empty() {
-                        top.children.pop();
-                    }
-                }
-            } else if let Node::Text(t) = &node {
-                let beside_markup = top
-                    .children
-                    .last()
-                    .is_some_and(|n| !matches!(n, Node::Text(_) | Node::CData(_)));
-                if beside_markup && t.trim().is_empty() {
-                    return;
-                }
-            }
-            top.children.push(node);
+        if let Some(top) = stack.last() {
+            push_child(kids, top.start, node);
         } else if root_done {
             epilog.push(node);
         } else {
@@ -368,7 +409,9 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                 let pos = reader.error_position() as usize;
                 let line = lines.line_at(pos);
                 let ctx = match stack.last() {
-                    Some(top) => format!(" (inside <{}> opened at line {})", top.name, top.line),
+                    Some(top) => {
+                        format!(" (inside <{}> opened at line {})", top.el.name, top.el.line)
+                    }
                     None => String::new(),
                 };
                 return Err(Error::parse(
@@ -392,7 +435,7 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                         "XML declaration not at the start",
                     ));
                 }
-                let raw = std::str::from_utf8(&d).map_err(|e| decode_err(&e))?;
+                let raw = utf8(text, &d).map_err(|e| decode_err(&e))?;
                 declaration = Some(raw.trim_start_matches("xml").trim().to_string());
             }
             Event::DocType(_) => {
@@ -413,45 +456,36 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                         format!("elements nested deeper than {MAX_DEPTH} levels"),
                     ));
                 }
-                let el = start_element(&s, line, path)?;
-                stack.push(el);
+                let el = start_element(text, &s, line, path)?;
+                stack.push(Open {
+                    el,
+                    start: kids.len(),
+                });
             }
             Event::Empty(s) => {
                 if root.is_some() && stack.is_empty() {
                     return Err(Error::parse(path, loc(), "more than one root element"));
                 }
-                let el = start_element(&s, line, path)?;
-                if stack.is_empty() {
-                    root = Some(el);
-                } else {
-                    push_node(
-                        &mut stack,
-                        false,
-                        &mut prolog,
-                        &mut epilog,
-                        Node::Element(el),
-                    );
+                let el = start_element(text, &s, line, path)?;
+                match stack.last() {
+                    None => root = Some(el),
+                    Some(top) => push_child(&mut kids, top.start, Node::Element(el)),
                 }
             }
             Event::End(_) => {
                 // quick-xml checks that the end name matches.
-                let Some(done) = stack.pop() else {
+                let Some(Open { mut el, start }) = stack.pop() else {
                     return Err(Error::parse(
                         path,
                         loc(),
                         "closing tag without an open element",
                     ));
                 };
-                if stack.is_empty() {
-                    root = Some(done);
-                } else {
-                    push_node(
-                        &mut stack,
-                        false,
-                        &mut prolog,
-                        &mut epilog,
-                        Node::Element(done),
-                    );
+                // One exactly-sized allocation (none when there are no children).
+                el.children = kids.drain(start.min(kids.len())..).collect();
+                match stack.last() {
+                    None => root = Some(el),
+                    Some(top) => push_child(&mut kids, top.start, Node::Element(el)),
                 }
             }
             Event::Text(t) => {
@@ -459,27 +493,24 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                 let ws = t.iter().all(|b| b.is_ascii_whitespace());
                 if ws {
                     if let Some(top) = stack.last() {
-                        if top
-                            .children
-                            .last()
-                            .is_some_and(|n| !matches!(n, Node::Text(_) | Node::CData(_)))
-                        {
+                        if kids.len() > top.start && kids.last().is_some_and(is_markup) {
                             continue;
                         }
                     }
                 }
-                let s = t.decode().map_err(|e| decode_err(&e))?;
+                let s = utf8(text, &t).map_err(|e| decode_err(&e))?;
                 if stack.is_empty() {
                     if !s.trim().is_empty() {
                         return Err(Error::parse(path, loc(), "text outside the root element"));
                     }
                 } else {
                     push_node(
-                        &mut stack,
+                        &stack,
+                        &mut kids,
                         root.is_some(),
                         &mut prolog,
                         &mut epilog,
-                        Node::Text(s.into_owned()),
+                        Node::Text(s.to_owned()),
                     );
                 }
             }
@@ -512,7 +543,8 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                     }
                 };
                 push_node(
-                    &mut stack,
+                    &stack,
+                    &mut kids,
                     root.is_some(),
                     &mut prolog,
                     &mut epilog,
@@ -525,7 +557,8 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                 }
                 let s = c.decode().map_err(|e| decode_err(&e))?;
                 push_node(
-                    &mut stack,
+                    &stack,
+                    &mut kids,
                     false,
                     &mut prolog,
                     &mut epilog,
@@ -533,19 +566,21 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                 );
             }
             Event::Comment(c) => {
-                let s = c.decode().map_err(|e| decode_err(&e))?;
+                let s = utf8(text, &c).map_err(|e| decode_err(&e))?;
                 push_node(
-                    &mut stack,
+                    &stack,
+                    &mut kids,
                     root.is_some(),
                     &mut prolog,
                     &mut epilog,
-                    Node::Comment(s.into_owned()),
+                    Node::Comment(s.to_owned()),
                 );
             }
             Event::PI(p) => {
-                let raw = std::str::from_utf8(&p).map_err(|e| decode_err(&e))?;
+                let raw = utf8(text, &p).map_err(|e| decode_err(&e))?;
                 push_node(
-                    &mut stack,
+                    &stack,
+                    &mut kids,
                     root.is_some(),
                     &mut prolog,
                     &mut epilog,
@@ -561,7 +596,7 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
             format!("line {}", lines.line_at(text.len())),
             format!(
                 "unexpected end of file: <{}> opened at line {} is not closed (truncated file?)",
-                open.name, open.line
+                open.el.name, open.el.line
             ),
         ));
     }
@@ -577,27 +612,26 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
 }
 
 fn start_element(
+    text: &str,
     s: &quick_xml::events::BytesStart<'_>,
     line: usize,
     path: &Path,
 ) -> Result<Element> {
     let loc = || format!("line {line}");
-    let name = std::str::from_utf8(s.name().as_ref())
+    let name = utf8(text, s.name().into_inner())
         .map_err(|_| Error::parse(path, loc(), "element name is not UTF-8"))?
         .to_string();
     let mut attrs: Vec<(String, String)> = Vec::new();
     for a in s.attributes() {
         let a =
             a.map_err(|e| Error::parse(path, loc(), format!("bad attribute in <{name}>: {e}")))?;
-        let key = std::str::from_utf8(a.key.as_ref())
-            .map_err(|_| {
-                Error::parse(
-                    path,
-                    loc(),
-                    format!("attribute name in <{name}> is not UTF-8"),
-                )
-            })?
-            .to_string();
+        let key = utf8(text, a.key.into_inner()).map_err(|_| {
+            Error::parse(
+                path,
+                loc(),
+                format!("attribute name in <{name}> is not UTF-8"),
+            )
+        })?;
         let value = a
             .unescape_value()
             .map_err(|e| {
@@ -608,14 +642,14 @@ fn start_element(
                 )
             })?
             .into_owned();
-        if attrs.iter().any(|(k, _)| *k == key) {
+        if attrs.iter().any(|(k, _)| k == key) {
             return Err(Error::parse(
                 path,
                 loc(),
                 format!("duplicate attribute '{key}' in <{name}>"),
             ));
         }
-        attrs.push((key, value));
+        attrs.push((key.to_string(), value));
     }
     Ok(Element {
         name,
@@ -663,10 +697,19 @@ fn escape_attr(s: &str, out: &mut String) {
     }
 }
 
-fn write_misc(node: &Node, depth: usize, out: &mut String) {
-    for _ in 0..depth {
-        out.push('\t');
+/// Append `depth` tabs.
+fn indent(depth: usize, out: &mut String) {
+    const TABS: &str = "\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t\t";
+    let mut left = depth;
+    while left > 0 {
+        let n = left.min(TABS.len());
+        out.push_str(TABS.get(..n).unwrap_or_default());
+        left -= n;
     }
+}
+
+fn write_misc(node: &Node, depth: usize, out: &mut String) {
+    indent(depth, out);
     match node {
         Node::Comment(c) => {
             out.push_str("<!--");
@@ -734,9 +777,7 @@ fn write_element(e: &Element, depth: usize, out: &mut String) {
             }
             write_misc(n, depth + 1, out);
         }
-        for _ in 0..depth {
-            out.push('\t');
-        }
+        indent(depth, out);
     }
     out.push_str("</");
     out.push_str(&e.name);
