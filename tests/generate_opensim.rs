@@ -575,8 +575,8 @@ fn noise_study_table() {
         .unwrap_or(50);
     let base_doc = Document::read(base.join("base.osim")).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(77);
-    println!("| noise | shape | method | median centre RMSE (mm) | median RMSE, sacral frame (mm) | Cobb SD, automatic ends (deg) | Cobb SD, truth's ends (deg) | truth Cobb (deg) |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| noise | shape | method | median centre RMSE (mm) | median RMSE, sacral frame (mm) | Cobb SD, automatic ends (deg) | Cobb SD, truth's ends (deg) | mean Cobb error, automatic / truth's ends (deg) | truth Cobb (deg) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let mut worst_default = (0.0f64, 0.0f64);
     let mut worst_3d = 0.0f64;
     let mut lsq_vs_thesis = Vec::new();
@@ -693,10 +693,14 @@ fn noise_study_table() {
             }
             for (method, s) in &stats {
                 let (mr, cs, cf) = (median(&s.rmse), sd(&s.cobb), sd(&s.cobb_fixed));
+                let bias =
+                    |v: &[f64]| v.iter().map(|c| c - truth_cobb).sum::<f64>() / v.len() as f64;
                 println!(
-                "| {noise_label} | {} | {method} | {mr:.2} | {:.2} | {cs:.2} | {cf:.2} | {truth_cobb:.1} ({}-{}) |",
+                "| {noise_label} | {} | {method} | {mr:.2} | {:.2} | {cs:.2} | {cf:.2} | {:+.2} / {:+.2} | {truth_cobb:.1} ({}-{}) |",
                 shape.name,
                 median(&s.rmse_sacral),
+                bias(&s.cobb),
+                bias(&s.cobb_fixed),
                 tc.upper,
                 tc.lower
             );
