@@ -371,7 +371,7 @@ pub fn generate(
                 .iter()
                 .map(|l| pose::vertebra_loo(*l, &patient[l], &markers[l].1))
                 .collect();
-            pose::set_noise_sd(&loo, opts.outlier_sigmas)
+            pose::set_noise_sd(&loo)
         }
         Method::Thesis => None,
     };

@@ -43,6 +43,11 @@ pub const OUTLIER_MIN_MM: f64 = 6.0;
 /// noise SDs, above which the landmark is an outlier (chi-square(3) tail
 /// probability 4.7e-3).
 pub const OUTLIER_SIGMAS: f64 = 3.6;
+/// Threshold (noise SDs) above which a vertebra's most discordant landmark
+/// is left out of the set-wide noise estimate ([`set_noise_sd`]); stricter
+/// than [`OUTLIER_SIGMAS`] because trimming a clean vertebra biases the
+/// estimate low (chi-square(3) tail 1.1e-3).
+pub const TRIM_SIGMAS: f64 = 4.0;
 /// Median of the chi-square distribution with 3 degrees of freedom.
 pub const MEDIAN_CHI2_3: f64 = 2.365_973_884_375_338;
 /// Accepted range of a scale factor (beyond it the landmarks are wrong).
@@ -485,12 +490,12 @@ fn exceeds(x: &Loo, sigma: f64, outlier_sigmas: f64) -> bool {
 
 /// Per-axis noise SD (m) of a whole landmark set: [`noise_sd`] of the
 /// statistics of every vertebra, where a vertebra whose most discordant
-/// landmark is an outlier at the current estimate contributes its
+/// landmark exceeds [`TRIM_SIGMAS`] at the current estimate contributes its
 /// `reduced` statistics (the others their `full` ones: trimming clean
 /// vertebrae would bias the estimate low, by 15 % on simulated sets),
 /// iterated until the set of such vertebrae no longer changes (at most 10
 /// rounds).
-pub fn set_noise_sd(vertebrae: &[VertebraLoo], outlier_sigmas: f64) -> Option<f64> {
+pub fn set_noise_sd(vertebrae: &[VertebraLoo]) -> Option<f64> {
     let mut flagged = vec![false; vertebrae.len()];
     let mut sigma = None;
     for _ in 0..10 {
@@ -503,7 +508,7 @@ pub fn set_noise_sd(vertebrae: &[VertebraLoo], outlier_sigmas: f64) -> Option<f6
         let s = sigma?;
         let next: Vec<bool> = vertebrae
             .iter()
-            .map(|v| v.worst.is_some_and(|w| exceeds(&w, s, outlier_sigmas)))
+            .map(|v| v.worst.is_some_and(|w| exceeds(&w, s, TRIM_SIGMAS)))
             .collect();
         if next == flagged {
             break;
@@ -649,7 +654,7 @@ mod tests {
                 .iter()
                 .map(|(p, _)| vertebra_loo(Level::L2, p, &model))
                 .collect();
-            let s = set_noise_sd(&st, OUTLIER_SIGMAS).unwrap();
+            let s = set_noise_sd(&st).unwrap();
             assert!((s / sd - 1.0).abs() < 0.1, "noise {s}");
         }
     }
@@ -684,10 +689,7 @@ mod tests {
                 .iter()
                 .map(|(p, _)| vertebra_loo(Level::L2, p, &model))
                 .collect();
-            let (s_clean, s_bad) = (
-                set_noise_sd(&loo_clean, OUTLIER_SIGMAS),
-                set_noise_sd(&loo_bad, OUTLIER_SIGMAS),
-            );
+            let (s_clean, s_bad) = (set_noise_sd(&loo_clean), set_noise_sd(&loo_bad));
             assert!((s_clean.unwrap() / sd - 1.0).abs() < 0.1, "{s_clean:?}");
             assert!((s_bad.unwrap() / sd - 1.0).abs() < 0.1, "{s_bad:?}");
             for ((p, _), (q, code)) in group.iter().zip(&bad) {
