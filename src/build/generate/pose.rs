@@ -702,9 +702,10 @@ mod tests {
                 found += usize::from(f.outlier.map(|o| o.0) == Some(*code));
             }
         }
-        // Expected about 1.5 % false flags (14 x 1.1e-3) and 95 % found.
+        // Expected about 6 % false flags (14 x 4.7e-3, i.e. 11 +- 3 of 170)
+        // and about 90 % found.
         assert!(
-            false_flags <= 8,
+            false_flags <= 20,
             "{false_flags} of 170 clean vertebrae flagged"
         );
         assert!(found >= 150, "{found} of 170 displaced landmarks found");
