@@ -575,8 +575,8 @@ fn noise_study_table() {
         .unwrap_or(50);
     let base_doc = Document::read(base.join("base.osim")).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(77);
-    println!("| noise | shape | method | median centre RMSE (mm) | median RMSE, sacral frame (mm) | Cobb SD, automatic ends (deg) | Cobb SD, truth's ends (deg) | truth Cobb (deg) |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| noise | shape | method | median centre RMSE (mm) | median RMSE, sacral frame (mm) | Cobb SD, automatic ends (deg) | Cobb SD, truth's ends (deg) | mean Cobb error, automatic / truth's ends (deg) | truth Cobb (deg) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let mut worst_default = (0.0f64, 0.0f64);
     let mut worst_3d = 0.0f64;
     let mut lsq_vs_thesis = Vec::new();
@@ -625,6 +625,30 @@ fn noise_study_table() {
             }
             let tc = osim_spine::evaluate::metrics::cobb(&ground, None).unwrap();
             let truth_cobb = tc.angle_deg;
+            // The largest curve of the other sign (the automatic end
+            // vertebrae may jump to it when the two are close).
+            let lv: Vec<Level> = Level::ALL
+                .iter()
+                .copied()
+                .filter(|l| !l.is_sacrum())
+                .collect();
+            let mut other: Option<osim_spine::evaluate::metrics::Cobb> = None;
+            for (i, u) in lv.iter().enumerate() {
+                for w in &lv[i..] {
+                    if let Some(c) = osim_spine::evaluate::metrics::cobb(&ground, Some((*u, *w))) {
+                        if c.angle_deg * truth_cobb < 0.0
+                            && other
+                                .as_ref()
+                                .is_none_or(|o| c.angle_deg.abs() > o.angle_deg.abs())
+                        {
+                            other = Some(c);
+                        }
+                    }
+                }
+            }
+            let other = other
+                .map(|o| format!("; other curve {:.1} ({}-{})", o.angle_deg, o.upper, o.lower))
+                .unwrap_or_default();
             let ends: (Level, Level) = (tc.upper.parse().unwrap(), tc.lower.parse().unwrap());
             let mut stats: BTreeMap<&str, Stats> = BTreeMap::new();
             let mut displaced_rmse_diff = Vec::new();
@@ -693,20 +717,24 @@ fn noise_study_table() {
             }
             for (method, s) in &stats {
                 let (mr, cs, cf) = (median(&s.rmse), sd(&s.cobb), sd(&s.cobb_fixed));
+                let bias =
+                    |v: &[f64]| v.iter().map(|c| c - truth_cobb).sum::<f64>() / v.len() as f64;
                 println!(
-                "| {noise_label} | {} | {method} | {mr:.2} | {:.2} | {cs:.2} | {cf:.2} | {truth_cobb:.1} ({}-{}) |",
+                "| {noise_label} | {} | {method} | {mr:.2} | {:.2} | {cs:.2} | {cf:.2} | {:+.2} / {:+.2} | {truth_cobb:.1} ({}-{}){other} |",
                 shape.name,
                 median(&s.rmse_sacral),
+                bias(&s.cobb),
+                bias(&s.cobb_fixed),
                 tc.upper,
                 tc.lower
             );
                 if *method == "lsq" && !with_outliers {
-                    worst_3d = worst_3d.max(cs);
+                    worst_3d = worst_3d.max(cf);
                 }
                 if *method == "lsq" && with_outliers {
                     let th = &stats["thesis"];
                     lsq_vs_thesis.push((mr < median(&th.rmse), cs < sd(&th.cobb)));
-                    worst_default = (worst_default.0.max(mr), worst_default.1.max(cs));
+                    worst_default = (worst_default.0.max(mr), worst_default.1.max(cf));
                     outlier_rows.push((
                         shape.name,
                         s.displaced,
@@ -737,14 +765,15 @@ fn noise_study_table() {
         "lsq is not better than thesis: {lsq_vs_thesis:?}"
     );
     println!(
-        "Cobb SD of lsq: worst shape {:.2} deg at 2 mm per axis (target 3: {}), {worst_3d:.2} deg at 2 mm 3-D",
+        "Cobb SD of lsq (truth's end vertebrae): worst shape {:.2} deg at 2 mm per axis (target 3: {}), {worst_3d:.2} deg at 2 mm 3-D",
         worst_default.1,
         if worst_default.1 <= 3.0 { "met" } else { "missed" }
     );
-    // Measured floor of the protocol at 2 mm per axis: ~4.5 deg (per-vertebra
-    // frontal rotation from 14 landmarks ~3 deg); guard against regressions.
-    assert!(worst_default.1 <= 5.5, "Cobb SD {} deg", worst_default.1);
-    assert!(worst_3d <= 3.0, "Cobb SD {worst_3d} deg at 2 mm 3-D noise");
+    // Measured at 2 mm per axis: 2.4-3.2 deg, about the information limit of
+    // independent per-vertebra fits (frontal rotation of one vertebra from
+    // its 14 landmarks ~2 deg); guard against regressions.
+    assert!(worst_default.1 <= 3.6, "Cobb SD {} deg", worst_default.1);
+    assert!(worst_3d <= 2.5, "Cobb SD {worst_3d} deg at 2 mm 3-D noise");
     for (name, n, right, _, diff, cf, cv) in &outlier_rows {
         assert!(
             *right as f64 >= 0.85 * *n as f64,
@@ -754,8 +783,10 @@ fn noise_study_table() {
             diff.abs() <= 1.0,
             "{name}: RMSE changes by {diff} mm with outliers"
         );
+        // Chi-square test at 4.7e-3 per landmark: about 6 % of clean
+        // vertebrae (14 landmarks) get a false flag.
         assert!(
-            (*cf as f64) <= 0.25 * *cv as f64,
+            (*cf as f64) <= 0.10 * *cv as f64,
             "{name}: {cf} false flags in {cv} vertebrae"
         );
     }

@@ -1,23 +1,34 @@
 //! Spine-shape metrics (pure functions, ground frame of the model: X
 //! anterior, Y superior, Z right; frontal plane Y-Z, sagittal plane X-Y).
 //!
-//! * Endplate lines as a radiograph shows them: the lateral diameter
-//!   `r = SR - SL` (inferior: `IR - IL`) in the frontal plane and the
-//!   sagittal diameter `a = SA - SP` (`IA - IP`) in the sagittal plane.
-//!   (Tilts of the endplate *normal* projected on a plane are unstable for
-//!   endplates steeply inclined in the other plane, e.g. the upper
-//!   thoracic ones.)
-//! * Frontal tilt of an endplate: `atan2(-r.y, r.z)` (positive when the
+//! * Endplate lines as a radiograph shows them. Each endplate is the
+//!   least-squares plane through its rim landmarks and centre (superior:
+//!   `SA`, `SP`, `SR`, `SL`, `SEC`; inferior: `IA`, `IP`, `IR`, `IL`,
+//!   `IEC`), normal `n` oriented cranially (along `SEC - IEC`; for S1
+//!   along ground's Y). A frontal
+//!   radiograph sees the endplate (a thin disc nearly edge-on to the beam)
+//!   as a line along the intersection of its plane with the frontal plane,
+//!   direction `e_x x n`; the lateral view likewise along `n x e_z`. These
+//!   lines do not depend on the vertebra's axial rotation, unlike the
+//!   projected lateral diameter `SR - SL`, whose frontal projection shortens
+//!   by the cosine of the axial rotation and so exaggerates the tilt (by
+//!   14 deg of Cobb angle on a 84 deg curve whose apical vertebrae are
+//!   rotated 40-50 deg) and picks up the sagittal rotation noise of a fit
+//!   in proportion to the rotation. The lines are undefined only when the
+//!   endplate faces the beam (`n` within [`EDGE_ON_MIN`] of the view axis,
+//!   an endplate inclined by more than about 84 deg): then no tilt.
+//! * Frontal tilt of an endplate: `atan2(n.z, n.y)` (positive when the
 //!   right end is lower, i.e. the endplate faces to the right). **Cobb
 //!   angle** of the main curve:
 //!   `tilt(inferior endplate of the lower end vertebra) - tilt(superior
 //!   endplate of the upper end vertebra)`; the end vertebrae, when not
 //!   given, are the pair (upper at or above lower) with the largest
 //!   absolute difference. Positive: the curve is convex to the right.
-//! * Sagittal tilt: `atan2(-a.y, a.x)` (positive when the anterior end is
-//!   lower, i.e. the endplate faces anteriorly). **Lumbar lordosis** = `tilt(L1 superior) - tilt(S1
-//!   superior)` (the sacral slope enters through S1), negative for a
-//!   lordotic spine as in the thesis (Table 5.2: -34 deg supine).
+//! * Sagittal tilt: `atan2(n.x, n.y)` (positive when the anterior end is
+//!   lower, i.e. the endplate faces anteriorly). **Lumbar lordosis** =
+//!   `tilt(L1 superior) - tilt(S1 superior)` (the sacral slope enters
+//!   through S1), negative for a lordotic spine as in the thesis (Table
+//!   5.2: -34 deg supine).
 //! * **Apex** of the main curve: the vertebra between the end vertebrae
 //!   whose centre lies farthest, in the frontal plane, from the straight
 //!   line through the end vertebrae's centres.
@@ -32,30 +43,73 @@ use crate::landmarks::{Code, LandmarkSet, Level};
 use nalgebra::{DMatrix, DVector, Point3, Vector3};
 use std::collections::BTreeMap;
 
-/// Frontal and sagittal tilts (rad) of an endplate from its lateral
-/// (`r`, right minus left) and sagittal (`a`, anterior minus posterior)
-/// diameters.
-pub fn tilts(r: &Vector3<f64>, a: &Vector3<f64>) -> (f64, f64) {
-    ((-r.y).atan2(r.z), (-a.y).atan2(a.x))
+/// Smallest length of the endplate normal's projection on a view plane
+/// (sine of the angle between the normal and the view axis) for which the
+/// endplate's line in that view is defined.
+pub const EDGE_ON_MIN: f64 = 0.1;
+
+/// Frontal and sagittal tilts (rad) of an endplate of unit normal `n`
+/// (oriented cranially): the angles of the lines where the endplate plane
+/// meets the frontal and the sagittal plane. `None` for a view in which the
+/// endplate faces the beam.
+pub fn tilts(n: &Vector3<f64>) -> (Option<f64>, Option<f64>) {
+    let frontal = (n.y.hypot(n.z) >= EDGE_ON_MIN).then(|| n.z.atan2(n.y));
+    let sagittal = (n.y.hypot(n.x) >= EDGE_ON_MIN).then(|| n.x.atan2(n.y));
+    (frontal, sagittal)
 }
 
-/// Frontal and sagittal tilt of one endplate (rad).
-pub type Tilts = (f64, f64);
+/// Unit normal of the least-squares plane through `pts`, oriented along
+/// `up`; `None` when the points do not span a plane (collinear or
+/// coincident within 1e-9 m) or `up` lies in it.
+pub fn plane_normal(pts: &[Point3<f64>], up: &Vector3<f64>) -> Option<Vector3<f64>> {
+    if pts.len() < 3 {
+        return None;
+    }
+    let c = pts.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / pts.len() as f64;
+    let mut cov = nalgebra::Matrix3::zeros();
+    for p in pts {
+        let d = p.coords - c;
+        cov += d * d.transpose();
+    }
+    let e = cov.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|a, b| e.eigenvalues[*a].total_cmp(&e.eigenvalues[*b]));
+    // The two in-plane spreads must be real (a plane, not a line).
+    if e.eigenvalues[order[1]].max(0.0).sqrt() < 1e-9 {
+        return None;
+    }
+    let n: Vector3<f64> = e.eigenvectors.column(order[0]).into();
+    let d = n.dot(up);
+    if !d.is_finite() || d.abs() < 1e-12 {
+        return None;
+    }
+    Some(if d < 0.0 { -n } else { n })
+}
+
+/// Frontal and sagittal tilt of one endplate (rad); `None` for a view in
+/// which it faces the beam.
+pub type Tilts = (Option<f64>, Option<f64>);
 
 /// Frontal and sagittal tilts (rad) of the superior and inferior endplates
-/// of a level (`None` when landmarks are missing).
+/// of a level (`None` when landmarks are missing or the endplate is
+/// degenerate).
 pub fn endplate_tilts(set: &LandmarkSet, level: Level) -> (Option<Tilts>, Option<Tilts>) {
     let g = |c| set.get(level, c);
-    let t = |a: Option<Point3<f64>>,
-             p: Option<Point3<f64>>,
-             r: Option<Point3<f64>>,
-             l: Option<Point3<f64>>| {
-        let (a, p, r, l) = (a?, p?, r?, l?);
-        Some(tilts(&(r - l), &(a - p)))
+    // Cranial direction of the vertebra; S1 has no inferior endplate
+    // landmarks: ground's superior axis.
+    let up = match (g(Code::SEC), g(Code::IEC)) {
+        (Some(s), Some(i)) => Some(s - i),
+        _ if level.is_sacrum() => Some(Vector3::y()),
+        _ => None,
+    };
+    let t = |codes: [Code; 5]| -> Option<Tilts> {
+        let pts: Option<Vec<Point3<f64>>> = codes.iter().map(|c| g(*c)).collect();
+        let n = plane_normal(&pts?, &up?)?;
+        Some(tilts(&n))
     };
     (
-        t(g(Code::SA), g(Code::SP), g(Code::SR), g(Code::SL)),
-        t(g(Code::IA), g(Code::IP), g(Code::IR), g(Code::IL)),
+        t([Code::SA, Code::SP, Code::SR, Code::SL, Code::SEC]),
+        t([Code::IA, Code::IP, Code::IR, Code::IL, Code::IEC]),
     )
 }
 
@@ -82,7 +136,7 @@ pub fn cobb(set: &LandmarkSet, ends: Option<(Level, Level)>) -> Option<Cobb> {
         .iter()
         .map(|l| {
             let (s, i) = endplate_tilts(set, *l);
-            (*l, (s.map(|t| t.0), i.map(|t| t.0)))
+            (*l, (s.and_then(|t| t.0), i.and_then(|t| t.0)))
         })
         .collect();
     let angle =
@@ -115,14 +169,14 @@ pub fn cobb(set: &LandmarkSet, ends: Option<(Level, Level)>) -> Option<Cobb> {
 /// Lumbar lordosis (deg): sagittal tilt of L1's superior endplate minus
 /// that of S1 (negative for lordosis).
 pub fn lordosis(set: &LandmarkSet) -> Option<f64> {
-    let l1 = endplate_tilts(set, Level::L1).0?.1;
-    let s1 = endplate_tilts(set, Level::S1).0?.1;
+    let l1 = endplate_tilts(set, Level::L1).0?.1?;
+    let s1 = endplate_tilts(set, Level::S1).0?.1?;
     Some((l1 - s1).to_degrees())
 }
 
 /// Sacral slope (deg): sagittal tilt of the S1 endplate.
 pub fn sacral_slope(set: &LandmarkSet) -> Option<f64> {
-    Some(endplate_tilts(set, Level::S1).0?.1.to_degrees())
+    Some(endplate_tilts(set, Level::S1).0?.1?.to_degrees())
 }
 
 /// Apex: the level in `upper..=lower` farthest (frontal plane) from the
@@ -240,6 +294,71 @@ pub fn quantile(x: &[f64], p: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An endplate disc whose plane contains the frontal line of tilt
+    /// `alpha` and the sagittal line of tilt `beta`, its rim landmarks on
+    /// diameters turned by `theta` about the normal (axial rotation).
+    fn endplate(alpha: f64, beta: f64, theta: f64) -> LandmarkSet {
+        let df = Vector3::new(0.0, -alpha.sin(), alpha.cos());
+        let ds = Vector3::new(beta.cos(), -beta.sin(), 0.0);
+        let n = df.cross(&ds).normalize();
+        let n = if n.y < 0.0 { -n } else { n };
+        // Orthonormal in-plane basis, then turned by theta.
+        let e1 = ds.normalize();
+        let e2 = n.cross(&e1);
+        let (a, r) = (
+            e1 * theta.cos() + e2 * theta.sin(),
+            -e1 * theta.sin() + e2 * theta.cos(),
+        );
+        let c = Point3::new(0.01, 0.3, -0.02);
+        let mut set = LandmarkSet::new();
+        let mut put = |code, p: Point3<f64>| {
+            set.points.insert(
+                crate::landmarks::LandmarkId {
+                    level: Level::L2,
+                    code,
+                },
+                p,
+            );
+        };
+        put(Code::SEC, c);
+        put(Code::SA, c + a * 0.017);
+        put(Code::SP, c - a * 0.015);
+        put(Code::SR, c + r * 0.022);
+        put(Code::SL, c - r * 0.020);
+        put(Code::IEC, c - n * 0.025);
+        set
+    }
+
+    #[test]
+    fn endplate_tilts_are_the_radiographic_lines_whatever_the_axial_rotation() {
+        for (alpha, beta) in [(0.0, 0.0), (30.0, -10.0), (-45.0, 25.0), (10.0, 40.0)] {
+            let (alpha, beta) = (f64::to_radians(alpha), f64::to_radians(beta));
+            for theta in [-50.0, -20.0, 0.0, 15.0, 45.0] {
+                let set = endplate(alpha, beta, f64::to_radians(theta));
+                let (sup, _) = endplate_tilts(&set, Level::L2);
+                let (f, s) = sup.unwrap();
+                // tan(frontal) = tan(alpha) and tan(sagittal) = tan(beta):
+                // the lines in the two views are the plane's traces.
+                assert!((f.unwrap() - alpha).abs() < 1e-9, "{f:?} vs {alpha}");
+                assert!((s.unwrap() - beta).abs() < 1e-9, "{s:?} vs {beta}");
+            }
+        }
+    }
+
+    #[test]
+    fn endplate_facing_the_beam_has_no_tilt_and_degenerate_plane_none() {
+        // Normal along X (endplate facing the frontal beam): no frontal line.
+        let (f, s) = tilts(&Vector3::new(1.0, 0.05, 0.0).normalize());
+        assert!(f.is_none());
+        assert!((s.unwrap() - (1.0f64).atan2(0.05)).abs() < 1e-12);
+        let line = [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(0.0, 0.0, 0.01),
+            Point3::new(0.0, 0.0, 0.02),
+        ];
+        assert!(plane_normal(&line, &Vector3::y()).is_none());
+    }
 
     #[test]
     fn polyfit_recovers_a_quartic() {

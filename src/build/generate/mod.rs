@@ -160,6 +160,9 @@ pub struct GenerateReport {
     pub levels_from_base: Vec<String>,
     pub registration: Registration,
     pub vertebrae: Vec<VertebraRow>,
+    /// Per-axis palpation noise SD (mm) estimated over the whole set from
+    /// the leave-one-out prediction errors (lsq; [`pose::noise_sd`]).
+    pub noise_sd_mm: Option<f64>,
     /// Outliers flagged (`<LEVEL>_<CODE> (error mm)`).
     pub outliers: Vec<String>,
     /// RMS of all landmark-to-marker residuals (mm), outliers excluded.
@@ -360,7 +363,18 @@ pub fn generate(
         }
     }
 
-    // ---- 2. fits
+    // ---- 2. fits (lsq: palpation noise estimated over the whole set for
+    // the outlier test)
+    let noise = match opts.method {
+        Method::Lsq => {
+            let loo: Vec<pose::VertebraLoo> = vert_levels
+                .iter()
+                .map(|l| pose::vertebra_loo(*l, &patient[l], &markers[l].1))
+                .collect();
+            pose::set_noise_sd(&loo)
+        }
+        Method::Thesis => None,
+    };
     let mut fits: BTreeMap<Level, pose::VertebraFit> = BTreeMap::new();
     for l in &vert_levels {
         let f = pose::fit_vertebra_with(
@@ -369,6 +383,7 @@ pub fn generate(
             &markers[l].1,
             opts.method,
             opts.outlier_sigmas,
+            noise,
         )?;
         fits.insert(*l, f);
     }
@@ -571,6 +586,7 @@ pub fn generate(
         levels_from_base,
         registration,
         vertebrae: rows,
+        noise_sd_mm: noise.map(|n| n * 1e3),
         outliers,
         landmark_rms_mm: landmark_rms * 1e3,
         joints_rewritten: rewritten,
