@@ -10,6 +10,7 @@
 pub mod experiment;
 pub mod family;
 pub mod fit;
+pub mod forms;
 pub mod lhs;
 pub mod lm;
 pub mod measure;
