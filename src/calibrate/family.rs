@@ -17,9 +17,10 @@
 //! | `nonlinear:sinh:per-level`, `nonlinear:cubic:per-level` | per-level `k_d`, one `s_d` per rotational DoF | idem |
 //! | `coupled` | uniform `k_d` plus rotational correlations `rho_xy`, `rho_xz` and partial `rho_yz|x` (SPD by construction) | ExpressionBasedBushingForce (linear expressions) |
 //!
-//! Stiffness values are fitted on a log scale ([`Scale::Log`]); the
-//! dimensionless shape and coupling parameters, whose linear limit 0 lies
-//! inside their bounds, on a linear one ([`Scale::Linear`]).
+//! Stiffness values are fitted on a log scale ([`Scale::Log`]), the
+//! stiffening `s` as `ln(1 + s)` ([`Scale::Log1p`]: `1 + s` is a stiffness
+//! ratio, the linear limit `s = 0` its lower bound), the correlations as
+//! they are ([`Scale::Linear`], neutral value 0 inside the bounds).
 
 use super::forms::{self, CurveForm};
 use crate::calibrate::experiment::DOF_NAMES;
@@ -58,9 +59,13 @@ pub struct ParamInfo {
 pub enum Scale {
     /// Positive, fitted as `ln p` (stiffness values): multiplicative intervals.
     Log,
-    /// Any sign, fitted as `p` itself (dimensionless shape and coupling
-    /// parameters whose neutral value 0 lies inside the bounds): additive intervals.
+    /// Any sign, fitted as `p` itself (dimensionless coupling parameters
+    /// whose neutral value 0 lies inside the bounds): additive intervals.
     Linear,
+    /// `p >= 0`, fitted as `ln(1 + p)` (stiffening parameters: `1 + p` is a
+    /// stiffness ratio, and the linear limit `p = 0` is the lower bound):
+    /// multiplicative intervals on `1 + p`.
+    Log1p,
 }
 
 impl ParamInfo {
@@ -81,6 +86,7 @@ impl ParamInfo {
         match self.scale {
             Scale::Log => p.ln(),
             Scale::Linear => p,
+            Scale::Log1p => p.ln_1p(),
         }
     }
     /// The value of fitting coordinate `x`.
@@ -88,6 +94,7 @@ impl ParamInfo {
         match self.scale {
             Scale::Log => x.exp(),
             Scale::Linear => x,
+            Scale::Log1p => x.exp_m1(),
         }
     }
     /// `d p / d x` at value `p`.
@@ -95,6 +102,7 @@ impl ParamInfo {
         match self.scale {
             Scale::Log => p,
             Scale::Linear => 1.0,
+            Scale::Log1p => 1.0 + p,
         }
     }
     /// Bounds on the fitting scale.
@@ -139,7 +147,7 @@ pub trait ModelFamily: Send + Sync {
         let info = self.params();
         for j in 0..p.len() {
             let h = match info.get(j).map(|i| i.scale) {
-                Some(Scale::Linear) => 1e-6 * p[j].abs().max(1.0),
+                Some(Scale::Linear) | Some(Scale::Log1p) => 1e-6 * p[j].abs().max(1.0),
                 _ => 1e-6 * p[j].abs().max(1e-12),
             };
             pp[j] = p[j] + h;
@@ -168,9 +176,9 @@ pub const LITERATURE_BOUNDS: [(f64, f64); 6] = [
     (53_000.0, 584_000.0),    // right-left translation
 ];
 
-/// Upper bound of a stiffening parameter (tangent stiffness x101 at the
-/// reference rotation).
-pub const MAX_STIFFENING: f64 = 100.0;
+/// Upper bound of a stiffening parameter (tangent stiffness x10001 at the
+/// reference rotation: a sinh neutral zone of a tenth of the reference rotation).
+pub const MAX_STIFFENING: f64 = 1e4;
 
 /// Bound of the coupling (partial) correlations.
 pub const MAX_CORRELATION: f64 = 0.95;
@@ -530,7 +538,7 @@ impl StiffnessFamily {
                         lower: 0.0,
                         upper: MAX_STIFFENING,
                         nominal: 0.0,
-                        scale: Scale::Linear,
+                        scale: Scale::Log1p,
                         note: None,
                     });
                 }

@@ -88,15 +88,17 @@ pub struct ParamEstimate {
     pub lower: f64,
     pub upper: f64,
     /// The scale the parameter is fitted on (`log`: stiffness values;
-    /// `linear`: dimensionless shape and coupling parameters).
+    /// `log1p`: stiffening; `linear`: coupling correlations).
     pub scale: Scale,
-    /// Relative standard deviation, first order: the SD of `ln p` for
-    /// log-scale parameters, `sd / |p|` for linear-scale ones.
+    /// Standard deviation on the fitting scale for `log` (SD of `ln p`,
+    /// i.e. relative) and `log1p` (SD of `ln(1 + p)`) parameters, `sd / |p|`
+    /// for linear-scale ones.
     pub rel_sd: f64,
     /// Standard deviation in the parameter's unit, first order.
     pub sd: f64,
     /// 95% confidence interval (t distribution on the fitting scale:
-    /// multiplicative for log-scale, additive for linear-scale parameters).
+    /// multiplicative for `log`, multiplicative on `1 + p` for `log1p`,
+    /// additive for `linear` parameters).
     pub ci95: [f64; 2],
     pub at_bound: bool,
 }
@@ -227,7 +229,8 @@ pub fn precheck(pb: &Problem, start: &[f64]) -> Result<()> {
 }
 
 /// Same minimum: fitting coordinates within `tol` (1% relative for
-/// log-scale parameters, `tol` absolute for the dimensionless linear-scale ones).
+/// log-scale parameters, 1% on `1 + s` for stiffening, `tol` absolute for
+/// correlations).
 fn close(pb: &Problem, a: &[f64], b: &[f64], tol: f64) -> bool {
     let (xa, xb) = (pb.fit_coords_of(a), pb.fit_coords_of(b));
     xa.iter().zip(&xb).all(|(x, y)| (x - y).abs() <= tol)
@@ -452,6 +455,14 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
                 sd,
                 [p[k] - tq * sd, p[k] + tq * sd],
             ),
+            Scale::Log1p => (
+                sd,
+                (1.0 + p[k]) * sd,
+                [
+                    (1.0 + p[k]) * (-tq * sd).exp() - 1.0,
+                    (1.0 + p[k]) * (tq * sd).exp() - 1.0,
+                ],
+            ),
         };
         estimates.push(ParamEstimate {
             name: info[k].name.clone(),
@@ -470,17 +481,22 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
             match scale {
                 Scale::Log => format!("relative SD {:.0}%", 100.0 * sd),
                 Scale::Linear => format!("SD {sd:.3}"),
+                Scale::Log1p => format!("SD of ln(1 + value) {sd:.3}"),
             }
         } else {
             "unbounded SD".into()
         };
-        if !sd.is_finite() || sd > 0.5 {
+        // poorly determined: SD above 0.5 on the fitting scale (a factor
+        // e^(+-1) at 95% for stiffness); for stiffening, above 0.25 (the
+        // data cannot tell linear from ~60% stiffening at the reference rotation)
+        let limit = if scale == Scale::Log1p { 0.25 } else { 0.5 };
+        if !sd.is_finite() || sd > limit {
             poorly.push(PoorlyDetermined {
                 name: info[k].name.clone(),
                 reason: match scale {
                     Scale::Log => format!("{sd_text} (> 50%): the data barely constrain it"),
-                    Scale::Linear => format!(
-                        "{sd_text} (> 0.5 on its dimensionless scale): the data cannot tell its value{}",
+                    Scale::Linear | Scale::Log1p => format!(
+                        "{sd_text} (> {limit} on its fitting scale): the data cannot tell its value{}",
                         if info[k].name.ends_with("_stiffening") {
                             " (the measured rotations do not show whether the stiffness changes with the rotation: too small, too few or too noisy)"
                         } else {
@@ -492,7 +508,7 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
         } else if at_bound {
             // a linear-scale parameter at its neutral value 0 (e.g. no
             // stiffening) is a determined answer, not a failure
-            let neutral = scale == Scale::Linear && at_lower && info[k].lower == 0.0;
+            let neutral = scale != Scale::Log && at_lower && info[k].lower == 0.0;
             if !neutral {
                 poorly.push(PoorlyDetermined {
                     name: info[k].name.clone(),
@@ -501,7 +517,7 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
                             "at a literature bound ({} .. {} {}): the best fit wants a value outside the range",
                             info[k].lower, info[k].upper, info[k].unit
                         ),
-                        Scale::Linear => format!(
+                        Scale::Linear | Scale::Log1p => format!(
                             "at a bound of its range ({} .. {}): the best fit wants a value outside it",
                             info[k].lower, info[k].upper
                         ),
