@@ -305,12 +305,12 @@ fn a_linear_truth_gives_stiffening_consistent_with_linear() {
         // noise free: slope recovered, stiffening 0
         let (data, _) = synthesize(&exp, Parameterisation::Uniform, &k, 0.0, 0);
         let (cal, _) = calibrate(data, form.clone(), 2);
-        for d in 0..3 {
-            assert!((cal.best[d] / k[d] - 1.0).abs() < 1e-6, "{:?}", cal.best);
+        for (d, kd) in k.iter().enumerate() {
+            assert!((cal.best[d] / kd - 1.0).abs() < 1e-6, "{:?}", cal.best);
             assert!(cal.best[3 + d].abs() < 1e-6, "{:?}", cal.best);
         }
-        // with noise: every stiffening interval contains 0 or the estimate
-        // is within 3 SDs of it, and most intervals contain it
+        // with noise: every stiffening estimate is within 3 SDs of 0, and
+        // at least 80% of the 95% intervals contain 0
         let (mut contain, mut n) = (0, 0);
         for seed in 1..=4u64 {
             let (data, _) = synthesize(&exp, Parameterisation::Uniform, &k, 0.05, seed);
