@@ -5,15 +5,30 @@
 //!
 //! [`ModelFamily`] is the reusable abstraction (calibration uses it for the
 //! stiffness parameterisations; `diagnose` extends it with candidate
-//! effects). [`StiffnessFamily`] implements the linear-bushing
-//! parameterisations of the thesis: one value per DoF shared by all levels
-//! (uniform), a base value times fixed level ratios (ratio), and
-//! independent per-level values (per-level).
+//! effects). [`StiffnessFamily`] implements the parameterisations of
+//! `--params` (names as the stiffness table's forms, `docs/stiffness-table.md`):
+//!
+//! | `--params` | parameters | law written |
+//! |---|---|---|
+//! | `uniform` | one `k_d` per DoF for all levels (thesis uniform model) | BushingForce |
+//! | `ratio:TABLE` | a base `k_d` per DoF times fixed level ratios (thesis Table 4.3) | BushingForce |
+//! | `per-level` | independent `k_d` per level and DoF | BushingForce |
+//! | `nonlinear:sinh`, `nonlinear:cubic` | uniform `k_d` plus a stiffening `s_d` per rotational DoF ([`super::forms`]) | ExpressionBasedBushingForce (sinh) / FunctionBasedBushingForce (cubic) |
+//! | `nonlinear:sinh:per-level`, `nonlinear:cubic:per-level` | per-level `k_d`, one `s_d` per rotational DoF | idem |
+//! | `coupled` | uniform `k_d` plus rotational correlations `rho_xy`, `rho_xz` and partial `rho_yz|x` (SPD by construction) | ExpressionBasedBushingForce (linear expressions) |
+//!
+//! Stiffness values are fitted on a log scale ([`Scale::Log`]), the
+//! stiffening `s` as `ln(1 + s)` ([`Scale::Log1p`]: `1 + s` is a stiffness
+//! ratio, the linear limit `s = 0` its lower bound), the correlations as
+//! they are ([`Scale::Linear`], neutral value 0 inside the bounds).
 
+use super::forms::{self, CurveForm};
 use crate::calibrate::experiment::DOF_NAMES;
 use crate::error::{Error, Result};
-use crate::solver::{System, Workspace};
+use crate::solver::scalar::Scalar;
+use crate::solver::{BushingModel, Curve, System, Workspace};
 use nalgebra::DMatrix;
+use num_dual::Dual64;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -30,6 +45,80 @@ pub struct ParamInfo {
     pub upper: f64,
     /// Value of the nominal model (may lie outside the bounds).
     pub nominal: f64,
+    /// The scale the parameter is fitted on.
+    pub scale: Scale,
+    /// What the value means, when the name does not say it (e.g. the
+    /// reference rotation of a stiffening parameter).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+/// The scale a parameter is fitted (and its confidence interval computed) on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Scale {
+    /// Positive, fitted as `ln p` (stiffness values): multiplicative intervals.
+    Log,
+    /// Any sign, fitted as `p` itself (dimensionless coupling parameters
+    /// whose neutral value 0 lies inside the bounds): additive intervals.
+    Linear,
+    /// `p >= 0`, fitted as `ln(1 + p)` (stiffening parameters: `1 + p` is a
+    /// stiffness ratio, and the linear limit `p = 0` is the lower bound):
+    /// multiplicative intervals on `1 + p`.
+    Log1p,
+}
+
+impl ParamInfo {
+    /// A log-scale stiffness parameter.
+    pub fn log(name: String, unit: &str, lower: f64, upper: f64, nominal: f64) -> ParamInfo {
+        ParamInfo {
+            name,
+            unit: unit.into(),
+            lower,
+            upper,
+            nominal,
+            scale: Scale::Log,
+            note: None,
+        }
+    }
+    /// The fitting coordinate of value `p`.
+    pub fn to_fit(&self, p: f64) -> f64 {
+        match self.scale {
+            Scale::Log => p.ln(),
+            Scale::Linear => p,
+            Scale::Log1p => p.ln_1p(),
+        }
+    }
+    /// The value of fitting coordinate `x`.
+    pub fn from_fit(&self, x: f64) -> f64 {
+        match self.scale {
+            Scale::Log => x.exp(),
+            Scale::Linear => x,
+            Scale::Log1p => x.exp_m1(),
+        }
+    }
+    /// `d p / d x` at value `p`.
+    pub fn dvalue_dfit(&self, p: f64) -> f64 {
+        match self.scale {
+            Scale::Log => p,
+            Scale::Linear => 1.0,
+            Scale::Log1p => 1.0 + p,
+        }
+    }
+    /// Bounds on the fitting scale.
+    pub fn fit_bounds(&self) -> (f64, f64) {
+        (self.to_fit(self.lower), self.to_fit(self.upper))
+    }
+}
+
+/// Values of fitting coordinates `x` of `params`.
+pub fn values_of(params: &[ParamInfo], x: &[f64]) -> Vec<f64> {
+    params.iter().zip(x).map(|(i, v)| i.from_fit(*v)).collect()
+}
+
+/// Fitting coordinates of values `p` of `params`.
+pub fn fit_coords_of(params: &[ParamInfo], p: &[f64]) -> Vec<f64> {
+    params.iter().zip(p).map(|(i, v)| i.to_fit(*v)).collect()
 }
 
 /// A family of models indexed by a positive parameter vector.
@@ -55,8 +144,12 @@ pub trait ModelFamily: Send + Sync {
         out: &mut DMatrix<f64>,
     ) -> Result<()> {
         let mut pp = p.to_vec();
+        let info = self.params();
         for j in 0..p.len() {
-            let h = 1e-6 * p[j].abs().max(1e-12);
+            let h = match info.get(j).map(|i| i.scale) {
+                Some(Scale::Linear) | Some(Scale::Log1p) => 1e-6 * p[j].abs().max(1.0),
+                _ => 1e-6 * p[j].abs().max(1e-12),
+            };
             pp[j] = p[j] + h;
             self.apply(&pp, sys)?;
             let plus = sys.static_residual(q, loads, ws)?.to_vec();
@@ -82,6 +175,13 @@ pub const LITERATURE_BOUNDS: [(f64, f64); 6] = [
     (108_000.0, 3_330_000.0), // inferior-superior translation
     (53_000.0, 584_000.0),    // right-left translation
 ];
+
+/// Upper bound of a stiffening parameter (tangent stiffness x10001 at the
+/// reference rotation: a sinh neutral zone of a tenth of the reference rotation).
+pub const MAX_STIFFENING: f64 = 1e4;
+
+/// Bound of the coupling (partial) correlations.
+pub const MAX_CORRELATION: f64 = 0.95;
 
 /// Unit of stiffness DoF `d`.
 pub fn stiffness_unit(d: usize) -> &'static str {
@@ -185,6 +285,53 @@ pub enum Parameterisation {
     Ratio(BTreeMap<String, [Option<f64>; 6]>),
     /// Independent values per level and DoF.
     PerLevel,
+    /// Non-linear rotational curves: the linear part `k_d` uniform (or per
+    /// level with `per_level`) and one stiffening `s_d` per rotational DoF.
+    Nonlinear { curve: CurveForm, per_level: bool },
+    /// Coupled rotational stiffness: uniform diagonal `k_d` and three
+    /// correlation parameters.
+    Coupled,
+}
+
+impl Parameterisation {
+    /// The `--params` spelling (`ratio` without its table).
+    pub fn label(&self) -> String {
+        match self {
+            Parameterisation::Uniform => "uniform".into(),
+            Parameterisation::Ratio(_) => "ratio".into(),
+            Parameterisation::PerLevel => "per-level".into(),
+            Parameterisation::Nonlinear { curve, per_level } => format!(
+                "nonlinear:{}{}",
+                curve.name(),
+                if *per_level { ":per-level" } else { "" }
+            ),
+            Parameterisation::Coupled => "coupled".into(),
+        }
+    }
+}
+
+/// What the parameters beyond the linear part are.
+#[derive(Debug, Clone, PartialEq)]
+enum FormParams {
+    /// None: linear bushings.
+    Linear,
+    /// Parameter index of the stiffening of each rotational DoF (`None`:
+    /// DoF not calibrated, stays linear).
+    Nonlinear {
+        curve: CurveForm,
+        shape: [Option<usize>; 3],
+    },
+    /// Parameter indices of `rho_xy`, `rho_xz`, `rho_yz|x`.
+    Coupled { corr: [usize; 3] },
+}
+
+/// Layout of a level law's [`BushingModel::stiffness_params`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Layout {
+    Linear,
+    /// Per DoF: 0 linear curve, 1 cubic, 2 sinh.
+    PerDof([u8; 6]),
+    Coupled,
 }
 
 /// Linear-bushing stiffness parameterisations over a set of levels.
@@ -199,6 +346,15 @@ pub struct StiffnessFamily {
     n_cols: usize,
     /// Per parameter: (bushing, dof, factor) with `k = factor * p`.
     map: Vec<Vec<(usize, usize, f64)>>,
+    /// Per bushing: (parameter, dof, factor) of the linear part.
+    by_bushing: Vec<Vec<(usize, usize, f64)>>,
+    /// Nominal damping of every bushing.
+    damping: Vec<[f64; 6]>,
+    /// Number of linear-part parameters (they come first).
+    n_linear: usize,
+    form: FormParams,
+    /// Reference rotation (rad) of the stiffening parameters per rotational DoF.
+    theta_ref: [f64; 3],
     /// The levels the family acts on.
     pub levels: Vec<Level>,
     /// The stiffness DoFs that are parameters.
@@ -230,6 +386,7 @@ impl StiffnessFamily {
         // nominal diagonal stiffness of every bushing (non-linear laws: none),
         // and each bushing's first column in `System::dtau_dstiffness`
         let mut nominal = Vec::new();
+        let mut damping = Vec::new();
         let mut linear = Vec::new();
         let mut col_offset = Vec::new();
         let mut col = 0;
@@ -238,6 +395,7 @@ impl StiffnessFamily {
                 continue;
             };
             let p = m.stiffness_params();
+            damping.push(m.damping());
             col_offset.push(col);
             col += p.len();
             let is_linear = matches!(m, crate::solver::BushingModel::Linear { .. });
@@ -252,7 +410,7 @@ impl StiffnessFamily {
             if !linear.get(l.bushing).copied().unwrap_or(false) {
                 return Err(Error::invalid(
                     format!("level {}", l.name),
-                    "its bushing is not a linear BushingForce: calibration parameterises linear stiffness only (non-linear and coupled forms are not calibrated yet)",
+                    "its bushing is not a linear BushingForce: calibration starts from a linear nominal model (the non-linear and coupled forms are chosen with --params; write linear values first with `osim-spine stiffness --table`)",
                 ));
             }
         }
@@ -272,24 +430,31 @@ impl StiffnessFamily {
         }
         let mut params = Vec::new();
         let mut map = Vec::new();
-        let label;
-        match kind {
+        let label = kind.label();
+        let linear_kind = match kind {
+            Parameterisation::Nonlinear {
+                per_level: true, ..
+            } => &Parameterisation::PerLevel,
+            Parameterisation::Nonlinear { .. } | Parameterisation::Coupled => {
+                &Parameterisation::Uniform
+            }
+            k => k,
+        };
+        match linear_kind {
             Parameterisation::Uniform => {
-                label = "uniform".to_string();
                 for &d in dofs {
                     let vals: Vec<f64> = levels.iter().map(|l| nominal[l.bushing][d]).collect();
-                    params.push(ParamInfo {
-                        name: DOF_NAMES[d].to_string(),
-                        unit: stiffness_unit(d).into(),
-                        lower: LITERATURE_BOUNDS[d].0,
-                        upper: LITERATURE_BOUNDS[d].1,
-                        nominal: geomean(&vals),
-                    });
+                    params.push(ParamInfo::log(
+                        DOF_NAMES[d].to_string(),
+                        stiffness_unit(d),
+                        LITERATURE_BOUNDS[d].0,
+                        LITERATURE_BOUNDS[d].1,
+                        geomean(&vals),
+                    ));
                     map.push(levels.iter().map(|l| (l.bushing, d, 1.0)).collect());
                 }
             }
             Parameterisation::Ratio(table) => {
-                label = "ratio".to_string();
                 for &d in dofs {
                     let mut raw = Vec::new();
                     for l in &levels {
@@ -327,13 +492,13 @@ impl StiffnessFamily {
                         .zip(&factors)
                         .map(|(l, f)| nominal[l.bushing][d] / f)
                         .collect();
-                    params.push(ParamInfo {
-                        name: format!("{}_base", DOF_NAMES[d]),
-                        unit: stiffness_unit(d).into(),
-                        lower: LITERATURE_BOUNDS[d].0,
-                        upper: LITERATURE_BOUNDS[d].1,
-                        nominal: geomean(&base),
-                    });
+                    params.push(ParamInfo::log(
+                        format!("{}_base", DOF_NAMES[d]),
+                        stiffness_unit(d),
+                        LITERATURE_BOUNDS[d].0,
+                        LITERATURE_BOUNDS[d].1,
+                        geomean(&base),
+                    ));
                     map.push(
                         levels
                             .iter()
@@ -343,32 +508,230 @@ impl StiffnessFamily {
                     );
                 }
             }
-            Parameterisation::PerLevel => {
-                label = "per-level".to_string();
+            Parameterisation::PerLevel
+            | Parameterisation::Nonlinear { .. }
+            | Parameterisation::Coupled => {
                 for l in &levels {
                     for &d in dofs {
-                        params.push(ParamInfo {
-                            name: format!("{}.{}", l.name, DOF_NAMES[d]),
-                            unit: stiffness_unit(d).into(),
-                            lower: LITERATURE_BOUNDS[d].0,
-                            upper: LITERATURE_BOUNDS[d].1,
-                            nominal: nominal[l.bushing][d],
-                        });
+                        params.push(ParamInfo::log(
+                            format!("{}.{}", l.name, DOF_NAMES[d]),
+                            stiffness_unit(d),
+                            LITERATURE_BOUNDS[d].0,
+                            LITERATURE_BOUNDS[d].1,
+                            nominal[l.bushing][d],
+                        ));
                         map.push(vec![(l.bushing, d, 1.0)]);
                     }
                 }
             }
         }
-        Ok(StiffnessFamily {
+        let n_linear = params.len();
+        let theta_ref = [5f64.to_radians(); 3];
+        let form = match kind {
+            Parameterisation::Nonlinear { curve, .. } => {
+                let mut shape = [None; 3];
+                for &d in dofs.iter().filter(|&&d| d < 3) {
+                    shape[d] = Some(params.len());
+                    params.push(ParamInfo {
+                        name: format!("{}_stiffening", DOF_NAMES[d]),
+                        unit: "1".into(),
+                        lower: 0.0,
+                        upper: MAX_STIFFENING,
+                        nominal: 0.0,
+                        scale: Scale::Log1p,
+                        note: None,
+                    });
+                }
+                if shape.iter().all(|s| s.is_none()) {
+                    return Err(Error::invalid(
+                        "calibration",
+                        "--params nonlinear needs at least one rotational DoF to calibrate",
+                    ));
+                }
+                FormParams::Nonlinear {
+                    curve: *curve,
+                    shape,
+                }
+            }
+            Parameterisation::Coupled => {
+                let n0 = params.len();
+                for (name, note) in [
+                    ("rho_rx_ry", "correlation of rx and ry: K_xy = rho sqrt(k_x k_y)"),
+                    ("rho_rx_rz", "correlation of rx and rz: K_xz = rho sqrt(k_x k_z)"),
+                    (
+                        "rho_ry_rz|rx",
+                        "partial correlation of ry and rz given rx: rho_yz = rho_yz|x sqrt((1 - rho_xy^2)(1 - rho_xz^2)) + rho_xy rho_xz",
+                    ),
+                ] {
+                    params.push(ParamInfo {
+                        name: name.into(),
+                        unit: "1".into(),
+                        lower: -MAX_CORRELATION,
+                        upper: MAX_CORRELATION,
+                        nominal: 0.0,
+                        scale: Scale::Linear,
+                        note: Some(note.into()),
+                    });
+                }
+                FormParams::Coupled {
+                    corr: [n0, n0 + 1, n0 + 2],
+                }
+            }
+            _ => FormParams::Linear,
+        };
+        let mut by_bushing = vec![Vec::new(); nominal.len()];
+        for (j, entries) in map.iter().enumerate() {
+            for &(b, d, f) in entries {
+                if let Some(v) = by_bushing.get_mut(b) {
+                    v.push((j, d, f));
+                }
+            }
+        }
+        let mut fam = StiffnessFamily {
             label,
             params,
             nominal,
             col_offset,
             n_cols: col,
             map,
+            by_bushing,
+            damping,
+            n_linear,
+            form,
+            theta_ref,
             levels,
             dofs: dofs.to_vec(),
-        })
+        };
+        fam.set_reference_rotations(theta_ref);
+        Ok(fam)
+    }
+
+    /// Set the reference rotations (rad, per rotational DoF) at which the
+    /// stiffening parameters are defined (calibration uses the largest
+    /// measured rotation of each DoF; default 5 deg). Values below
+    /// [`forms::MIN_REFERENCE_ROTATION`] are raised to it.
+    pub fn set_reference_rotations(&mut self, theta: [f64; 3]) {
+        self.theta_ref = theta.map(|t| {
+            if t.is_finite() {
+                t.abs().max(forms::MIN_REFERENCE_ROTATION)
+            } else {
+                forms::MIN_REFERENCE_ROTATION
+            }
+        });
+        if let FormParams::Nonlinear { curve, shape } = &self.form {
+            for (d, j) in shape.iter().enumerate() {
+                if let Some(p) = j.and_then(|j| self.params.get_mut(j)) {
+                    p.note = Some(format!(
+                        "{} curve: tangent stiffness at {:.4} deg over the slope at 0, minus 1 (0 = linear)",
+                        curve.name(),
+                        self.theta_ref[d].to_degrees()
+                    ));
+                }
+            }
+        }
+    }
+
+    /// The reference rotations (rad) of the stiffening parameters.
+    pub fn reference_rotations(&self) -> [f64; 3] {
+        self.theta_ref
+    }
+
+    /// Linear part of bushing `b`'s stiffness for parameters `p` (any scalar).
+    fn diagonal<T: Scalar>(&self, b: usize, p: &[T]) -> [T; 6] {
+        let mut k = self
+            .nominal
+            .get(b)
+            .copied()
+            .unwrap_or([f64::NAN; 6])
+            .map(T::c);
+        for &(j, d, f) in self.by_bushing.get(b).map(|v| v.as_slice()).unwrap_or(&[]) {
+            k[d] = p.get(j).copied().unwrap_or(T::c(f64::NAN)) * T::c(f);
+        }
+        k
+    }
+
+    /// The law parameters of bushing `b` in [`BushingModel::stiffness_params`]
+    /// order, and their layout.
+    fn law_values<T: Scalar>(&self, b: usize, p: &[T]) -> (Vec<T>, Layout) {
+        let k = self.diagonal(b, p);
+        match &self.form {
+            FormParams::Linear => (k.to_vec(), Layout::Linear),
+            FormParams::Nonlinear { curve, shape } => {
+                let mut vals = Vec::with_capacity(9);
+                let mut kinds = [0u8; 6];
+                for d in 0..6 {
+                    match shape.get(d).copied().flatten() {
+                        Some(j) => {
+                            let s = p.get(j).copied().unwrap_or(T::c(f64::NAN));
+                            let (cp, sinh) =
+                                forms::shaped_curve(*curve, k[d], s, self.theta_ref[d]);
+                            vals.extend(cp);
+                            kinds[d] = if sinh { 2 } else { 1 };
+                        }
+                        None => vals.push(k[d]),
+                    }
+                }
+                (vals, Layout::PerDof(kinds))
+            }
+            FormParams::Coupled { corr } => {
+                let pc = corr.map(|j| p.get(j).copied().unwrap_or(T::c(f64::NAN)));
+                let rho = forms::correlations_from_partial(pc);
+                (forms::coupled_entries(&k, rho).to_vec(), Layout::Coupled)
+            }
+        }
+    }
+
+    fn model_of(&self, b: usize, vals: &[f64], layout: Layout) -> BushingModel {
+        let damping = self.damping.get(b).copied().unwrap_or([0.0; 6]);
+        let v = |i: usize| vals.get(i).copied().unwrap_or(f64::NAN);
+        match layout {
+            Layout::Linear => BushingModel::Linear {
+                rot_stiffness: nalgebra::Vector3::new(v(0), v(1), v(2)),
+                trans_stiffness: nalgebra::Vector3::new(v(3), v(4), v(5)),
+                rot_damping: nalgebra::Vector3::new(damping[0], damping[1], damping[2]),
+                trans_damping: nalgebra::Vector3::new(damping[3], damping[4], damping[5]),
+            },
+            Layout::PerDof(kinds) => {
+                let mut i = 0;
+                let curves: [Curve; 6] = std::array::from_fn(|d| match kinds[d] {
+                    0 => {
+                        i += 1;
+                        Curve::Linear { k: v(i - 1) }
+                    }
+                    kind => {
+                        i += 2;
+                        forms::curve_of([v(i - 2), v(i - 1)], kind == 2)
+                    }
+                });
+                BushingModel::PerDof {
+                    curves: Box::new(curves),
+                    damping,
+                }
+            }
+            Layout::Coupled => forms::coupled_model(vals, damping),
+        }
+    }
+
+    /// The law of every level for parameters `p`: `(bushing index, law)`,
+    /// in the order of [`Self::levels`] (damping nominal).
+    pub fn level_models(&self, p: &[f64]) -> Vec<(usize, BushingModel)> {
+        self.levels
+            .iter()
+            .map(|l| {
+                let (vals, layout) = self.law_values(l.bushing, p);
+                (l.bushing, self.model_of(l.bushing, &vals, layout))
+            })
+            .collect()
+    }
+
+    /// True for the plain linear parameterisations (uniform, ratio, per-level).
+    pub fn is_linear(&self) -> bool {
+        self.form == FormParams::Linear
+    }
+
+    /// Number of linear-stiffness parameters (the first ones).
+    pub fn n_linear(&self) -> usize {
+        self.n_linear
     }
 
     /// Diagonal stiffness of every bushing for parameters `p`.
@@ -402,12 +765,71 @@ impl StiffnessFamily {
 
     /// Override the bounds of parameters on stiffness DoF `d`.
     pub fn set_bounds(&mut self, d: usize, lower: f64, upper: f64) {
-        for (j, entries) in self.map.iter().enumerate() {
+        for (j, entries) in self.map.iter().enumerate().take(self.n_linear) {
             if entries.first().map(|e| e.1) == Some(d) {
                 self.params[j].lower = lower;
                 self.params[j].upper = upper;
             }
         }
+    }
+}
+
+impl StiffnessFamily {
+    fn dtau_dp_forms(
+        &self,
+        p: &[f64],
+        sys: &mut System,
+        q: &[f64],
+        ws: &mut Workspace,
+        out: &mut DMatrix<f64>,
+    ) -> Result<()> {
+        // columns of the current laws in `System::dtau_dstiffness`
+        let mut offset = Vec::new();
+        let mut col = 0;
+        for i in 0..sys.bushing_names().count() {
+            offset.push(col);
+            col += sys
+                .bushing_model(i)
+                .map(|m| m.stiffness_params().len())
+                .unwrap_or(0);
+        }
+        let mut dk = DMatrix::zeros(sys.n_dofs(), col);
+        sys.dtau_dstiffness(q, ws, &mut dk)?;
+        out.fill(0.0);
+        let mut pd: Vec<Dual64> = p.iter().map(|v| Dual64::from(*v)).collect();
+        for l in &self.levels {
+            let b = l.bushing;
+            let mut js: Vec<usize> = self
+                .by_bushing
+                .get(b)
+                .map(|v| v.iter().map(|e| e.0).collect())
+                .unwrap_or_default();
+            js.extend(self.n_linear..p.len());
+            js.sort_unstable();
+            js.dedup();
+            let off = offset.get(b).copied().unwrap_or(0);
+            for j in js {
+                pd[j] = Dual64::new(p[j], 1.0);
+                let (vals, _) = self.law_values(b, &pd);
+                pd[j] = Dual64::from(p[j]);
+                for (i, v) in vals.iter().enumerate() {
+                    if v.eps == 0.0 {
+                        continue;
+                    }
+                    let c = off + i;
+                    if c >= dk.ncols() {
+                        return Err(Error::numerical(
+                            "calibration",
+                            "the system's bushing law does not match the family's (apply the parameters first)",
+                        ));
+                    }
+                    for r in 0..sys.n_dofs() {
+                        out[(r, j)] += v.eps * dk[(r, c)];
+                    }
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -425,6 +847,12 @@ impl ModelFamily for StiffnessFamily {
                 format!("expected {} parameters, got {}", self.params.len(), p.len()),
             ));
         }
+        if !self.is_linear() {
+            for (b, model) in self.level_models(p) {
+                sys.set_bushing_model(b, model)?;
+            }
+            return Ok(());
+        }
         let k = self.bushing_stiffness(p);
         let mut touched: Vec<usize> = self.map.iter().flatten().map(|e| e.0).collect();
         touched.sort_unstable();
@@ -437,16 +865,22 @@ impl ModelFamily for StiffnessFamily {
         Ok(())
     }
     /// Exact: the residual is linear in every stiffness (through the
-    /// deflection), so `d tau / d p_j = sum factor * d tau / d k`.
+    /// deflection), so `d tau / d p_j = sum factor * d tau / d k`; for the
+    /// non-linear and coupled forms the chain rule through the law
+    /// parameters, `d tau / d p_j = sum_i d tau / d theta_i d theta_i / d p_j`
+    /// with `d theta / d p` by dual numbers through the law builders.
     fn dtau_dp(
         &self,
-        _p: &[f64],
+        p: &[f64],
         sys: &mut System,
         q: &[f64],
         _loads: &crate::solver::LoadSet,
         ws: &mut Workspace,
         out: &mut DMatrix<f64>,
     ) -> Result<()> {
+        if !self.is_linear() {
+            return self.dtau_dp_forms(p, sys, q, ws, out);
+        }
         let mut dk = DMatrix::zeros(sys.n_dofs(), self.n_cols);
         sys.dtau_dstiffness(q, ws, &mut dk)?;
         out.fill(0.0);

@@ -5,6 +5,7 @@
 //! parameters with the singular directions that explain them).
 
 use super::experiment::DOF_NAMES;
+use super::family::Scale;
 use super::lhs;
 use super::lm::{self, LmOptions, LmStop};
 use super::problem::{Evaluator, Predictions, Problem};
@@ -86,9 +87,18 @@ pub struct ParamEstimate {
     pub nominal: f64,
     pub lower: f64,
     pub upper: f64,
-    /// Relative standard deviation (SD of log p), first order.
+    /// The scale the parameter is fitted on (`log`: stiffness values;
+    /// `log1p`: stiffening; `linear`: coupling correlations).
+    pub scale: Scale,
+    /// Standard deviation on the fitting scale for `log` (SD of `ln p`,
+    /// i.e. relative) and `log1p` (SD of `ln(1 + p)`) parameters, `sd / |p|`
+    /// for linear-scale ones.
     pub rel_sd: f64,
-    /// 95% confidence interval (t distribution, log scale).
+    /// Standard deviation in the parameter's unit, first order.
+    pub sd: f64,
+    /// 95% confidence interval (t distribution on the fitting scale:
+    /// multiplicative for `log`, multiplicative on `1 + p` for `log1p`,
+    /// additive for `linear` parameters).
     pub ci95: [f64; 2],
     pub at_bound: bool,
 }
@@ -140,7 +150,7 @@ pub struct Calibration {
     /// noise level the covariance uses.
     pub residual_sd: [f64; 6],
     pub estimates: Vec<ParamEstimate>,
-    /// Covariance of the log-parameters.
+    /// Covariance of the fitting coordinates (log of stiffness values, linear-scale parameters as they are; the field keeps its historical name).
     pub covariance_log: Vec<Vec<f64>>,
     pub correlation: Vec<Vec<f64>>,
     pub identifiability: Identifiability,
@@ -155,7 +165,7 @@ pub struct Calibration {
 
 /// Start points (natural units): nominal (clamped) then Latin hypercube in log space.
 pub fn start_points(pb: &Problem, opts: &FitOptions) -> Vec<Vec<f64>> {
-    let (lo, hi) = pb.log_bounds();
+    let (lo, hi) = pb.fit_bounds();
     let mut out = Vec::new();
     if opts.nominal_start && opts.starts > 0 {
         out.push(
@@ -168,7 +178,7 @@ pub fn start_points(pb: &Problem, opts: &FitOptions) -> Vec<Vec<f64>> {
     }
     let n_lhs = opts.starts.saturating_sub(out.len());
     for x in lhs::in_box(n_lhs, &lo, &hi, opts.seed) {
-        out.push(x.iter().map(|v| v.exp()).collect());
+        out.push(pb.values_of(&x));
     }
     out
 }
@@ -180,8 +190,8 @@ pub fn fit_from(
     start: &[f64],
     lm_opts: &LmOptions,
 ) -> Result<lm::LmResult> {
-    let (lo, hi) = pb.log_bounds();
-    let x0: Vec<f64> = start.iter().map(|v| v.ln()).collect();
+    let (lo, hi) = pb.fit_bounds();
+    let x0 = pb.fit_coords_of(start);
     lm::minimize(|x, j| ev.residuals(pb, x, j), &x0, &lo, &hi, lm_opts)
 }
 
@@ -189,7 +199,7 @@ pub fn fit_from(
 /// start and every parameter moves at least one residual.
 pub fn precheck(pb: &Problem, start: &[f64]) -> Result<()> {
     let mut ev = pb.evaluator();
-    let x: Vec<f64> = start.iter().map(|v| v.ln()).collect();
+    let x = pb.fit_coords_of(start);
     let (_, j) = ev.residuals(pb, &x, true).map_err(|e| {
         Error::numerical(
             format!("experiment {}", pb.exp.dir.display()),
@@ -218,10 +228,12 @@ pub fn precheck(pb: &Problem, start: &[f64]) -> Result<()> {
     Ok(())
 }
 
-fn rel_close(a: &[f64], b: &[f64], tol: f64) -> bool {
-    a.iter()
-        .zip(b)
-        .all(|(x, y)| (x - y).abs() <= tol * x.abs().max(y.abs()))
+/// Same minimum: fitting coordinates within `tol` (1% relative for
+/// log-scale parameters, 1% on `1 + s` for stiffening, `tol` absolute for
+/// correlations).
+fn close(pb: &Problem, a: &[f64], b: &[f64], tol: f64) -> bool {
+    let (xa, xb) = (pb.fit_coords_of(a), pb.fit_coords_of(b));
+    xa.iter().zip(&xb).all(|(x, y)| (x - y).abs() <= tol)
 }
 
 /// Calibrate: multi-start LM, clustering, statistics at the best minimum.
@@ -247,7 +259,7 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
         match res {
             Ok(r) => StartResult {
                 start: s.clone(),
-                params: r.x.iter().map(|v| v.exp()).collect(),
+                params: pb.values_of(&r.x),
                 cost: 2.0 * r.cost,
                 iterations: r.iterations,
                 evaluations: ev.evaluations,
@@ -304,7 +316,7 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
     for &i in &order {
         let found = minima
             .iter()
-            .position(|m| rel_close(&m.params, &results[i].params, 0.01));
+            .position(|m| close(pb, &m.params, &results[i].params, 0.01));
         let k = match found {
             Some(k) => k,
             None => {
@@ -334,7 +346,7 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
 
 /// Statistics at parameters `p` (natural units), with no multi-start record.
 pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibration> {
-    let x: Vec<f64> = p.iter().map(|v| v.ln()).collect();
+    let x = pb.fit_coords_of(p);
     let (r, j) = ev.residuals(pb, &x, true)?;
     let j = j.unwrap_or_else(|| DMatrix::zeros(r.len(), p.len()));
     let predictions = ev.predict(pb, p)?;
@@ -352,7 +364,7 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
     let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(n, n));
     let smax = sv.iter().fold(0.0f64, |a, b| a.max(*b));
     let smin = sv.iter().fold(f64::INFINITY, |a, b| a.min(*b));
-    // Covariance of the log-parameters: the sandwich A+ B A+ with
+    // Covariance of the fitting coordinates: the sandwich A+ B A+ with
     // A = J^T J (weighted Jacobian) and B = sum_i w_i sigma_d(i)^2 J_i^T J_i,
     // the residual variance sigma_d^2 estimated per DoF from the
     // unweighted residuals (so that weights that are not 1/variance, e.g.
@@ -422,8 +434,36 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
     let mut estimates = Vec::new();
     let mut poorly = Vec::new();
     for k in 0..n {
+        // SD on the fitting scale
         let sd = cov[(k, k)].max(0.0).sqrt();
-        let at_bound = x[k] <= info[k].lower.ln() + 1e-9 || x[k] >= info[k].upper.ln() - 1e-9;
+        let (flo, fhi) = info[k].fit_bounds();
+        let at_lower = x[k] <= flo + 1e-9;
+        let at_bound = at_lower || x[k] >= fhi - 1e-9;
+        let scale = info[k].scale;
+        let (rel_sd, sd_value, ci95) = match scale {
+            Scale::Log => (
+                sd,
+                p[k] * sd,
+                [p[k] * (-tq * sd).exp(), p[k] * (tq * sd).exp()],
+            ),
+            Scale::Linear => (
+                if p[k] != 0.0 {
+                    sd / p[k].abs()
+                } else {
+                    f64::INFINITY
+                },
+                sd,
+                [p[k] - tq * sd, p[k] + tq * sd],
+            ),
+            Scale::Log1p => (
+                sd,
+                (1.0 + p[k]) * sd,
+                [
+                    (1.0 + p[k]) * (-tq * sd).exp() - 1.0,
+                    (1.0 + p[k]) * (tq * sd).exp() - 1.0,
+                ],
+            ),
+        };
         estimates.push(ParamEstimate {
             name: info[k].name.clone(),
             unit: info[k].unit.clone(),
@@ -431,30 +471,59 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
             nominal: info[k].nominal,
             lower: info[k].lower,
             upper: info[k].upper,
-            rel_sd: sd,
-            ci95: [p[k] * (-tq * sd).exp(), p[k] * (tq * sd).exp()],
+            scale,
+            rel_sd,
+            sd: sd_value,
+            ci95,
             at_bound,
         });
-        if !sd.is_finite() || sd > 0.5 {
+        let sd_text = if sd.is_finite() {
+            match scale {
+                Scale::Log => format!("relative SD {:.0}%", 100.0 * sd),
+                Scale::Linear => format!("SD {sd:.3}"),
+                Scale::Log1p => format!("SD of ln(1 + value) {sd:.3}"),
+            }
+        } else {
+            "unbounded SD".into()
+        };
+        // poorly determined: SD above 0.5 on the fitting scale (a factor
+        // e^(+-1) at 95% for stiffness); for stiffening, above 0.25 (the
+        // data cannot tell linear from ~60% stiffening at the reference rotation)
+        let limit = if scale == Scale::Log1p { 0.25 } else { 0.5 };
+        if !sd.is_finite() || sd > limit {
             poorly.push(PoorlyDetermined {
                 name: info[k].name.clone(),
-                reason: format!(
-                    "relative SD {} (> 50%): the data barely constrain it",
-                    if sd.is_finite() {
-                        format!("{:.0}%", 100.0 * sd)
-                    } else {
-                        "unbounded".into()
-                    }
-                ),
+                reason: match scale {
+                    Scale::Log => format!("{sd_text} (> 50%): the data barely constrain it"),
+                    Scale::Linear | Scale::Log1p => format!(
+                        "{sd_text} (> {limit} on its fitting scale): the data cannot tell its value{}",
+                        if info[k].name.ends_with("_stiffening") {
+                            " (the measured rotations do not show whether the stiffness changes with the rotation: too small, too few or too noisy)"
+                        } else {
+                            ""
+                        }
+                    ),
+                },
             });
         } else if at_bound {
-            poorly.push(PoorlyDetermined {
-                name: info[k].name.clone(),
-                reason: format!(
-                    "at a literature bound ({} .. {} {}): the best fit wants a value outside the range",
-                    info[k].lower, info[k].upper, info[k].unit
-                ),
-            });
+            // a linear-scale parameter at its neutral value 0 (e.g. no
+            // stiffening) is a determined answer, not a failure
+            let neutral = scale != Scale::Log && at_lower && info[k].lower == 0.0;
+            if !neutral {
+                poorly.push(PoorlyDetermined {
+                    name: info[k].name.clone(),
+                    reason: match scale {
+                        Scale::Log => format!(
+                            "at a literature bound ({} .. {} {}): the best fit wants a value outside the range",
+                            info[k].lower, info[k].upper, info[k].unit
+                        ),
+                        Scale::Linear | Scale::Log1p => format!(
+                            "at a bound of its range ({} .. {}): the best fit wants a value outside it",
+                            info[k].lower, info[k].upper
+                        ),
+                    },
+                });
+            }
         }
     }
     let mut weak = Vec::new();

@@ -224,13 +224,24 @@ impl Problem {
         self.family.params().len()
     }
 
-    /// Log-scale bounds.
-    pub fn log_bounds(&self) -> (Vec<f64>, Vec<f64>) {
+    /// Bounds on the fitting scale (log of stiffness values, shape
+    /// parameters as they are; see [`super::family::Scale`]).
+    pub fn fit_bounds(&self) -> (Vec<f64>, Vec<f64>) {
         let p = self.family.params();
         (
-            p.iter().map(|i| i.lower.ln()).collect(),
-            p.iter().map(|i| i.upper.ln()).collect(),
+            p.iter().map(|i| i.fit_bounds().0).collect(),
+            p.iter().map(|i| i.fit_bounds().1).collect(),
         )
+    }
+
+    /// Parameter values of fitting coordinates `x`.
+    pub fn values_of(&self, x: &[f64]) -> Vec<f64> {
+        super::family::values_of(self.family.params(), x)
+    }
+
+    /// Fitting coordinates of parameter values `p`.
+    pub fn fit_coords_of(&self, p: &[f64]) -> Vec<f64> {
+        super::family::fit_coords_of(self.family.params(), p)
     }
 
     /// The base system (before any parameters are applied).
@@ -401,14 +412,22 @@ impl Evaluator {
         Ok(self.run(pb, p, false)?.0)
     }
 
-    /// Weighted residuals at log-parameters `x`, and the Jacobian when `jac`.
+    /// Weighted residuals at fitting coordinates `x` (log-parameters for
+    /// stiffness values), and the Jacobian with respect to `x` when `jac`.
     pub fn residuals(
         &mut self,
         pb: &Problem,
         x: &[f64],
         jac: bool,
     ) -> Result<(DVector<f64>, Option<DMatrix<f64>>)> {
-        let p: Vec<f64> = x.iter().map(|v| v.exp()).collect();
+        let p = pb.values_of(x);
+        let dp_dx: Vec<f64> = pb
+            .family
+            .params()
+            .iter()
+            .zip(&p)
+            .map(|(i, v)| i.dvalue_dfit(*v))
+            .collect();
         let (pred, dpred) = self.run(pb, &p, jac)?;
         let m = pb.cells.len();
         let np = p.len();
@@ -422,7 +441,7 @@ impl Evaluator {
             r[ci] = c.sqrt_w * (pred[c.row][c.dof] - c.measured);
             if let (Some(j), Some(dp)) = (jm.as_mut(), dpred.as_ref()) {
                 for k in 0..np {
-                    j[(ci, k)] = c.sqrt_w * dp[(6 * c.row + c.dof, k)] * p[k];
+                    j[(ci, k)] = c.sqrt_w * dp[(6 * c.row + c.dof, k)] * dp_dx[k];
                 }
             }
         }

@@ -1,7 +1,8 @@
 //! Calibration outputs: the JSON report structure, per-case errors and the
 //! SVG figures (measured vs predicted per level and DoF; parameter spread
 //! over the multi-start with confidence intervals). SVG is written by hand
-//! so that outputs are byte-stable.
+//! so that outputs are byte-stable. [`calibrated_document`] is the
+//! calibrated `.osim` (the family's laws written by the stiffness writer).
 
 use super::experiment::DOF_NAMES;
 use super::fit::{Calibration, ErrorTable};
@@ -195,15 +196,22 @@ pub fn fit_svg(pb: &Problem, pred: &[[f64; 6]], title: &str) -> String {
 
 /// Parameter spread: per parameter, the end points of every start (dots),
 /// the best value with its 95% interval (bar) and the bounds (grey), as
-/// value / nominal on a log axis.
+/// value / nominal on a log axis. Stiffness (log-scale) parameters only:
+/// the dimensionless shape and coupling parameters are in `report.json`.
 pub fn params_svg(cal: &Calibration, title: &str) -> String {
-    let n = cal.estimates.len();
+    let shown: Vec<(usize, &super::fit::ParamEstimate)> = cal
+        .estimates
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| e.scale == super::family::Scale::Log)
+        .collect();
+    let n = shown.len();
     let (left, right, top, bottom) = (60.0, 20.0, 50.0, 110.0);
     let slot = 36.0f64.max(600.0 / n.max(1) as f64).min(80.0);
     let w = left + right + slot * n as f64;
     let h = 420.0;
     let mut vals: Vec<f64> = Vec::new();
-    for (k, e) in cal.estimates.iter().enumerate() {
+    for &(k, e) in &shown {
         let nom = e.nominal;
         vals.push(e.lower / nom);
         vals.push(e.upper / nom);
@@ -248,8 +256,8 @@ pub fn params_svg(cal: &Calibration, title: &str) -> String {
     }
     let y1 = sy(1.0);
     let _ = writeln!(s, "<line x1=\"{left}\" y1=\"{y1:.1}\" x2=\"{:.1}\" y2=\"{y1:.1}\" stroke=\"#888\" stroke-dasharray=\"4 3\"/>", w - right);
-    for (k, e) in cal.estimates.iter().enumerate() {
-        let xc = left + slot * (k as f64 + 0.5);
+    for (slot_i, &(k, e)) in shown.iter().enumerate() {
+        let xc = left + slot * (slot_i as f64 + 0.5);
         let nom = e.nominal;
         let _ = writeln!(
             s,
@@ -282,4 +290,51 @@ pub fn params_svg(cal: &Calibration, title: &str) -> String {
     }
     s.push_str("</svg>\n");
     s
+}
+
+/// The experiment's model with the calibrated laws of parameters `p`
+/// written by the stiffness writer of `osim-spine stiffness`
+/// (`personalise::apply`): linear families as `BushingForce` (damping of
+/// the document kept), `nonlinear:cubic` as `FunctionBasedBushingForce`,
+/// `nonlinear:sinh` and `coupled` as `ExpressionBasedBushingForce`.
+/// `sys` is the problem's system (bushing names).
+pub fn calibrated_document(
+    exp: &super::experiment::Experiment,
+    fam: &super::family::StiffnessFamily,
+    sys: &crate::solver::System,
+    p: &[f64],
+) -> crate::error::Result<crate::osim::Document> {
+    use crate::error::Error;
+    use crate::personalise::{self, LevelLaw};
+    let mut doc = exp.doc.clone();
+    let levels = personalise::levels(&doc)?;
+    let path = doc.path().to_path_buf();
+    let names: Vec<&str> = sys.bushing_names().collect();
+    let stiff = fam.bushing_stiffness(p);
+    let mut laws = Vec::new();
+    for (b, model) in fam.level_models(p) {
+        let bushing = names.get(b).copied().unwrap_or("");
+        let Some(level) = levels.iter().find(|l| l.bushing == bushing) else {
+            return Err(Error::invalid(
+                path.display().to_string(),
+                format!("bushing '{bushing}' is not a level of the model"),
+            ));
+        };
+        let law = if fam.is_linear() {
+            let Some(e) = doc.component("ForceSet", bushing) else {
+                return Err(Error::invalid(
+                    path.display().to_string(),
+                    format!("bushing '{bushing}' not found"),
+                ));
+            };
+            let c = personalise::read_law(e, &path)?.damping();
+            let k = stiff.get(b).copied().unwrap_or([f64::NAN; 6]);
+            LevelLaw::Linear { k, c }
+        } else {
+            personalise::law_of_model(&model, None)?
+        };
+        laws.push((level.clone(), law));
+    }
+    personalise::apply(&mut doc, &laws)?;
+    Ok(doc)
 }

@@ -440,7 +440,7 @@ pub fn run(
             let (pb, _) = build_problem_with(exp.clone(), setup, sys)?;
             let mut ev = pb.evaluator();
             let r = fit::fit_from(&pb, &mut ev, &reference.best, &FitOptions::default().lm)?;
-            let params: Vec<f64> = r.x.iter().map(|v| v.exp()).collect();
+            let params = pb.values_of(&r.x);
             let pred = ev.predict(&pb, &params)?;
             Ok((params.clone(), 2.0 * r.cost, rmse_of(&pb, &pred), r.stop))
         })();

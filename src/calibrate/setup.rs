@@ -3,6 +3,7 @@
 
 use super::experiment::{dof_index, Experiment, DOF_NAMES};
 use super::family::{find_levels, read_ratio_table, Parameterisation, StiffnessFamily};
+use super::forms::{reference_rotations, CurveForm};
 use super::measure::Convention;
 use super::problem::{Problem, ProblemOptions};
 use crate::error::{Error, Result};
@@ -35,19 +36,28 @@ impl Default for Setup {
     }
 }
 
-/// Parse `uniform`, `per-level` or `ratio:FILE` (FILE relative to the
-/// working directory).
+/// The accepted `--params` values, for messages.
+pub const PARAMS_HELP: &str = "uniform, per-level, ratio:TABLE, nonlinear:sinh, nonlinear:cubic, nonlinear:sinh:per-level, nonlinear:cubic:per-level or coupled";
+
+/// Parse `uniform`, `per-level`, `ratio:FILE` (FILE relative to the
+/// working directory), `nonlinear:sinh|cubic[:per-level]` or `coupled`.
 pub fn parse_params(s: &str) -> Result<Parameterisation> {
+    let nonlinear = |curve, per_level| Ok(Parameterisation::Nonlinear { curve, per_level });
     match s {
         "uniform" => Ok(Parameterisation::Uniform),
         "per-level" => Ok(Parameterisation::PerLevel),
+        "nonlinear:sinh" => nonlinear(CurveForm::Sinh, false),
+        "nonlinear:cubic" => nonlinear(CurveForm::Cubic, false),
+        "nonlinear:sinh:per-level" => nonlinear(CurveForm::Sinh, true),
+        "nonlinear:cubic:per-level" => nonlinear(CurveForm::Cubic, true),
+        "coupled" => Ok(Parameterisation::Coupled),
         _ => match s.strip_prefix("ratio:") {
             Some(f) if !f.is_empty() => {
                 Ok(Parameterisation::Ratio(read_ratio_table(Path::new(f))?))
             }
             _ => Err(Error::invalid(
                 "--params",
-                format!("expected uniform, per-level or ratio:TABLE, got '{s}'"),
+                format!("expected {PARAMS_HELP}, got '{s}'"),
             )),
         },
     }
@@ -149,12 +159,15 @@ pub fn build_problem_with(
         })?);
     }
     let levels = find_levels(&sys, fixed, &loaded);
-    let fam = Arc::new(StiffnessFamily::new(
-        &sys,
-        levels,
-        &param_dofs,
-        &setup.params,
-    )?);
+    let mut fam = StiffnessFamily::new(&sys, levels, &param_dofs, &setup.params)?;
+    // stiffening parameters are defined at the largest measured rotation
+    fam.set_reference_rotations(reference_rotations(exp.rows.iter().flat_map(|r| {
+        r.values
+            .iter()
+            .enumerate()
+            .filter_map(|(d, v)| v.map(|v| (d, v)))
+    })));
+    let fam = Arc::new(fam);
     let opts = ProblemOptions {
         dofs,
         weights: setup.weights,

@@ -52,7 +52,7 @@ pub fn leave_one_case_out(
             Problem::with_system(sub, pb.family.clone(), pb.opts.clone(), pb.system().clone())?;
         let mut ev = sub_pb.evaluator();
         let res = fit::fit_from(&sub_pb, &mut ev, start, &opts.lm)?;
-        let params: Vec<f64> = res.x.iter().map(|v| v.exp()).collect();
+        let params = sub_pb.values_of(&res.x);
         let mut full = pb.evaluator();
         let pred = full.predict(pb, &params)?;
         let cost = pb

@@ -1,4 +1,5 @@
-//! `osim-spine calibrate EXPERIMENT [--params uniform|ratio:TABLE|per-level]
+//! `osim-spine calibrate EXPERIMENT [--params uniform|ratio:TABLE|per-level|
+//! nonlinear:sinh|nonlinear:cubic[:per-level]|coupled]
 //! [--dofs rx,ry,rz,...] [--translations] [--weights rx=1,...] [--starts N]
 //! [--seed S] [--jobs N] [--loco] [--loso EXP...] --out DIR`: stiffness
 //! calibration from measured kinematics. Writes `calibrated.osim`,
@@ -12,7 +13,7 @@ use crate::calibrate::problem::Problem;
 use crate::calibrate::report::{self, FitSummary};
 use crate::calibrate::setup::{self, Setup};
 use crate::calibrate::validate;
-use crate::personalise::{self, LevelLaw};
+use crate::solver::{BushingModel, Curve};
 use crate::util::write_atomic;
 use anyhow::Context;
 use clap::Args as ClapArgs;
@@ -28,8 +29,15 @@ pub struct Args {
     pub experiment: PathBuf,
     /// Parameterisation: uniform (one value per DoF for all levels),
     /// ratio:TABLE (a base value per DoF times fixed level ratios, TOML or
-    /// CSV level,rx,ry,rz; e.g. templates/level_ratios_zhang.toml) or
-    /// per-level (independent values).
+    /// CSV level,rx,ry,rz; e.g. templates/level_ratios_zhang.toml),
+    /// per-level (independent values), nonlinear:sinh or nonlinear:cubic
+    /// (uniform slope k_d plus one stiffening s_d per rotational DoF:
+    /// tangent stiffness at the largest measured rotation = (1 + s_d) k_d;
+    /// append :per-level for per-level slopes; written as
+    /// ExpressionBasedBushingForce / FunctionBasedBushingForce) or coupled
+    /// (uniform k_d plus correlations rho_rx_ry, rho_rx_rz and partial
+    /// rho_ry_rz|rx of the rotational stiffness, positive definite by
+    /// construction; written as ExpressionBasedBushingForce).
     #[arg(long, default_value = "uniform", value_name = "KIND")]
     pub params: String,
     /// DoFs in the cost (default: the measured rotations, plus the measured
@@ -115,7 +123,11 @@ struct Report<'a> {
     calibration: &'a Calibration,
     fit: FitSummary,
     nominal_fit: FitSummary,
+    /// Linear part (slope at zero / diagonal) of every calibrated level.
     stiffness: BTreeMap<String, [f64; 6]>,
+    /// The calibrated law of every level (non-linear and coupled forms).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    laws: BTreeMap<String, serde_json::Value>,
     validation: Validation,
     rows: Vec<report::RowOut>,
 }
@@ -131,30 +143,37 @@ fn summary(pb: &Problem, pred: &[[f64; 6]]) -> FitSummary {
     }
 }
 
-/// Write calibrated linear stiffness into the document through the
-/// stiffness writer of `osim-spine stiffness` (damping kept).
-fn write_linear_laws(
-    doc: &mut crate::osim::Document,
-    values: &[(String, [f64; 6])],
-) -> anyhow::Result<()> {
-    let levels = personalise::levels(doc)?;
-    let path = doc.path().to_path_buf();
-    let mut laws = Vec::new();
-    for (bushing, k) in values {
-        let Some(level) = levels.iter().find(|l| &l.bushing == bushing) else {
-            anyhow::bail!(
-                "{}: bushing '{bushing}' is not a level of the model",
-                path.display()
-            );
-        };
-        let Some(e) = doc.component("ForceSet", bushing) else {
-            anyhow::bail!("{}: bushing '{bushing}' not found", path.display());
-        };
-        let c = personalise::read_law(e, &path)?.damping();
-        laws.push((level.clone(), LevelLaw::Linear { k: *k, c }));
+/// A JSON description of a calibrated law (curves per DoF or the 6x6 matrix).
+fn law_json(m: &BushingModel) -> serde_json::Value {
+    use serde_json::json;
+    match m {
+        BushingModel::PerDof { curves, .. } => {
+            let c: BTreeMap<&str, serde_json::Value> = curves
+                .iter()
+                .zip(DOF_NAMES)
+                .map(|(c, d)| {
+                    let v = match c {
+                        Curve::Linear { k } => json!({"kind": "linear", "k": k}),
+                        Curve::Cubic { k, c } => json!({"kind": "cubic", "k": k, "c": c}),
+                        Curve::Sinh { k, a } => json!({"kind": "sinh", "k": k, "a": a}),
+                        Curve::Bilinear { k_neg, k_pos } => {
+                            json!({"kind": "bilinear", "k_neg": k_neg, "k_pos": k_pos})
+                        }
+                        Curve::Function(_) => json!({"kind": "function"}),
+                    };
+                    (d, v)
+                })
+                .collect();
+            json!({"form": "nonlinear", "curves": c})
+        }
+        BushingModel::Coupled { stiffness, .. } => {
+            let rows: Vec<Vec<f64>> = (0..6)
+                .map(|i| (0..6).map(|j| stiffness[(i, j)]).collect())
+                .collect();
+            json!({"form": "coupled", "matrix": rows})
+        }
+        _ => json!({"form": "linear", "stiffness": m.stiffness_params()}),
     }
-    personalise::apply(doc, &laws)?;
-    Ok(())
 }
 
 fn setup_from(a: &Args) -> anyhow::Result<Setup> {
@@ -250,8 +269,12 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         .iter()
         .filter_map(|l| Some((names.get(l.bushing)?.clone(), *stiff.get(l.bushing)?)))
         .collect();
-    let mut doc = exp.doc.clone();
-    write_linear_laws(&mut doc, &level_values)?;
+    let doc = report::calibrated_document(&exp, &fam, pb.system(), &cal.best)?;
+    let laws: BTreeMap<String, serde_json::Value> = fam
+        .level_models(&cal.best)
+        .iter()
+        .filter_map(|(b, m)| Some((names.get(*b)?.clone(), law_json(m))))
+        .collect();
     let rep = Report {
         tool: concat!("osim-spine ", env!("CARGO_PKG_VERSION")),
         experiment: ExperimentInfo {
@@ -283,6 +306,11 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         fit: summary(&pb, &cal.predictions),
         nominal_fit: summary(&pb, &nominal_pred),
         stiffness: level_values.iter().cloned().collect(),
+        laws: if fam.is_linear() {
+            BTreeMap::new()
+        } else {
+            laws
+        },
         validation: Validation {
             leave_one_case_out: loco,
             leave_one_specimen_out: loso,

@@ -25,7 +25,7 @@
 use super::sim::Sim;
 use crate::error::{Error, Result};
 use crate::solver::{BushingModel, Curve, Expr, System};
-use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
 /// The vocabulary of `diagnosis.json` (`verdict.effect`), without `unidentifiable`.
@@ -153,13 +153,9 @@ pub struct Variant {
 /// Scale of the stiffening parameters: the largest measured rotation (rad)
 /// of each rotational DoF over the cells, a floor of 0.1 deg.
 pub fn rotation_scale(sim: &Sim) -> [f64; 3] {
-    let mut m = [0.1f64.to_radians(); 3];
-    for c in &sim.cells {
-        if c.dof < 3 {
-            m[c.dof] = m[c.dof].max(c.measured.abs().to_radians());
-        }
-    }
-    m
+    crate::calibrate::forms::reference_rotations(
+        sim.cells.iter().map(|c| (c.dof, c.measured.to_radians())),
+    )
 }
 
 impl Family {
@@ -399,18 +395,10 @@ impl Family {
                         (_, Some(b)) => Some(3 + 3 * b),
                         _ => None,
                     };
-                    let mut m = Matrix6::zeros();
-                    for d in 0..6 {
-                        m[(d, d)] = k[d];
-                    }
-                    for (n, (i, j)) in [(0usize, 1usize), (0, 2), (1, 2)].iter().enumerate() {
-                        let rho = off.map(|o| get(o + n)).unwrap_or(0.0);
-                        let v = rho * (k[*i] * k[*j]).sqrt();
-                        m[(*i, *j)] = v;
-                        m[(*j, *i)] = v;
-                    }
+                    // K_ij = rho_ij sqrt(k_i k_j) (shared with calibration's coupled form)
+                    let rho = std::array::from_fn(|n| off.map(|o| get(o + n)).unwrap_or(0.0));
                     BushingModel::Coupled {
-                        stiffness: m,
+                        stiffness: crate::calibrate::forms::coupled_matrix(&k, rho),
                         damping,
                     }
                 }

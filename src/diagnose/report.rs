@@ -10,8 +10,7 @@ use super::sim::Sim;
 use crate::calibrate::experiment::{Experiment, DOF_NAMES};
 use crate::error::{Error, Result};
 use crate::osim::Document;
-use crate::personalise::{self, CurveSpec, LevelLaw};
-use crate::solver::{BushingModel, Curve};
+use crate::personalise;
 use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde_json::{json, Value};
 use std::fmt::Write as _;
@@ -151,45 +150,6 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
     })
 }
 
-fn curve_spec(c: &Curve) -> CurveSpec {
-    match c {
-        Curve::Linear { k } => CurveSpec::Linear { k: *k },
-        Curve::Cubic { k, c } => CurveSpec::Cubic { k: *k, c: *c },
-        Curve::Sinh { k, a } => CurveSpec::Sinh { k: *k, a: *a },
-        Curve::Bilinear { k_neg, k_pos } => CurveSpec::Bilinear {
-            k_neg: *k_neg,
-            k_pos: *k_pos,
-        },
-        // families never produce tabulated curves
-        Curve::Function(_) => CurveSpec::Linear { k: 0.0 },
-    }
-}
-
-fn level_law(m: &BushingModel, expr: Option<&[String; 6]>) -> LevelLaw {
-    let c = m.damping();
-    match m {
-        BushingModel::PerDof { curves, .. } => LevelLaw::Nonlinear {
-            curves: Box::new(std::array::from_fn(|i| curve_spec(&curves[i]))),
-            c,
-        },
-        BushingModel::Coupled { stiffness, .. } => LevelLaw::Coupled {
-            k: std::array::from_fn(|i| std::array::from_fn(|j| stiffness[(i, j)])),
-            c,
-        },
-        BushingModel::Expression { .. } => LevelLaw::Expression {
-            exprs: Box::new(expr.cloned().unwrap_or_default()),
-            c,
-        },
-        _ => {
-            let p = m.stiffness_params();
-            LevelLaw::Linear {
-                k: std::array::from_fn(|i| p.get(i).copied().unwrap_or(0.0)),
-                c,
-            }
-        }
-    }
-}
-
 /// Body-fixed X-Y-Z angles of a rotation (OpenSim `orientation`).
 pub fn xyz_body_fixed(r: &Rotation3<f64>) -> Vector3<f64> {
     let m = r.matrix();
@@ -283,7 +243,7 @@ pub fn improved_model(sim: &Sim, exp: &Experiment, v: &Variant) -> Result<Docume
         };
         if let Some(m) = v.laws.get(li) {
             let e = v.expressions.get(li).and_then(|e| e.as_ref());
-            laws.push((pl.clone(), level_law(m, e)));
+            laws.push((pl.clone(), personalise::law_of_model(m, e)?));
         }
         if let Some(Some(t)) = v.frames.get(li) {
             let e = doc.component("ForceSet", &bname).ok_or_else(|| {

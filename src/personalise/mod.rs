@@ -985,6 +985,68 @@ pub fn apply(doc: &mut Document, laws: &[(Level, LevelLaw)]) -> Result<Vec<Strin
     Ok(changed)
 }
 
+/// The table law of a solver law (to write a law computed by the solver
+/// side, e.g. a calibrated or diagnosed one, with [`apply`]).
+/// `expressions` are the strings of an [`BushingModel::Expression`] law
+/// (the solver keeps only their parsed form). Tabulated curves
+/// ([`Curve::Function`]) are not supported.
+pub fn law_of_model(
+    m: &crate::solver::BushingModel,
+    expressions: Option<&[String; 6]>,
+) -> Result<LevelLaw> {
+    use crate::solver::{BushingModel, Curve};
+    let c = m.damping();
+    let curve = |cv: &Curve| -> Result<CurveSpec> {
+        Ok(match cv {
+            Curve::Linear { k } => CurveSpec::Linear { k: *k },
+            Curve::Cubic { k, c } => CurveSpec::Cubic { k: *k, c: *c },
+            Curve::Sinh { k, a } => CurveSpec::Sinh { k: *k, a: *a },
+            Curve::Bilinear { k_neg, k_pos } => CurveSpec::Bilinear {
+                k_neg: *k_neg,
+                k_pos: *k_pos,
+            },
+            Curve::Function(_) => {
+                return Err(Error::invalid(
+                    "stiffness writer",
+                    "a tabulated solver curve cannot be converted to a table law",
+                ))
+            }
+        })
+    };
+    Ok(match m {
+        BushingModel::Linear { .. } => {
+            let p = m.stiffness_params();
+            LevelLaw::Linear {
+                k: std::array::from_fn(|i| p.get(i).copied().unwrap_or(0.0)),
+                c,
+            }
+        }
+        BushingModel::PerDof { curves, .. } => {
+            let specs: Vec<CurveSpec> = curves.iter().map(curve).collect::<Result<_>>()?;
+            let curves: [CurveSpec; 6] = specs
+                .try_into()
+                .map_err(|_| Error::invalid("stiffness writer", "six curves expected"))?;
+            LevelLaw::Nonlinear {
+                curves: Box::new(curves),
+                c,
+            }
+        }
+        BushingModel::Coupled { stiffness, .. } => LevelLaw::Coupled {
+            k: std::array::from_fn(|i| std::array::from_fn(|j| stiffness[(i, j)])),
+            c,
+        },
+        BushingModel::Expression { .. } => LevelLaw::Expression {
+            exprs: Box::new(expressions.cloned().ok_or_else(|| {
+                Error::invalid(
+                    "stiffness writer",
+                    "an expression law needs its expression strings",
+                )
+            })?),
+            c,
+        },
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
