@@ -17,14 +17,25 @@ fn run(label: &str, sys: &System, loads: &[Load]) -> anyhow::Result<()> {
     let r = sys.solve_static(&loads, q0.as_slice(), &mut ws, &StaticOptions::default());
     let dt = t.elapsed().as_secs_f64();
     match r {
-        Ok(s) => println!(
-            "{label:40} ok   {:4} it {:3} cont  res {:9.2e}  {:8.2} ms  stable {:?}",
-            s.iterations,
-            s.continuation_steps,
-            s.residual_norm,
-            dt * 1e3,
-            s.stable
-        ),
+        Ok(s) => {
+            let t = sys.static_tangent(s.q.as_slice(), &loads, &mut ws)?;
+            let asym = (&t - t.transpose()).amax() / t.amax();
+            let eig = (-(&t + t.transpose()) * 0.5).symmetric_eigenvalues();
+            let mut e: Vec<f64> = eig.iter().copied().collect();
+            e.sort_by(|a, b| a.total_cmp(b));
+            println!(
+                "    dense tangent: asym {asym:.1e}, smallest eigenvalues of -T {:?}",
+                &e[..3]
+            );
+            println!(
+                "{label:40} ok   {:4} it {:3} cont  res {:9.2e}  {:8.2} ms  stable {:?}",
+                s.iterations,
+                s.continuation_steps,
+                s.residual_norm,
+                dt * 1e3,
+                s.stable
+            )
+        }
         Err(e) => println!("{label:40} FAIL {:8.2} ms  {e}", dt * 1e3),
     }
     Ok(())
@@ -43,7 +54,11 @@ fn main() -> anyhow::Result<()> {
     let sys = System::new(&spec)?;
     run("base gravity", &sys, &[])?;
     for m in [10.0, 20.0, 30.0, 40.0] {
-        for (ax, v) in [("x", Vector3::x()), ("z", Vector3::z()), ("-z", -Vector3::z())] {
+        for (ax, v) in [
+            ("x", Vector3::x()),
+            ("z", Vector3::z()),
+            ("-z", -Vector3::z()),
+        ] {
             run(
                 &format!("base gravity + {m} N m {ax} on T1"),
                 &sys,

@@ -20,9 +20,9 @@
 //! [`System::tangent_solve`] (sensitivities).
 
 use super::forces::{self, GimbalLock, LoadSet, Resolved};
-use super::spec::LoadFrame;
 use super::kinematics;
 use super::scalar::{d6_eps, d6_var, Scalar, D6};
+use super::spec::LoadFrame;
 use super::system::{Factored, KinBuf, System, Workspace};
 use super::tree::TangentMethod;
 use crate::error::{Error, Result};
@@ -642,7 +642,9 @@ impl System {
                         }
                         last = Some(Error::numerical(
                             ctx,
-                            format!("the corrector moved {jump:.3} rad away from the predicted point"),
+                            format!(
+                                "the corrector moved {jump:.3} rad away from the predicted point"
+                            ),
                         ));
                     }
                     Ok(Newton::Failed {
@@ -843,5 +845,155 @@ impl System {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod continuation_tests {
+    use super::super::examples::spine_chain;
+    use super::super::forces::GIMBAL_LIMIT;
+    use super::super::spec::Load;
+    use super::*;
+
+    /// Smallest eigenvalue of the symmetric part of the stiffness `-T` from
+    /// the dense reference tangent (independent of the tree pivots).
+    fn min_stiffness_eig(sys: &System, loads: &LoadSet, q: &[f64]) -> (f64, f64) {
+        let mut ws = Workspace::new(sys);
+        let t = sys.static_tangent(q, loads, &mut ws).unwrap();
+        let asym = (&t - t.transpose()).amax() / t.amax();
+        let k = -(&t + t.transpose()) * 0.5;
+        let e = k.symmetric_eigenvalues();
+        (e.iter().copied().fold(f64::INFINITY, f64::min), asym)
+    }
+
+    /// 68 joints under full gravity: plain Newton's line search stalls (the
+    /// column is far beyond its buckling load); continuation reaches a real
+    /// equilibrium, stable by the dense tangent's eigenvalues.
+    #[test]
+    fn chain68_full_gravity_by_continuation() {
+        let mut spec = spine_chain(68);
+        spec.gravity = Vector3::new(0.0, -9.80665, 0.0);
+        let sys = System::new(&spec).unwrap();
+        let loads = LoadSet::empty();
+        let mut ws = Workspace::new(&sys);
+        let opts = StaticOptions::default();
+        let sol = sys
+            .solve_static(&loads, sys.default_q().as_slice(), &mut ws, &opts)
+            .unwrap();
+        assert!(sol.continuation_steps > 0);
+        let r = sys
+            .static_residual(sol.q.as_slice(), &loads, &mut ws)
+            .unwrap();
+        assert!(inf_norm(r) <= opts.residual_tol, "{}", inf_norm(r));
+        let (min_eig, asym) = min_stiffness_eig(&sys, &loads, sol.q.as_slice());
+        assert!(asym < 1e-12, "gravity tangent not symmetric: {asym:e}");
+        assert_eq!(sol.stable, Some(min_eig > 0.0), "min eigenvalue {min_eig}");
+        assert!(
+            min_eig > 0.0,
+            "continuation ended on an unstable equilibrium"
+        );
+    }
+
+    /// The stability flag (from the tree pivots) agrees with the dense
+    /// tangent's eigenvalues on chains below and beyond their buckling load
+    /// under gravity (both outcomes occur).
+    #[test]
+    fn stability_flag_matches_dense_eigenvalues() {
+        let mut seen = [false; 2];
+        for n in [6usize, 12, 17, 34] {
+            let mut spec = spine_chain(n);
+            spec.gravity = Vector3::new(0.0, -9.80665, 0.0);
+            let sys = System::new(&spec).unwrap();
+            let loads = LoadSet::empty();
+            for method in [TangentMethod::Auto, TangentMethod::Dense] {
+                let mut ws = Workspace::new(&sys);
+                ws.set_tangent_method(method);
+                let sol = sys
+                    .solve_static(
+                        &loads,
+                        sys.default_q().as_slice(),
+                        &mut ws,
+                        &StaticOptions::default(),
+                    )
+                    .unwrap();
+                let (min_eig, _) = min_stiffness_eig(&sys, &loads, sol.q.as_slice());
+                assert!(min_eig.abs() > 1e-3, "{n}: too close to singular to judge");
+                assert_eq!(
+                    sol.stable,
+                    Some(min_eig > 0.0),
+                    "{n} joints {method:?}: min eigenvalue {min_eig}"
+                );
+                seen[(min_eig > 0.0) as usize] = true;
+            }
+        }
+        assert!(
+            seen[0] && seen[1],
+            "both stable and unstable cases expected"
+        );
+    }
+
+    /// Non-conservative loads (a moment): no energy criterion.
+    #[test]
+    fn stability_unknown_under_moments() {
+        let sys = System::new(&spine_chain(6)).unwrap();
+        let loads = sys
+            .prepare_loads(&[Load::Moment {
+                body: "v6".into(),
+                vec: Vector3::new(0.0, 0.0, -7.5),
+                frame: LoadFrame::Ground,
+            }])
+            .unwrap();
+        let mut ws = Workspace::new(&sys);
+        let sol = sys
+            .solve_static(
+                &loads,
+                sys.default_q().as_slice(),
+                &mut ws,
+                &StaticOptions::default(),
+            )
+            .unwrap();
+        assert_eq!(sol.stable, None);
+        assert_eq!(sol.continuation_steps, 0);
+    }
+
+    /// A load that cannot be carried: a moment along the Y axis of the joint
+    /// frame of a one-joint chain (gravity off; the frame is turned 0.06 rad
+    /// about Z) turns the joint by exactly `ry = s M / k_y` (with rx = rz = 0
+    /// the Y axis stays put and the moment has no X or Z component), so the
+    /// equilibria end at the bushing's gimbal limit, at the load factor
+    /// `s* = GIMBAL_LIMIT k_y / M`. The error must say how far the loads
+    /// could be carried: `s*`.
+    #[test]
+    fn reports_the_load_factor_reached() {
+        let sys = System::new(&spine_chain(1)).unwrap();
+        let (m, ky) = (1000.0, 291.0);
+        let loads = sys
+            .prepare_loads(&[Load::Moment {
+                body: "v1".into(),
+                vec: Vector3::new(-(0.06f64.sin()), 0.06f64.cos(), 0.0) * m,
+                frame: LoadFrame::Ground,
+            }])
+            .unwrap();
+        let mut ws = Workspace::new(&sys);
+        let err = sys
+            .solve_static(
+                &loads,
+                sys.default_q().as_slice(),
+                &mut ws,
+                &StaticOptions::default(),
+            )
+            .unwrap_err()
+            .to_string();
+        let s_star = GIMBAL_LIMIT * ky / m;
+        let reached: f64 = err
+            .split("up to s = ")
+            .nth(1)
+            .and_then(|t| t.split_whitespace().next())
+            .and_then(|t| t.parse().ok())
+            .unwrap_or_else(|| panic!("no load factor in: {err}"));
+        assert!(
+            reached <= s_star + 1e-4 && reached > s_star - 2e-3,
+            "reached {reached}, expected about {s_star}: {err}"
+        );
     }
 }

@@ -588,7 +588,9 @@ impl TreeTangent {
                 continue;
             }
             let scale = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let asym = (d - d.transpose()).iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let asym = (d - d.transpose())
+                .iter()
+                .fold(0.0f64, |m, v| m.max(v.abs()));
             if !(asym <= 1e-9 * scale) {
                 return None;
             }
