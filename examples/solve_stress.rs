@@ -14,7 +14,11 @@ fn run(label: &str, sys: &System, loads: &[Load]) -> anyhow::Result<()> {
     let mut ws = Workspace::new(sys);
     let q0 = sys.default_q();
     let t = Instant::now();
-    let r = sys.solve_static(&loads, q0.as_slice(), &mut ws, &StaticOptions::default());
+    let r = if std::env::var("CONTINUATION").is_ok() {
+        sys.solve_static_continuation(&loads, q0.as_slice(), &mut ws, &StaticOptions::default())
+    } else {
+        sys.solve_static(&loads, q0.as_slice(), &mut ws, &StaticOptions::default())
+    };
     let dt = t.elapsed().as_secs_f64();
     match r {
         Ok(s) => {

@@ -24,16 +24,20 @@ fn base_model_large_moments_match_opensim() {
     // moments (N m, ground axes) on T1 with gravity on; the first two made
     // plain Newton's line search stall, the third its iteration limit
     // (200); the last is gravity alone (plain Newton converges, to an
-    // unstable equilibrium: the ligamentous spine cannot stand unaided)
+    // unstable equilibrium: the straight-ish ligamentous spine is beyond its
+    // buckling load); gravity alone again by continuation only
+    // (`solve_static_continuation`: the loaded path, a stable equilibrium)
     let moments = [
         Vector3::new(0.0, 0.0, -30.0),
         Vector3::new(30.0, 0.0, 0.0),
         Vector3::new(0.0, 0.0, 30.0),
         Vector3::zeros(),
+        Vector3::zeros(),
     ];
     let mut cases = Vec::new();
     let mut tool = Vec::new();
-    for m in moments {
+    let mut tool_min_eig: Vec<f64> = Vec::new();
+    for (k, m) in moments.into_iter().enumerate() {
         let loads = if m == Vector3::zeros() {
             vec![]
         } else {
@@ -44,15 +48,27 @@ fn base_model_large_moments_match_opensim() {
             }]
         };
         let loads = sys.prepare_loads(&loads).unwrap();
-        let sol = sys
-            .solve_static(&loads, sys.default_q().as_slice(), &mut ws, &opts)
-            .unwrap_or_else(|e| panic!("moment {m:?}: {e}"));
+        let q0 = sys.default_q();
+        let sol = if k == 4 {
+            sys.solve_static_continuation(&loads, q0.as_slice(), &mut ws, &opts)
+        } else {
+            sys.solve_static(&loads, q0.as_slice(), &mut ws, &opts)
+        }
+        .unwrap_or_else(|e| panic!("moment {m:?}: {e}"));
         assert!(
             sol.residual_norm <= opts.residual_tol,
             "{m:?}: {}",
             sol.residual_norm
         );
-        if m != Vector3::zeros() {
+        // the tool's own dense stiffness -(T + T^T)/2: smallest eigenvalue
+        let t = sys
+            .static_tangent(sol.q.as_slice(), &loads, &mut ws)
+            .unwrap();
+        let e = (-(&t + t.transpose()) * 0.5).symmetric_eigenvalues();
+        tool_min_eig.push(e.iter().copied().fold(f64::INFINITY, f64::min));
+        if k == 4 {
+            assert!(sol.continuation_steps > 0);
+        } else if m != Vector3::zeros() {
             assert!(
                 sol.continuation_steps > 0,
                 "{m:?}: expected a case plain Newton cannot solve"
@@ -94,7 +110,7 @@ fn base_model_large_moments_match_opensim() {
         let maxq = c["max_abs_q"].as_f64().unwrap();
         eprintln!(
             "moment {:?}: OpenSim residual at the tool's q {r0:.2e}, |dq| {dq:.2e}, final {fin:.2e}, \
-             max |q| {maxq:.3}, min stiffness eigenvalue {:.3e}, tool stable {:?}, {} continuation steps",
+             max |q| {maxq:.3}, min stiffness eigenvalue {}, tool stable {:?}, {} continuation steps",
             [m.x, m.y, m.z],
             c["min_stiffness_eigenvalue"],
             sol.stable,
@@ -114,17 +130,28 @@ fn base_model_large_moments_match_opensim() {
         assert!(maxq > 0.1, "{m:?}: loads too small to test anything");
     }
     // stability: gravity alone is conservative; OpenSim's stiffness must be
-    // symmetric and its definiteness must match the tool's flag
-    let g = &out[3];
-    let asym = g["jacobian_asymmetry"].as_f64().unwrap();
-    let min_eig = g["min_stiffness_eigenvalue"].as_f64().unwrap();
-    assert!(
-        asym < 1e-6,
-        "gravity-only stiffness not symmetric: {asym:e}"
-    );
-    assert_eq!(
-        tool[3].stable,
-        Some(min_eig > 0.0),
-        "tool's stability flag vs OpenSim's smallest stiffness eigenvalue {min_eig:e}"
-    );
+    // symmetric, its smallest eigenvalue equal to the tool's and its sign
+    // match the tool's flag: plain Newton's equilibrium is unstable, the
+    // continuation's stable
+    for k in [3, 4] {
+        let g = &out[k];
+        let asym = g["jacobian_asymmetry"].as_f64().unwrap();
+        let min_eig = g["min_stiffness_eigenvalue"].as_f64().unwrap();
+        assert!(
+            asym < 1e-6,
+            "gravity-only stiffness not symmetric: {asym:e}"
+        );
+        assert!(
+            (min_eig - tool_min_eig[k]).abs() <= 1e-4 * min_eig.abs().max(1.0),
+            "smallest stiffness eigenvalue: OpenSim {min_eig}, tool {}",
+            tool_min_eig[k]
+        );
+        assert_eq!(
+            tool[k].stable,
+            Some(min_eig > 0.0),
+            "tool's stability flag vs OpenSim's smallest stiffness eigenvalue {min_eig:e}"
+        );
+    }
+    assert_eq!(tool[3].stable, Some(false));
+    assert_eq!(tool[4].stable, Some(true));
 }

@@ -337,9 +337,36 @@ impl System {
                 error,
                 recoverable: true,
                 iterations,
-            } => self.solve_by_continuation(loads, q0, ws, opts, error, iterations),
+            } => self.solve_by_continuation(loads, q0, ws, opts, Some(error), iterations),
             Newton::Failed { error, .. } => Err(error),
         }
+    }
+
+    /// Solve for static equilibrium by load continuation only (no plain
+    /// Newton attempt first): the equilibrium reached by applying gravity
+    /// and the loads gradually from `q0`, following the loading path (the
+    /// physically loaded branch when `q0` is the unloaded pose). Plain
+    /// [`System::solve_static`] may converge to another equilibrium, e.g.
+    /// an unstable one nearer the start; compare [`StaticSolution::stable`].
+    pub fn solve_static_continuation(
+        &self,
+        loads: &LoadSet,
+        q0: &[f64],
+        ws: &mut Workspace,
+        opts: &StaticOptions,
+    ) -> Result<StaticSolution> {
+        self.check_q(q0)?;
+        ws.factored = Factored::None;
+        if self.n_dofs() == 0 {
+            return Ok(StaticSolution {
+                q: DVector::zeros(0),
+                iterations: 0,
+                residual_norm: 0.0,
+                stable: Some(true),
+                continuation_steps: 0,
+            });
+        }
+        self.solve_by_continuation(loads, q0, ws, opts, None, 0)
     }
 
     /// Damped Newton on `tau(q) - offset = 0` from `q` (updated in place).
@@ -532,7 +559,7 @@ impl System {
         q0: &[f64],
         ws: &mut Workspace,
         opts: &StaticOptions,
-        first: Error,
+        first: Option<Error>,
         first_iterations: usize,
     ) -> Result<StaticSolution> {
         let n = self.n_dofs();
@@ -663,8 +690,12 @@ impl System {
                 continue;
             }
             // give up: say how far the loads could be carried and why not further
+            let first = match &first {
+                Some(e) => format!("plain Newton failed ({e}); "),
+                None => String::new(),
+            };
             let mut msg = format!(
-                "no equilibrium found: plain Newton failed ({first}); load continuation (gravity \
+                "no equilibrium found: {first}load continuation (gravity \
                  and loads scaled by a factor s from 0 to 1, {steps} steps) carried them up to s = {s:.4} \
                  and could not go further"
             );
