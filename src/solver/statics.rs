@@ -18,6 +18,37 @@
 //! Both give the same Newton iterates to round-off (tests/solver_structured.rs)
 //! and keep the factorisation of the last iteration for
 //! [`System::tangent_solve`] (sensitivities).
+//!
+//! # When plain Newton fails: load continuation
+//!
+//! On long chains or under large loads the Newton iterates can run into a
+//! region where the tangent is nearly singular or indefinite (a column
+//! beyond its buckling load, a path that bends through large rotations)
+//! and the line search on `||tau||` stalls at a local minimum of the merit
+//! function that is no equilibrium. [`System::solve_static`] then falls
+//! back to load continuation: the equilibria of
+//! `H(q, s) = tau_s(q) - (1 - s) tau_0(q0) = 0` for load factors `s` from 0
+//! to 1 (`tau_s`: gravity and loads scaled by `s`; the offset makes `q0` the
+//! solution at `s = 0` and vanishes for undeflected bushings at the default
+//! pose), each step a tangent predictor (`dq/ds = -T^-1 dH/ds`, rotation
+//! capped) and a Newton corrector, halving the step on failure and doubling
+//! it after easy ones. The last corrector solves the real problem (`s = 1`,
+//! no offset), so the answer meets the same tolerances. When the loads
+//! cannot be carried the error gives the load factor reached and, when the
+//! path's slope `|dq/ds|` blew up, says it is a limit point (snap-through or
+//! buckling). The fast path is unchanged: continuation costs nothing when
+//! plain Newton converges. [`System::solve_static_continuation`] follows
+//! the loading path directly.
+//!
+//! # Stability
+//!
+//! [`StaticSolution::stable`] reports whether the equilibrium is a strict
+//! minimum of the potential energy (`-T` positive definite) when the loads
+//! are conservative and the tangent symmetric, from the pivot blocks of the
+//! structured elimination (inertia additivity, see `tree`) or a dense
+//! Cholesky. Plain Newton converges to the nearest equilibrium, which can be
+//! unstable: e.g. the base model under gravity alone with muscles off, where
+//! the load path reaches a different, stable one (`tests/solver_continuation.rs`).
 
 use super::forces::{self, GimbalLock, LoadSet, Resolved};
 use super::kinematics;
@@ -168,7 +199,7 @@ fn dense_stability(t: &DMatrix<f64>) -> Option<bool> {
     let asym = (t - t.transpose())
         .iter()
         .fold(0.0f64, |m, v| m.max(v.abs()));
-    if !(asym <= 1e-9 * scale) {
+    if asym.is_nan() || asym > 1e-9 * scale {
         return None;
     }
     Some((-(t + t.transpose()) * 0.5).cholesky().is_some())

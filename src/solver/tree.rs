@@ -591,7 +591,7 @@ impl TreeTangent {
             let asym = (d - d.transpose())
                 .iter()
                 .fold(0.0f64, |m, v| m.max(v.abs()));
-            if !(asym <= 1e-9 * scale) {
+            if asym.is_nan() || asym > 1e-9 * scale {
                 return None;
             }
             let mut m = -(d + d.transpose()) * 0.5;
