@@ -10,7 +10,11 @@
 //!   tangent (`TangentMethod::Dense`), for comparison;
 //! - `static_solve_loaded/{cold,warm}_N_joints` (6 and 12 joints): a
 //!   non-linear case, gravity on, the moment plus a 300 N follower load;
-//!   warm from the equilibrium under 7.0 N m.
+//!   warm from the equilibrium under 7.0 N m;
+//! - `static_solve_gravity/68_joints`: 68 joints under full gravity, no
+//!   other load, cold: far beyond the column's buckling load, plain Newton's
+//!   line search stalls and the load-continuation fallback solves it (the
+//!   Newton iterations and continuation steps are printed).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nalgebra::{DVector, Vector3};
@@ -112,6 +116,33 @@ fn bench_chains(c: &mut Criterion) {
                 },
             );
         }
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("static_solve_gravity");
+    g.sample_size(20);
+    {
+        let mut spec = spine_chain(68);
+        spec.gravity = Vector3::new(0.0, -9.80665, 0.0);
+        let sys = System::new(&spec).expect("chain");
+        let loads = LoadSet::empty();
+        let mut ws = Workspace::new(&sys);
+        let q0 = sys.default_q();
+        let sol = sys
+            .solve_static(&loads, q0.as_slice(), &mut ws, &opts)
+            .expect("solve");
+        eprintln!(
+            "static_solve_gravity 68 joints: {} Newton iterations, {} continuation steps, stable {:?}",
+            sol.iterations, sol.continuation_steps, sol.stable
+        );
+        g.bench_function(BenchmarkId::from_parameter("68_joints"), |b| {
+            b.iter(|| {
+                black_box(
+                    sys.solve_static(&loads, q0.as_slice(), &mut ws, &opts)
+                        .expect("solve"),
+                )
+            })
+        });
     }
     g.finish();
 

@@ -120,7 +120,8 @@ fn identical_palpations_give_identical_models_equal_to_the_consensus() {
         assert!((g.sagittal_r2.as_ref().unwrap().median - 1.0).abs() < 1e-9);
         // The consensus model is the same model: same Cobb angle.
         assert!((g.cobb_deg.as_ref().unwrap().median - rc.angle_deg).abs() < 1e-6);
-        assert_eq!(g.cobb_mean_sd_deg.as_ref().unwrap().sd, 0.0);
+        // identical values: the SD is zero up to the rounding of their mean
+        assert!(g.cobb_mean_sd_deg.as_ref().unwrap().sd < 1e-9, "{g:?}");
     }
 }
 

@@ -18,10 +18,42 @@
 //! Both give the same Newton iterates to round-off (tests/solver_structured.rs)
 //! and keep the factorisation of the last iteration for
 //! [`System::tangent_solve`] (sensitivities).
+//!
+//! # When plain Newton fails: load continuation
+//!
+//! On long chains or under large loads the Newton iterates can run into a
+//! region where the tangent is nearly singular or indefinite (a column
+//! beyond its buckling load, a path that bends through large rotations)
+//! and the line search on `||tau||` stalls at a local minimum of the merit
+//! function that is no equilibrium. [`System::solve_static`] then falls
+//! back to load continuation: the equilibria of
+//! `H(q, s) = tau_s(q) - (1 - s) tau_0(q0) = 0` for load factors `s` from 0
+//! to 1 (`tau_s`: gravity and loads scaled by `s`; the offset makes `q0` the
+//! solution at `s = 0` and vanishes for undeflected bushings at the default
+//! pose), each step a tangent predictor (`dq/ds = -T^-1 dH/ds`, rotation
+//! capped) and a Newton corrector, halving the step on failure and doubling
+//! it after easy ones. The last corrector solves the real problem (`s = 1`,
+//! no offset), so the answer meets the same tolerances. When the loads
+//! cannot be carried the error gives the load factor reached and, when the
+//! path's slope `|dq/ds|` blew up, says it is a limit point (snap-through or
+//! buckling). The fast path is unchanged: continuation costs nothing when
+//! plain Newton converges. [`System::solve_static_continuation`] follows
+//! the loading path directly.
+//!
+//! # Stability
+//!
+//! [`StaticSolution::stable`] reports whether the equilibrium is a strict
+//! minimum of the potential energy (`-T` positive definite) when the loads
+//! are conservative and the tangent symmetric, from the pivot blocks of the
+//! structured elimination (inertia additivity, see `tree`) or a dense
+//! Cholesky. Plain Newton converges to the nearest equilibrium, which can be
+//! unstable: e.g. the base model under gravity alone with muscles off, where
+//! the load path reaches a different, stable one (`tests/solver_continuation.rs`).
 
-use super::forces::{self, GimbalLock, LoadSet};
+use super::forces::{self, GimbalLock, LoadSet, Resolved};
 use super::kinematics;
 use super::scalar::{d6_eps, d6_var, Scalar, D6};
+use super::spec::LoadFrame;
 use super::system::{Factored, KinBuf, System, Workspace};
 use super::tree::TangentMethod;
 use crate::error::{Error, Result};
@@ -61,6 +93,16 @@ pub struct StaticSolution {
     pub iterations: usize,
     /// Largest |generalised force| at `q`.
     pub residual_norm: f64,
+    /// Whether the equilibrium is stable (a strict minimum of the potential
+    /// energy: the tangent stiffness `-d tau / d q` is positive definite),
+    /// when the energy criterion applies: Some for conservative loads
+    /// (gravity, bushings with a symmetric tangent, ground-fixed forces),
+    /// None with moments or follower loads (not conservative in 3-D) or a
+    /// non-symmetric tangent. Read from the pivot blocks of the last
+    /// factorisation (no extra factorisation on the structured path).
+    pub stable: Option<bool>,
+    /// Load-continuation steps taken (0 when plain Newton converged).
+    pub continuation_steps: usize,
 }
 
 fn inf_norm(v: &[f64]) -> f64 {
@@ -68,6 +110,99 @@ fn inf_norm(v: &[f64]) -> f64 {
 }
 fn two_norm(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// Continuation: first load-factor step.
+const CONT_INITIAL_STEP: f64 = 0.25;
+/// Continuation: smallest load-factor step before giving up.
+const CONT_MIN_STEP: f64 = 1e-6;
+/// Continuation: largest predicted change of a rotational coordinate in one step (rad).
+const CONT_MAX_PREDICTED_ROTATION: f64 = 0.2;
+/// Continuation: largest corrector move away from the predicted point (rad).
+const CONT_MAX_CORRECTION: f64 = 0.1;
+/// Continuation: Newton iterations of one corrector.
+const CONT_CORRECTOR_ITERATIONS: usize = 15;
+/// Continuation: step attempts in all.
+const CONT_MAX_ATTEMPTS: usize = 2000;
+/// Continuation: growth of the path slope `|dq/ds|` reported as a limit point.
+const CONT_LIMIT_SLOPE_GROWTH: f64 = 20.0;
+
+/// Outcome of one damped-Newton run.
+enum Newton {
+    Converged {
+        iterations: usize,
+        residual_norm: f64,
+    },
+    Failed {
+        error: Error,
+        /// Worth retrying by load continuation (stall, iteration limit, a
+        /// singular tangent away from the start).
+        recoverable: bool,
+        iterations: usize,
+    },
+}
+
+/// `tau -= offset` (no-op without an offset).
+#[inline]
+fn subtract(tau: &mut [f64], offset: Option<&[f64]>) {
+    if let Some(o) = offset {
+        for (t, c) in tau.iter_mut().zip(o) {
+            *t -= c;
+        }
+    }
+}
+
+/// Loads scaled by the load factor `s`.
+fn scaled_loads(loads: &LoadSet, s: f64) -> LoadSet {
+    let items = loads
+        .items
+        .iter()
+        .map(|l| match l {
+            Resolved::Moment { body, vec, frame } => Resolved::Moment {
+                body: *body,
+                vec: vec * s,
+                frame: *frame,
+            },
+            Resolved::Force {
+                body,
+                point,
+                vec,
+                frame,
+            } => Resolved::Force {
+                body: *body,
+                point: *point,
+                vec: vec * s,
+                frame: *frame,
+            },
+            Resolved::Follower {
+                upper,
+                upper_pt,
+                lower,
+                lower_pt,
+                magnitude,
+            } => Resolved::Follower {
+                upper: *upper,
+                upper_pt: *upper_pt,
+                lower: *lower,
+                lower_pt: *lower_pt,
+                magnitude: magnitude * s,
+            },
+        })
+        .collect();
+    LoadSet { items }
+}
+
+/// Stability from a dense tangent `T`: None when `T` is not symmetric to
+/// round-off, else whether `-T` is positive definite (Cholesky).
+fn dense_stability(t: &DMatrix<f64>) -> Option<bool> {
+    let scale = t.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let asym = (t - t.transpose())
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    if asym.is_nan() || asym > 1e-9 * scale {
+        return None;
+    }
+    Some((-(t + t.transpose()) * 0.5).cholesky().is_some())
 }
 
 pub(crate) fn eval_tau<T: Scalar>(
@@ -188,6 +323,13 @@ impl System {
 
     /// Solve for static equilibrium from the start `q0` (e.g. the default
     /// pose or a previous solution: warm start).
+    ///
+    /// Plain damped Newton first (the fast path). When its line search
+    /// stalls or it runs out of iterations, the loads are applied by
+    /// continuation instead (see [`System::solve_static`]'s module docs):
+    /// equilibria at load factors `s` from 0 to 1, each from the previous
+    /// one. An error then says which fraction of the loads could be carried
+    /// and whether the equilibrium path reached a limit point.
     pub fn solve_static(
         &self,
         loads: &LoadSet,
@@ -197,7 +339,6 @@ impl System {
     ) -> Result<StaticSolution> {
         self.check_q(q0)?;
         let n = self.n_dofs();
-        let ctx = "static equilibrium";
         ws.factored = Factored::None;
         let mut q: Vec<f64> = q0.to_vec();
         ws.k64.q.copy_from_slice(&q);
@@ -208,11 +349,75 @@ impl System {
                 q: DVector::zeros(0),
                 iterations: 0,
                 residual_norm: 0.0,
+                stable: Some(true),
+                continuation_steps: 0,
             });
         }
+        match self.newton(loads, None, &mut q, ws, opts, opts.max_iterations)? {
+            Newton::Converged {
+                iterations,
+                residual_norm,
+            } => Ok(StaticSolution {
+                q: DVector::from_vec(q),
+                iterations,
+                residual_norm,
+                stable: self.stability(loads, ws),
+                continuation_steps: 0,
+            }),
+            Newton::Failed {
+                error,
+                recoverable: true,
+                iterations,
+            } => self.solve_by_continuation(loads, q0, ws, opts, Some(error), iterations),
+            Newton::Failed { error, .. } => Err(error),
+        }
+    }
+
+    /// Solve for static equilibrium by load continuation only (no plain
+    /// Newton attempt first): the equilibrium reached by applying gravity
+    /// and the loads gradually from `q0`, following the loading path (the
+    /// physically loaded branch when `q0` is the unloaded pose). Plain
+    /// [`System::solve_static`] may converge to another equilibrium, e.g.
+    /// an unstable one nearer the start; compare [`StaticSolution::stable`].
+    pub fn solve_static_continuation(
+        &self,
+        loads: &LoadSet,
+        q0: &[f64],
+        ws: &mut Workspace,
+        opts: &StaticOptions,
+    ) -> Result<StaticSolution> {
+        self.check_q(q0)?;
+        ws.factored = Factored::None;
+        if self.n_dofs() == 0 {
+            return Ok(StaticSolution {
+                q: DVector::zeros(0),
+                iterations: 0,
+                residual_norm: 0.0,
+                stable: Some(true),
+                continuation_steps: 0,
+            });
+        }
+        self.solve_by_continuation(loads, q0, ws, opts, None, 0)
+    }
+
+    /// Damped Newton on `tau(q) - offset = 0` from `q` (updated in place).
+    /// On entry `ws.r` must hold the residual at `q` (offset subtracted).
+    /// Errors (`Err`) only for a gimbal lock at an accepted point;
+    /// convergence failures are [`Newton::Failed`].
+    fn newton(
+        &self,
+        loads: &LoadSet,
+        offset: Option<&[f64]>,
+        q: &mut [f64],
+        ws: &mut Workspace,
+        opts: &StaticOptions,
+        max_iterations: usize,
+    ) -> Result<Newton> {
+        let n = self.n_dofs();
+        let ctx = "static equilibrium";
         let mut it = 0;
         loop {
-            if it >= opts.max_iterations {
+            if it >= max_iterations {
                 let (worst, val) = ws.r.iter().enumerate().fold((0, 0.0f64), |a, (i, v)| {
                     if v.abs() > a.1 {
                         (i, v.abs())
@@ -220,31 +425,45 @@ impl System {
                         a
                     }
                 });
-                return Err(Error::numerical(
-                    ctx,
-                    format!(
-                        "no equilibrium found after {it} Newton iterations: the largest generalised force \
-                         residual is {val:.3e} (coordinate '{}'); the loads may be too large for the model to carry",
-                        self.dof_name(worst)
+                return Ok(Newton::Failed {
+                    error: Error::numerical(
+                        ctx,
+                        format!(
+                            "no equilibrium found after {it} Newton iterations: the largest generalised force \
+                             residual is {val:.3e} (coordinate '{}'); the loads may be too large for the model to carry",
+                            self.dof_name(worst)
+                        ),
                     ),
-                ));
+                    recoverable: true,
+                    iterations: it,
+                });
             }
             for i in 0..n {
                 ws.dq[i] = -ws.r[i];
             }
-            self.factor_and_solve(&q, loads, ws)
+            self.factor_and_solve(q, loads, ws)
                 .map_err(|g| g.to_error(self))?;
             if ws.factored == Factored::None {
-                return Err(Error::numerical(
-                    ctx,
-                    format!("singular tangent stiffness at iteration {it}: a degree of freedom has no stiffness (add a bushing, lock the coordinate or fix a body)"),
-                ));
+                return Ok(Newton::Failed {
+                    error: Error::numerical(
+                        ctx,
+                        format!("singular tangent stiffness at iteration {it}: a degree of freedom has no stiffness (add a bushing, lock the coordinate or fix a body)"),
+                    ),
+                    // singular at the start: no stiffness, nothing to continue;
+                    // later: a singular point of the path, continuation may pass it
+                    recoverable: it > 0,
+                    iterations: it,
+                });
             }
             if ws.dq.iter().any(|v| !v.is_finite()) {
-                return Err(Error::numerical(
-                    ctx,
-                    format!("Newton step not finite at iteration {it}"),
-                ));
+                return Ok(Newton::Failed {
+                    error: Error::numerical(
+                        ctx,
+                        format!("Newton step not finite at iteration {it}"),
+                    ),
+                    recoverable: it > 0,
+                    iterations: it,
+                });
             }
             let r_inf = inf_norm(&ws.r);
             let step_inf = inf_norm(&ws.dq);
@@ -253,11 +472,11 @@ impl System {
                 for i in 0..n {
                     q[i] += ws.dq[i];
                 }
-                ws.k64.q.copy_from_slice(&q);
+                ws.k64.q.copy_from_slice(q);
                 eval_tau(self, loads, &mut ws.k64).map_err(|g| g.to_error(self))?;
+                subtract(&mut ws.k64.tau, offset);
                 ws.r.copy_from_slice(&ws.k64.tau);
-                return Ok(StaticSolution {
-                    q: DVector::from_vec(q),
+                return Ok(Newton::Converged {
                     iterations: it,
                     residual_norm: inf_norm(&ws.r),
                 });
@@ -282,6 +501,7 @@ impl System {
                 ws.k64.q.copy_from_slice(&ws.q_trial);
                 let ok = eval_tau(self, loads, &mut ws.k64).is_ok();
                 if ok {
+                    subtract(&mut ws.k64.tau, offset);
                     let rt = two_norm(&ws.k64.tau);
                     if rt.is_finite() && rt <= (1.0 - 1e-4 * lambda) * r0 {
                         break;
@@ -295,30 +515,268 @@ impl System {
                 if lambda < 1e-10 {
                     if r_inf <= opts.residual_tol * 10.0 {
                         // cannot improve further: converged to round-off
-                        return Ok(StaticSolution {
-                            q: DVector::from_vec(q),
+                        return Ok(Newton::Converged {
                             iterations: it,
                             residual_norm: r_inf,
                         });
                     }
                     // a gimbal lock right at the current point is the real cause
-                    ws.k64.q.copy_from_slice(&q);
+                    ws.k64.q.copy_from_slice(q);
                     if let Err(g) = eval_tau(self, loads, &mut ws.k64) {
                         return Err(g.to_error(self));
                     }
-                    return Err(Error::numerical(
-                        ctx,
-                        format!(
-                            "no equilibrium found: the line search stalled at iteration {it} with largest \
-                             generalised force residual {r_inf:.3e} (the loads may be too large, or a bushing \
-                             approaches gimbal lock)"
+                    return Ok(Newton::Failed {
+                        error: Error::numerical(
+                            ctx,
+                            format!(
+                                "no equilibrium found: the line search stalled at iteration {it} with largest \
+                                 generalised force residual {r_inf:.3e} (the loads may be too large, or a bushing \
+                                 approaches gimbal lock)"
+                            ),
                         ),
-                    ));
+                        recoverable: true,
+                        iterations: it,
+                    });
                 }
             }
             q.copy_from_slice(&ws.q_trial);
             ws.r.copy_from_slice(&ws.k64.tau);
         }
+    }
+
+    /// Stability of the equilibrium whose tangent was factorised last, when
+    /// the energy criterion applies (conservative loads and symmetric
+    /// tangent): see [`StaticSolution::stable`].
+    fn stability(&self, loads: &LoadSet, ws: &mut Workspace) -> Option<bool> {
+        let conservative = loads.items.iter().all(|l| match l {
+            // a force of fixed direction at a body point has the potential -F.p
+            Resolved::Force { frame, .. } => *frame == LoadFrame::Ground,
+            // moments and follower loads are not conservative in 3-D
+            Resolved::Moment { .. } | Resolved::Follower { .. } => false,
+        });
+        if !conservative {
+            return None;
+        }
+        match ws.factored {
+            Factored::Tree => ws.tree.stability(self),
+            Factored::Dense => {
+                // the tangent at the last factorised point is gone (LU in
+                // place): re-evaluate it at the solution, keep the factors
+                let q: Vec<f64> = ws.k64.q.clone();
+                let saved = ws.lu.clone();
+                let stable = match self.eval_tangent(&q, loads, ws) {
+                    Ok(()) => dense_stability(&ws.lu.a),
+                    Err(_) => None,
+                };
+                ws.lu = saved;
+                stable
+            }
+            Factored::None => None,
+        }
+    }
+
+    /// The continuation fallback of [`System::solve_static`]: follow the
+    /// equilibrium path of `H(q, s) = tau_s(q) - (1 - s) c = 0` from
+    /// `(q0, 0)` to `s = 1`, where `tau_s` is the residual with gravity and
+    /// loads scaled by `s` and `c = tau_0(q0)` (the bushing forces at the
+    /// start with no load: zero for undeflected bushings at the default
+    /// pose, so the path is then the physical loading path). Each step is a
+    /// tangent predictor `q + h dq/ds`, `dq/ds = -T^-1 dH/ds`, with the
+    /// predicted rotation capped, and a Newton corrector; a failed or
+    /// branch-jumping corrector halves the step, an easy one doubles it.
+    fn solve_by_continuation(
+        &self,
+        loads: &LoadSet,
+        q0: &[f64],
+        ws: &mut Workspace,
+        opts: &StaticOptions,
+        first: Option<Error>,
+        first_iterations: usize,
+    ) -> Result<StaticSolution> {
+        let n = self.n_dofs();
+        let ctx = "static equilibrium";
+        let g = self.gravity;
+        let mut sys0 = self.clone();
+        sys0.gravity = Vector3::zeros();
+        let loads0 = scaled_loads(loads, 0.0);
+        let mut sys_s = self.clone();
+        ws.k64.q.copy_from_slice(q0);
+        eval_tau(&sys0, &loads0, &mut ws.k64).map_err(|e| e.to_error(self))?;
+        let c: Vec<f64> = ws.k64.tau.clone();
+        let mut q: Vec<f64> = q0.to_vec();
+        let mut q_try = vec![0.0; n];
+        let mut v = vec![0.0; n];
+        let mut offset = vec![0.0; n];
+        let mut s = 0.0f64;
+        let mut ds = CONT_INITIAL_STEP;
+        let mut iterations = first_iterations;
+        let mut steps = 0usize;
+        let mut attempts = 0usize;
+        let mut slope0: Option<f64> = None;
+        let mut slope;
+        let mut was_stable: Option<bool> = None;
+        let mut lost_stability_at: Option<f64> = None;
+        loop {
+            // path tangent at (q, s): dH/ds = tau_1(q) - tau_0(q) + c
+            ws.k64.q.copy_from_slice(&q);
+            eval_tau(&sys0, &loads0, &mut ws.k64).map_err(|e| e.to_error(self))?;
+            v.copy_from_slice(&ws.k64.tau);
+            eval_tau(self, loads, &mut ws.k64).map_err(|e| e.to_error(self))?;
+            for i in 0..n {
+                v[i] = -(ws.k64.tau[i] - v[i] + c[i]);
+            }
+            sys_s.gravity = g * s;
+            let loads_s = scaled_loads(loads, s);
+            eval_tau(&sys_s, &loads_s, &mut ws.k64).map_err(|e| e.to_error(self))?;
+            ws.dq.copy_from_slice(&v);
+            sys_s
+                .factor_and_solve(&q, &loads_s, ws)
+                .map_err(|e| e.to_error(self))?;
+            let singular = ws.factored == Factored::None || ws.dq.iter().any(|x| !x.is_finite());
+            if !singular {
+                v.copy_from_slice(&ws.dq);
+                let st = sys_s.stability(&loads_s, ws);
+                if was_stable == Some(true) && st == Some(false) && lost_stability_at.is_none() {
+                    lost_stability_at = Some(s);
+                }
+                was_stable = st;
+            }
+            slope = (0..n)
+                .filter(|&i| self.dof_rotational[i])
+                .fold(0.0f64, |m, i| m.max(v[i].abs()));
+            let slope_start = *slope0.get_or_insert(slope);
+            let mut last: Option<Error> = None;
+            // one accepted step (or give up)
+            let accepted = loop {
+                attempts += 1;
+                let mut h = ds.min(1.0 - s);
+                if slope * h > CONT_MAX_PREDICTED_ROTATION {
+                    h = CONT_MAX_PREDICTED_ROTATION / slope;
+                }
+                if singular || h < CONT_MIN_STEP || attempts > CONT_MAX_ATTEMPTS {
+                    break false;
+                }
+                let s1 = if s + h >= 1.0 - 1e-12 { 1.0 } else { s + h };
+                for i in 0..n {
+                    q_try[i] = q[i] + (s1 - s) * v[i];
+                }
+                let mut q_new = q_try.clone();
+                let outcome = if s1 == 1.0 {
+                    self.corrector(loads, None, &mut q_new, ws, opts)
+                } else {
+                    sys_s.gravity = g * s1;
+                    let loads_s1 = scaled_loads(loads, s1);
+                    for i in 0..n {
+                        offset[i] = (1.0 - s1) * c[i];
+                    }
+                    sys_s.corrector(&loads_s1, Some(&offset), &mut q_new, ws, opts)
+                };
+                match outcome {
+                    Ok(Newton::Converged {
+                        iterations: it,
+                        residual_norm,
+                    }) => {
+                        iterations += it;
+                        // the corrector must stay near the predicted point,
+                        // or it has jumped to another equilibrium branch
+                        let jump = (0..n)
+                            .filter(|&i| self.dof_rotational[i])
+                            .fold(0.0f64, |m, i| m.max((q_new[i] - q_try[i]).abs()));
+                        if jump <= CONT_MAX_CORRECTION {
+                            q.copy_from_slice(&q_new);
+                            s = s1;
+                            steps += 1;
+                            ds = if it <= 4 { (2.0 * h).min(1.0) } else { h };
+                            if s == 1.0 {
+                                return Ok(StaticSolution {
+                                    q: DVector::from_vec(q),
+                                    iterations,
+                                    residual_norm,
+                                    stable: self.stability(loads, ws),
+                                    continuation_steps: steps,
+                                });
+                            }
+                            break true;
+                        }
+                        last = Some(Error::numerical(
+                            ctx,
+                            format!(
+                                "the corrector moved {jump:.3} rad away from the predicted point"
+                            ),
+                        ));
+                    }
+                    Ok(Newton::Failed {
+                        error,
+                        iterations: it,
+                        ..
+                    }) => {
+                        iterations += it;
+                        last = Some(error);
+                    }
+                    Err(e) => last = Some(e),
+                }
+                ds = 0.5 * h;
+            };
+            if accepted {
+                continue;
+            }
+            // give up: say how far the loads could be carried and why not further
+            let first = match &first {
+                Some(e) => format!("plain Newton failed ({e}); "),
+                None => String::new(),
+            };
+            let mut msg = format!(
+                "no equilibrium found: {first}load continuation (gravity \
+                 and loads scaled by a factor s from 0 to 1, {steps} steps) carried them up to s = {s:.4} \
+                 and could not go further"
+            );
+            if singular || slope > CONT_LIMIT_SLOPE_GROWTH * slope_start.max(1e-12) {
+                msg.push_str(&format!(
+                    ": the equilibrium path reaches a limit point there (the tangent stiffness \
+                     becomes singular; |dq/ds| grew from {slope_start:.3e} to {} rad per unit load factor), \
+                     i.e. snap-through or buckling: the model cannot carry the full loads on this \
+                     equilibrium branch",
+                    if singular {
+                        "infinity".to_string()
+                    } else {
+                        format!("{slope:.3e}")
+                    }
+                ));
+            } else if let Some(e) = last {
+                msg.push_str(&format!(" (last corrector failure: {e})"));
+            }
+            if let Some(sl) = lost_stability_at {
+                msg.push_str(&format!(
+                    "; the path had lost stability at s = {sl:.4} (the tangent stiffness was no longer \
+                     positive definite)"
+                ));
+            }
+            return Err(Error::numerical(ctx, msg));
+        }
+    }
+
+    /// Newton corrector of a continuation step from `q` (residual evaluated
+    /// here); a gimbal lock at the predicted point is a failed step.
+    fn corrector(
+        &self,
+        loads: &LoadSet,
+        offset: Option<&[f64]>,
+        q: &mut [f64],
+        ws: &mut Workspace,
+        opts: &StaticOptions,
+    ) -> Result<Newton> {
+        ws.k64.q.copy_from_slice(q);
+        eval_tau(self, loads, &mut ws.k64).map_err(|e| e.to_error(self))?;
+        subtract(&mut ws.k64.tau, offset);
+        ws.r.copy_from_slice(&ws.k64.tau);
+        self.newton(
+            loads,
+            offset,
+            q,
+            ws,
+            opts,
+            CONT_CORRECTOR_ITERATIONS.min(opts.max_iterations),
+        )
     }
 
     /// Solve `T x = rhs` in place with the factorised tangent `T = d tau / d q`
@@ -449,5 +907,155 @@ impl System {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod continuation_tests {
+    use super::super::examples::spine_chain;
+    use super::super::forces::GIMBAL_LIMIT;
+    use super::super::spec::Load;
+    use super::*;
+
+    /// Smallest eigenvalue of the symmetric part of the stiffness `-T` from
+    /// the dense reference tangent (independent of the tree pivots).
+    fn min_stiffness_eig(sys: &System, loads: &LoadSet, q: &[f64]) -> (f64, f64) {
+        let mut ws = Workspace::new(sys);
+        let t = sys.static_tangent(q, loads, &mut ws).unwrap();
+        let asym = (&t - t.transpose()).amax() / t.amax();
+        let k = -(&t + t.transpose()) * 0.5;
+        let e = k.symmetric_eigenvalues();
+        (e.iter().copied().fold(f64::INFINITY, f64::min), asym)
+    }
+
+    /// 68 joints under full gravity: plain Newton's line search stalls (the
+    /// column is far beyond its buckling load); continuation reaches a real
+    /// equilibrium, stable by the dense tangent's eigenvalues.
+    #[test]
+    fn chain68_full_gravity_by_continuation() {
+        let mut spec = spine_chain(68);
+        spec.gravity = Vector3::new(0.0, -9.80665, 0.0);
+        let sys = System::new(&spec).unwrap();
+        let loads = LoadSet::empty();
+        let mut ws = Workspace::new(&sys);
+        let opts = StaticOptions::default();
+        let sol = sys
+            .solve_static(&loads, sys.default_q().as_slice(), &mut ws, &opts)
+            .unwrap();
+        assert!(sol.continuation_steps > 0);
+        let r = sys
+            .static_residual(sol.q.as_slice(), &loads, &mut ws)
+            .unwrap();
+        assert!(inf_norm(r) <= opts.residual_tol, "{}", inf_norm(r));
+        let (min_eig, asym) = min_stiffness_eig(&sys, &loads, sol.q.as_slice());
+        assert!(asym < 1e-12, "gravity tangent not symmetric: {asym:e}");
+        assert_eq!(sol.stable, Some(min_eig > 0.0), "min eigenvalue {min_eig}");
+        assert!(
+            min_eig > 0.0,
+            "continuation ended on an unstable equilibrium"
+        );
+    }
+
+    /// The stability flag (from the tree pivots) agrees with the dense
+    /// tangent's eigenvalues on chains below and beyond their buckling load
+    /// under gravity (both outcomes occur).
+    #[test]
+    fn stability_flag_matches_dense_eigenvalues() {
+        let mut seen = [false; 2];
+        for n in [6usize, 12, 17, 34] {
+            let mut spec = spine_chain(n);
+            spec.gravity = Vector3::new(0.0, -9.80665, 0.0);
+            let sys = System::new(&spec).unwrap();
+            let loads = LoadSet::empty();
+            for method in [TangentMethod::Auto, TangentMethod::Dense] {
+                let mut ws = Workspace::new(&sys);
+                ws.set_tangent_method(method);
+                let sol = sys
+                    .solve_static(
+                        &loads,
+                        sys.default_q().as_slice(),
+                        &mut ws,
+                        &StaticOptions::default(),
+                    )
+                    .unwrap();
+                let (min_eig, _) = min_stiffness_eig(&sys, &loads, sol.q.as_slice());
+                assert!(min_eig.abs() > 1e-3, "{n}: too close to singular to judge");
+                assert_eq!(
+                    sol.stable,
+                    Some(min_eig > 0.0),
+                    "{n} joints {method:?}: min eigenvalue {min_eig}"
+                );
+                seen[(min_eig > 0.0) as usize] = true;
+            }
+        }
+        assert!(
+            seen[0] && seen[1],
+            "both stable and unstable cases expected"
+        );
+    }
+
+    /// Non-conservative loads (a moment): no energy criterion.
+    #[test]
+    fn stability_unknown_under_moments() {
+        let sys = System::new(&spine_chain(6)).unwrap();
+        let loads = sys
+            .prepare_loads(&[Load::Moment {
+                body: "v6".into(),
+                vec: Vector3::new(0.0, 0.0, -7.5),
+                frame: LoadFrame::Ground,
+            }])
+            .unwrap();
+        let mut ws = Workspace::new(&sys);
+        let sol = sys
+            .solve_static(
+                &loads,
+                sys.default_q().as_slice(),
+                &mut ws,
+                &StaticOptions::default(),
+            )
+            .unwrap();
+        assert_eq!(sol.stable, None);
+        assert_eq!(sol.continuation_steps, 0);
+    }
+
+    /// A load that cannot be carried: a moment along the Y axis of the joint
+    /// frame of a one-joint chain (gravity off; the frame is turned 0.06 rad
+    /// about Z) turns the joint by exactly `ry = s M / k_y` (with rx = rz = 0
+    /// the Y axis stays put and the moment has no X or Z component), so the
+    /// equilibria end at the bushing's gimbal limit, at the load factor
+    /// `s* = GIMBAL_LIMIT k_y / M`. The error must say how far the loads
+    /// could be carried: `s*`.
+    #[test]
+    fn reports_the_load_factor_reached() {
+        let sys = System::new(&spine_chain(1)).unwrap();
+        let (m, ky) = (1000.0, 291.0);
+        let loads = sys
+            .prepare_loads(&[Load::Moment {
+                body: "v1".into(),
+                vec: Vector3::new(-(0.06f64.sin()), 0.06f64.cos(), 0.0) * m,
+                frame: LoadFrame::Ground,
+            }])
+            .unwrap();
+        let mut ws = Workspace::new(&sys);
+        let err = sys
+            .solve_static(
+                &loads,
+                sys.default_q().as_slice(),
+                &mut ws,
+                &StaticOptions::default(),
+            )
+            .unwrap_err()
+            .to_string();
+        let s_star = GIMBAL_LIMIT * ky / m;
+        let reached: f64 = err
+            .split("up to s = ")
+            .nth(1)
+            .and_then(|t| t.split_whitespace().next())
+            .and_then(|t| t.parse().ok())
+            .unwrap_or_else(|| panic!("no load factor in: {err}"));
+        assert!(
+            reached <= s_star + 1e-4 && reached > s_star - 2e-3,
+            "reached {reached}, expected about {s_star}: {err}"
+        );
     }
 }

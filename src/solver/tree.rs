@@ -376,6 +376,9 @@ pub(crate) struct TreeTangent {
     ph: Vec<Matrix6<f64>>,
     /// Articulated stiffness accumulated from the children.
     acc: Vec<Matrix6<f64>>,
+    /// The pivot blocks `D_b` of the last factorisation (padded with the
+    /// identity beyond the joint's dofs), for the stability test.
+    pivots: Vec<Matrix6<f64>>,
     /// Solve scratch.
     z: Vec<Vector6<f64>>,
     u: Vec<Vector6<f64>>,
@@ -401,7 +404,8 @@ impl TreeTangent {
             lu: vec![Lu6::identity(); nb],
             v: z6.clone(),
             ph: z6.clone(),
-            acc: z6,
+            acc: z6.clone(),
+            pivots: z6,
             z: vec![Vector6::zeros(); nb],
             u: vec![Vector6::zeros(); nb],
             dx: vec![Vector6::zeros(); nb],
@@ -541,6 +545,7 @@ impl TreeTangent {
             for i in n..6 {
                 d[(i, i)] = 1.0;
             }
+            self.pivots[bi] = d;
             let Some(lu) = Lu6::factor(d, n) else {
                 return false;
             };
@@ -563,6 +568,41 @@ impl TreeTangent {
             self.ph[bi] = ph;
         }
         true
+    }
+
+    /// Stability of the equilibrium whose tangent `T` was last factorised
+    /// (after a successful [`TreeTangent::factor`]). The elimination is
+    /// Gaussian elimination of `T` in a leaves-to-root block order, so the
+    /// pivot blocks `D_b` are Schur complements; when `T` is symmetric
+    /// (conservative forces: `T = -Hess V`), Haynsworth's inertia additivity
+    /// gives `inertia(T) = sum inertia(D_b)`, and the equilibrium is stable
+    /// (`-T` positive definite, a strict minimum of the potential energy)
+    /// exactly when every `-D_b` is positive definite. None when a pivot
+    /// block is not symmetric to round-off (non-conservative forces, where
+    /// the energy test does not apply).
+    pub(crate) fn stability(&self, sys: &System) -> Option<bool> {
+        let mut stable = true;
+        for (bi, d) in self.pivots.iter().enumerate().take(sys.bodies.len()) {
+            let n = sys.bodies[bi].joint.dof_count.min(6);
+            if n == 0 {
+                continue;
+            }
+            let scale = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let asym = (d - d.transpose())
+                .iter()
+                .fold(0.0f64, |m, v| m.max(v.abs()));
+            if asym.is_nan() || asym > 1e-9 * scale {
+                return None;
+            }
+            let mut m = -(d + d.transpose()) * 0.5;
+            for i in n..6 {
+                m[(i, i)] = 1.0;
+            }
+            if m.cholesky().is_none() {
+                stable = false;
+            }
+        }
+        Some(stable)
     }
 
     /// Solve `T x = rhs` in place with the factors (after a successful
