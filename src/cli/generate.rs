@@ -180,12 +180,17 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     }
     if let Some(sc) = &r.self_check {
         println!(
-            "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity: largest displacement {:.1} mm ({})",
+            "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {:.1} mm ({}){}",
             sc.bushing_max_rotation,
             sc.bushing_max_translation,
             sc.muscle_segments_through_vertebrae.len(),
             sc.equilibrium.max_displacement * 1e3,
-            sc.equilibrium.max_displacement_body
+            sc.equilibrium.max_displacement_body,
+            match sc.equilibrium.stable {
+                Some(true) => ", stable",
+                Some(false) => ", unstable (a ligamentous spine without muscles buckles under body weight)",
+                None => "",
+            }
         );
     }
     println!("wrote {} files to {}", files.len(), dir.display());

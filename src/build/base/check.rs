@@ -55,6 +55,12 @@ pub struct Equilibrium {
     pub max_displacement: f64,
     /// The body that moved most.
     pub max_displacement_body: String,
+    /// Energy stability of this equilibrium (positive-definite tangent
+    /// stiffness), when the solver can tell. A ligamentous spine without
+    /// muscles carries far less than body weight before it buckles, so an
+    /// unstable equilibrium under gravity is expected physics, not a
+    /// defect of the model: this check is about the model's assembly.
+    pub stable: Option<bool>,
     /// Every coordinate at equilibrium.
     pub coordinates: std::collections::BTreeMap<String, f64>,
 }
@@ -94,6 +100,7 @@ pub fn equilibrium(model: &Model) -> Result<Equilibrium> {
         residual_norm: sol.residual_norm,
         max_displacement: best.0,
         max_displacement_body: best.1,
+        stable: sol.stable,
         coordinates,
     })
 }
