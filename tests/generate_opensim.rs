@@ -291,8 +291,11 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
         std::fs::write(&lm, landmarks_csv(&posed.markers, &x, &|_| true)).unwrap();
         std::fs::write(&ct, centres_csv(&posed.centres(), &x)).unwrap();
         std::fs::write(&cs, centres_csv(&posed.spheres, &x)).unwrap();
-        for method in ["lsq", "thesis"] {
-            let out = tmp.path().join(format!("gen{k}_{method}/patient.osim"));
+        // Smoothing must keep the noise-free acceptance (exact data: the
+        // posterior is the data).
+        for (method, smooth) in [("lsq", "off"), ("lsq+smooth", "auto"), ("thesis", "off")] {
+            let fit = method.trim_end_matches("+smooth");
+            let out = tmp.path().join(format!("gen{k}_{fit}_{smooth}/patient.osim"));
             let o = run(&[
                 "generate",
                 "--base",
@@ -302,10 +305,12 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
                 "--out",
                 out.to_str().unwrap(),
                 "--method",
-                method,
+                fit,
+                "--smooth",
+                smooth,
             ]);
             assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-            let ev = tmp.path().join(format!("ev{k}_{method}"));
+            let ev = tmp.path().join(format!("ev{k}_{fit}_{smooth}"));
             let o = run(&[
                 "evaluate",
                 "--model",
@@ -346,7 +351,7 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
             );
             assert_eq!(m["apex"], m["truth_apex"]);
             // The thesis's definition (wrap-sphere centres) agrees too.
-            let ev2 = tmp.path().join(format!("ev{k}_{method}_sphere"));
+            let ev2 = tmp.path().join(format!("ev{k}_{fit}_{smooth}_sphere"));
             let o = run(&[
                 "evaluate",
                 "--model",

@@ -192,9 +192,11 @@ pub struct SmoothingReport {
     pub applied: bool,
     /// Why not, or what was done.
     pub note: String,
-    /// REML estimate of the SD of the second differences of the
-    /// orientation sequence (deg per level^2).
-    pub tau_deg: Option<f64>,
+    /// REML estimates of the SD of the second differences of the
+    /// orientation sequence (deg per level^2), about the X (lateral
+    /// bending), Y (axial rotation) and Z (flexion) axes of the relative
+    /// rotations.
+    pub tau_deg: Option<[f64; 3]>,
     /// Effective number of orientation parameters kept (`tr(H^-1 W)`), and
     /// the number of parameters (3 per vertebra).
     pub effective_dof: Option<f64>,
@@ -736,11 +738,13 @@ fn smooth_fits(
         });
     }
     rep.applied = true;
-    rep.tau_deg = Some(s.tau.to_degrees());
+    rep.tau_deg = Some(std::array::from_fn(|a| s.tau[a].to_degrees()));
     rep.effective_dof = Some(s.effective_dof);
     rep.note = format!(
-        "posterior orientations (tau {:.2} deg, {:.1} of {} orientation parameters kept)",
-        s.tau.to_degrees(),
+        "posterior orientations (tau {:.2} / {:.2} / {:.2} deg per level^2 about X / Y / Z, {:.1} of {} orientation parameters kept)",
+        s.tau.x.to_degrees(),
+        s.tau.y.to_degrees(),
+        s.tau.z.to_degrees(),
         s.effective_dof,
         3 * chain.len()
     );
