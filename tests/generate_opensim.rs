@@ -295,7 +295,9 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
         // posterior is the data).
         for (method, smooth) in [("lsq", "off"), ("lsq+smooth", "auto"), ("thesis", "off")] {
             let fit = method.trim_end_matches("+smooth");
-            let out = tmp.path().join(format!("gen{k}_{fit}_{smooth}/patient.osim"));
+            let out = tmp
+                .path()
+                .join(format!("gen{k}_{fit}_{smooth}/patient.osim"));
             let o = run(&[
                 "generate",
                 "--base",
@@ -689,19 +691,17 @@ fn noise_study_table() {
                 ] {
                     let (rmse, rs, cobb, fl, fixed) =
                         one_run(&base_doc, &to_text(&noisy), &truth, method, smooth, ends);
-                    let s = stats
-                        .entry(name)
-                        .or_insert(Stats {
-                            rmse: vec![],
-                            rmse_sacral: vec![],
-                            cobb: vec![],
-                            cobb_fixed: vec![],
-                            flagged: 0,
-                            flagged_right: 0,
-                            displaced: 0,
-                            clean_flags: 0,
-                            clean_vertebrae: 0,
-                        });
+                    let s = stats.entry(name).or_insert(Stats {
+                        rmse: vec![],
+                        rmse_sacral: vec![],
+                        cobb: vec![],
+                        cobb_fixed: vec![],
+                        flagged: 0,
+                        flagged_right: 0,
+                        displaced: 0,
+                        clean_flags: 0,
+                        clean_vertebrae: 0,
+                    });
                     if name == "lsq" {
                         s.clean_flags += fl.len();
                         s.clean_vertebrae += 17;

@@ -57,8 +57,8 @@ use crate::osim::model::Model;
 use crate::osim::Document;
 use nalgebra::{Isometry3, Point3, Rotation3, UnitQuaternion, Vector3};
 pub use pose::Method;
-pub use smooth::Smooth;
 use pose::Points;
+pub use smooth::Smooth;
 use std::collections::BTreeMap;
 
 /// Options of [`generate`].
@@ -428,14 +428,7 @@ pub fn generate(
         )?;
         fits.insert(*l, f);
     }
-    let smoothing = smooth_fits(
-        &mut fits,
-        &vert_levels,
-        &patient,
-        &markers,
-        opts,
-        noise,
-    )?;
+    let smoothing = smooth_fits(&mut fits, &vert_levels, &patient, &markers, opts, noise)?;
 
     // ---- 3. scaling
     let mut doc = base.clone();
@@ -715,9 +708,12 @@ fn smooth_fits(
         return Ok(rep);
     };
     for (k, l) in chain.iter().enumerate() {
-        let (Some(f), Some(pts), Some(q), Some(pl)) =
-            (fits.get_mut(l), used.get(k), s.rotations.get(k), patient.get(l))
-        else {
+        let (Some(f), Some(pts), Some(q), Some(pl)) = (
+            fits.get_mut(l),
+            used.get(k),
+            s.rotations.get(k),
+            patient.get(l),
+        ) else {
             continue;
         };
         let n = pts.len().max(1) as f64;

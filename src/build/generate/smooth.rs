@@ -421,7 +421,9 @@ mod tests {
     /// A curved sequence of `n` rotations whose relative rotation
     /// `g_i` follows `g(i)`.
     fn sequence(n: usize, g: impl Fn(usize) -> Vector3<f64>) -> Vec<UnitQuaternion<f64>> {
-        let mut r = vec![UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -0.2, 0.5))];
+        let mut r = vec![UnitQuaternion::from_scaled_axis(Vector3::new(
+            0.3, -0.2, 0.5,
+        ))];
         for i in 0..n - 1 {
             let last = r[i];
             r.push(last * UnitQuaternion::from_scaled_axis(g(i)));
@@ -458,7 +460,9 @@ mod tests {
 
     #[test]
     fn exact_data_are_kept() {
-        let r = sequence(17, |i| Vector3::new(0.15 * (i as f64 * 0.4).sin(), 0.05, 0.02));
+        let r = sequence(17, |i| {
+            Vector3::new(0.15 * (i as f64 * 0.4).sin(), 0.05, 0.02)
+        });
         let info = vec![vertebra_info(); 17];
         assert!(smooth_orientations(&r, &info, 0.0).unwrap().is_none());
         // A noise estimate of a noise-free set (round-off): posterior = data.
@@ -507,7 +511,10 @@ mod tests {
         }
         ratios.sort_by(|a, b| a.total_cmp(b));
         let med = 0.5 * (ratios[9] + ratios[10]);
-        assert!((0.5..2.0).contains(&med), "median tau/tau_true {med}: {ratios:?}");
+        assert!(
+            (0.5..2.0).contains(&med),
+            "median tau/tau_true {med}: {ratios:?}"
+        );
         assert!(
             post_err < 0.8 * raw_err,
             "posterior error {post_err} vs raw {raw_err}"
