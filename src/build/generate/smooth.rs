@@ -42,7 +42,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Point3, UnitQuaternion, Vector3};
 /// Fewest vertebrae in the chain for smoothing (a second difference needs
 /// three, its variance estimate a few of them).
 pub const MIN_LEVELS: usize = 4;
-/// Search range of tau (rad): 0.001 to 60 deg of change of the relative
+/// Search range of tau (rad): 0.0006 to 57 deg of change of the relative
 /// rotation per level.
 pub const TAU_RANGE: [f64; 2] = [1e-5, 1.0];
 /// One tau per axis of the relative rotations (else one for all three).
@@ -310,7 +310,7 @@ pub fn smooth_orientations(
             format!("{n} rotations but {} information matrices", info.len()),
         ));
     }
-    if n < MIN_LEVELS || !(sigma > 0.0) || !sigma.is_finite() {
+    if n < MIN_LEVELS || !sigma.is_finite() || sigma <= 0.0 {
         return Ok(None);
     }
     let mut w = DMatrix::zeros(3 * n, 3 * n);
