@@ -533,3 +533,69 @@ fn evaluate_measures_a_known_offset() {
     assert!(l5.centre_rmse_mm < 1e-9);
     let _ = Path::new(".");
 }
+
+/// `--smooth auto` on the README example (noisy landmarks, one planted
+/// outlier): the report states tau per axis, the effective smoothing and
+/// per-level posterior SDs no larger than the fits' SDs; the output is
+/// deterministic; a bad mode is refused without output.
+#[test]
+fn smoothing_is_reported_and_deterministic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut reports = Vec::new();
+    for k in 0..2 {
+        let out = tmp.path().join(format!("s{k}/patient.osim"));
+        let o = run(&[
+            "generate",
+            "--landmarks",
+            "fixtures/example-scoliosis.csv",
+            "--out",
+            out.to_str().unwrap(),
+            "--smooth",
+            "auto",
+            "--no-self-check",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+        assert!(
+            stdout.contains("orientation smoothing: posterior"),
+            "{stdout}"
+        );
+        reports.push(std::fs::read(tmp.path().join(format!("s{k}/patient_report.json"))).unwrap());
+    }
+    assert_eq!(reports[0], reports[1], "report not deterministic");
+    let r: serde_json::Value = serde_json::from_slice(&reports[0]).unwrap();
+    let s = &r["smoothing"];
+    assert_eq!(s["applied"], true);
+    let levels = s["levels"].as_array().unwrap();
+    let n = r["levels_from_landmarks"].as_array().unwrap().len();
+    assert_eq!(levels.len(), n);
+    assert_eq!(s["parameters"].as_u64().unwrap() as usize, 3 * n);
+    let tau = s["tau_deg"].as_array().unwrap();
+    assert_eq!(tau.len(), 3);
+    assert!(tau.iter().all(|t| t.as_f64().unwrap() > 0.0));
+    let edf = s["effective_dof"].as_f64().unwrap();
+    assert!(edf > 0.0 && edf < 3.0 * n as f64, "{edf}");
+    for l in levels {
+        for a in 0..3 {
+            let (fit, post) = (
+                l["fit_sd_deg"][a].as_f64().unwrap(),
+                l["posterior_sd_deg"][a].as_f64().unwrap(),
+            );
+            assert!(post > 0.0 && post <= fit * (1.0 + 1e-9), "{l}");
+        }
+    }
+    // Bad mode: clear error, nothing written.
+    let out = tmp.path().join("bad/patient.osim");
+    let o = run(&[
+        "generate",
+        "--landmarks",
+        "fixtures/example-scoliosis.csv",
+        "--out",
+        out.to_str().unwrap(),
+        "--smooth",
+        "maybe",
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--smooth"));
+    assert!(!tmp.path().join("bad").exists());
+}

@@ -34,6 +34,10 @@ pub struct Args {
     /// thesis (ISB frames from the 6 joint landmarks).
     #[arg(long, default_value = "lsq")]
     pub method: String,
+    /// Orientation smoothing along the spine: auto (empirical-Bayes
+    /// spinal-continuity posterior, lsq only) or off (independent fits).
+    #[arg(long, default_value = "off")]
+    pub smooth: String,
     /// Skip the self-check (bushings, muscles through bone, equilibrium).
     #[arg(long)]
     pub no_self_check: bool,
@@ -76,6 +80,7 @@ pub fn base_file(base: &Path) -> crate::Result<PathBuf> {
 /// Run `generate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let method: Method = args.method.parse()?;
+    let smooth: crate::build::generate::Smooth = args.smooth.parse()?;
     if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
@@ -123,6 +128,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     };
     let opts = GenerateOptions {
         method,
+        smooth,
         self_check: !args.no_self_check,
         views: true,
         ..GenerateOptions::default()
@@ -178,6 +184,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     } else {
         println!("outlier landmarks (rejected): {}", r.outliers.join(", "));
     }
+    println!("orientation smoothing: {}", r.smoothing.note);
     if let Some(sc) = &r.self_check {
         println!(
             "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {:.1} mm ({}){}",

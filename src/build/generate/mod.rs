@@ -43,6 +43,7 @@
 pub mod example;
 pub mod pose;
 pub mod scale;
+pub mod smooth;
 pub mod wraps;
 
 use crate::build::base::kin::Kinematics;
@@ -57,6 +58,7 @@ use crate::osim::Document;
 use nalgebra::{Isometry3, Point3, Rotation3, UnitQuaternion, Vector3};
 pub use pose::Method;
 use pose::Points;
+pub use smooth::Smooth;
 use std::collections::BTreeMap;
 
 /// Options of [`generate`].
@@ -70,6 +72,9 @@ pub struct GenerateOptions {
     /// Outlier threshold of the lsq method in noise SDs
     /// ([`pose::OUTLIER_SIGMAS`] by default).
     pub outlier_sigmas: f64,
+    /// Spinal-continuity smoothing of the vertebral orientations
+    /// ([`smooth`]; lsq only).
+    pub smooth: Smooth,
 }
 
 impl Default for GenerateOptions {
@@ -79,6 +84,7 @@ impl Default for GenerateOptions {
             self_check: true,
             views: true,
             outlier_sigmas: pose::OUTLIER_SIGMAS,
+            smooth: Smooth::Off,
         }
     }
 }
@@ -165,6 +171,8 @@ pub struct GenerateReport {
     pub noise_sd_mm: Option<f64>,
     /// Outliers flagged (`<LEVEL>_<CODE> (error mm)`).
     pub outliers: Vec<String>,
+    /// Spinal-continuity smoothing of the orientations ([`smooth`]).
+    pub smoothing: SmoothingReport,
     /// RMS of all landmark-to-marker residuals (mm), outliers excluded.
     pub landmark_rms_mm: f64,
     pub joints_rewritten: Vec<String>,
@@ -174,6 +182,39 @@ pub struct GenerateReport {
     /// ground at the default pose (m).
     pub centres: BTreeMap<String, [f64; 3]>,
     pub self_check: Option<crate::build::base::check::SelfCheck>,
+}
+
+/// What the orientation smoothing did ([`smooth`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SmoothingReport {
+    pub mode: Smooth,
+    /// Whether the posterior orientations replaced the fitted ones.
+    pub applied: bool,
+    /// Why not, or what was done.
+    pub note: String,
+    /// REML estimates of the SD of the second differences of the
+    /// orientation sequence (deg per level^2), about the X (lateral
+    /// bending), Y (axial rotation) and Z (flexion) axes of the relative
+    /// rotations.
+    pub tau_deg: Option<[f64; 3]>,
+    /// Effective number of orientation parameters kept (`tr(H^-1 W)`), and
+    /// the number of parameters (3 per vertebra).
+    pub effective_dof: Option<f64>,
+    pub parameters: usize,
+    /// Per level, cranial to caudal.
+    pub levels: Vec<SmoothingLevel>,
+}
+
+/// One vertebra of [`SmoothingReport`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SmoothingLevel {
+    pub level: String,
+    /// SD of the fitted orientation (deg) about the ground X, Y, Z axes.
+    pub fit_sd_deg: [f64; 3],
+    /// Posterior SD (deg) about the ground X, Y, Z axes.
+    pub posterior_sd_deg: [f64; 3],
+    /// Angle between the fitted and the posterior orientation (deg).
+    pub correction_deg: f64,
 }
 
 /// A generated model, not yet written.
@@ -387,6 +428,7 @@ pub fn generate(
         )?;
         fits.insert(*l, f);
     }
+    let smoothing = smooth_fits(&mut fits, &vert_levels, &patient, &markers, opts, noise)?;
 
     // ---- 3. scaling
     let mut doc = base.clone();
@@ -588,6 +630,7 @@ pub fn generate(
         vertebrae: rows,
         noise_sd_mm: noise.map(|n| n * 1e3),
         outliers,
+        smoothing,
         landmark_rms_mm: landmark_rms * 1e3,
         joints_rewritten: rewritten,
         scaling,
@@ -599,6 +642,109 @@ pub fn generate(
         self_check,
     };
     Ok(Generated { doc, report, views })
+}
+
+/// Replace the fitted orientations by their spinal-continuity posterior
+/// ([`smooth::smooth_orientations`]) when `opts.smooth` asks for it: each
+/// vertebra turns about the centroid of its used landmarks' markers (its
+/// least-squares position is kept) and its residuals are recomputed.
+fn smooth_fits(
+    fits: &mut BTreeMap<Level, pose::VertebraFit>,
+    chain: &[Level],
+    patient: &BTreeMap<Level, Points>,
+    markers: &BTreeMap<Level, (String, Points)>,
+    opts: &GenerateOptions,
+    noise: Option<f64>,
+) -> Result<SmoothingReport> {
+    let mut rep = SmoothingReport {
+        mode: opts.smooth,
+        applied: false,
+        note: String::new(),
+        tau_deg: None,
+        effective_dof: None,
+        parameters: 3 * chain.len(),
+        levels: Vec::new(),
+    };
+    if opts.smooth == Smooth::Off {
+        rep.note = "off".into();
+        return Ok(rep);
+    }
+    if opts.method != Method::Lsq {
+        rep.note = "not applied: smoothing needs the lsq fit's covariance (--method lsq)".into();
+        return Ok(rep);
+    }
+    // Scaled markers of the used landmarks (body frame) per chain vertebra.
+    let mut used: Vec<Vec<(Code, Point3<f64>)>> = Vec::new();
+    let mut rots = Vec::new();
+    let mut info = Vec::new();
+    for l in chain {
+        let (Some(f), Some((_, m))) = (fits.get(l), markers.get(l)) else {
+            return Err(Error::invalid(
+                format!("vertebra {l}"),
+                "no fit or base-model markers to smooth",
+            ));
+        };
+        let pts: Vec<(Code, Point3<f64>)> = f
+            .residuals
+            .keys()
+            .filter_map(|c| Some((*c, pose::scale_point(m.get(c)?, &f.scale))))
+            .collect();
+        let posed: Vec<Point3<f64>> = pts.iter().map(|(_, p)| f.pose * p).collect();
+        info.push(smooth::rotation_information(&posed));
+        rots.push(f.pose.rotation);
+        used.push(pts);
+    }
+    let sigma = noise.unwrap_or(0.0);
+    let Some(s) = smooth::smooth_orientations(&rots, &info, sigma)? else {
+        rep.note = if chain.len() < smooth::MIN_LEVELS {
+            format!(
+                "not applied: {} vertebrae (at least {} needed)",
+                chain.len(),
+                smooth::MIN_LEVELS
+            )
+        } else {
+            "not applied: no landmark noise (the fits are exact)".into()
+        };
+        return Ok(rep);
+    };
+    for (k, l) in chain.iter().enumerate() {
+        let (Some(f), Some(pts), Some(q), Some(pl)) = (
+            fits.get_mut(l),
+            used.get(k),
+            s.rotations.get(k),
+            patient.get(l),
+        ) else {
+            continue;
+        };
+        let n = pts.len().max(1) as f64;
+        let mbar = Point3::from(pts.iter().fold(Vector3::zeros(), |a, (_, p)| a + p.coords) / n);
+        let c = f.pose * mbar;
+        let t = c.coords - q * mbar.coords;
+        let before = f.pose.rotation;
+        f.pose = Isometry3::from_parts(t.into(), *q);
+        f.residuals = pts
+            .iter()
+            .filter_map(|(code, p)| Some((*code, (pl.get(code)? - f.pose * p).norm())))
+            .collect();
+        rep.levels.push(SmoothingLevel {
+            level: l.to_string(),
+            fit_sd_deg: s.raw_sd[k].map(f64::to_degrees),
+            posterior_sd_deg: s.posterior_sd[k].map(f64::to_degrees),
+            correction_deg: before.angle_to(q).to_degrees(),
+        });
+    }
+    rep.applied = true;
+    rep.tau_deg = Some(std::array::from_fn(|a| s.tau[a].to_degrees()));
+    rep.effective_dof = Some(s.effective_dof);
+    rep.note = format!(
+        "posterior orientations (tau {:.2} / {:.2} / {:.2} deg per level^2 about X / Y / Z, {:.1} of {} orientation parameters kept)",
+        s.tau.x.to_degrees(),
+        s.tau.y.to_degrees(),
+        s.tau.z.to_degrees(),
+        s.effective_dof,
+        3 * chain.len()
+    );
+    Ok(rep)
 }
 
 /// The merged, scaled meshes of a body (None when it has none).
