@@ -193,26 +193,27 @@ impl SystemSpec {
             .map(|(i, b)| (b.name.as_str(), i))
             .collect();
         let mut bushings = Vec::new();
+        // A bushing's frame: the body it is fixed to (None = ground) and the
+        // frame's transform in that body.
+        let frame = |name: &str, ctx: &str, socket: &str| -> Result<FrameSpec> {
+            let (bn, x) = model.resolve_frame(&format!("/forceset/{name}"), socket)?;
+            let body = if bn == "ground" {
+                None
+            } else {
+                Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
+                    Error::invalid(ctx.to_string(), format!("body '{bn}' not found"))
+                })?)
+            };
+            Ok(FrameSpec { body, transform: x })
+        };
         for f in &model.forces {
             match f {
                 Force::Bushing(b) => {
-                    let owner = format!("/forceset/{}", b.name);
                     let ctx = format!("{file}: BushingForce '{}'", b.name);
-                    let frame = |socket: &str| -> Result<FrameSpec> {
-                        let (bn, x) = model.resolve_frame(&owner, socket)?;
-                        let body = if bn == "ground" {
-                            None
-                        } else {
-                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
-                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
-                            })?)
-                        };
-                        Ok(FrameSpec { body, transform: x })
-                    };
                     bushings.push(BushingSpec {
                         name: b.name.clone(),
-                        frame1: frame(&b.socket_frame1)?,
-                        frame2: frame(&b.socket_frame2)?,
+                        frame1: frame(&b.name, &ctx, &b.socket_frame1)?,
+                        frame2: frame(&b.name, &ctx, &b.socket_frame2)?,
                         model: BushingModel::Linear {
                             rot_stiffness: b.rotational_stiffness,
                             trans_stiffness: b.translational_stiffness,
@@ -222,23 +223,11 @@ impl SystemSpec {
                     });
                 }
                 Force::OtherBushing(b) => {
-                    let owner = format!("/forceset/{}", b.name);
                     let ctx = format!("{file}: {} '{}'", b.class, b.name);
-                    let frame = |socket: &str| -> Result<FrameSpec> {
-                        let (bn, x) = model.resolve_frame(&owner, socket)?;
-                        let body = if bn == "ground" {
-                            None
-                        } else {
-                            Some(*body_idx.get(bn.as_str()).ok_or_else(|| {
-                                Error::invalid(ctx.clone(), format!("body '{bn}' not found"))
-                            })?)
-                        };
-                        Ok(FrameSpec { body, transform: x })
-                    };
                     bushings.push(BushingSpec {
                         name: b.name.clone(),
-                        frame1: frame(&b.socket_frame1)?,
-                        frame2: frame(&b.socket_frame2)?,
+                        frame1: frame(&b.name, &ctx, &b.socket_frame1)?,
+                        frame2: frame(&b.name, &ctx, &b.socket_frame2)?,
                         model: other_bushing_model(b, &ctx)?,
                     });
                 }

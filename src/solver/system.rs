@@ -10,7 +10,8 @@ use super::spec::{
     BushingModel, CoordinateSpec, FrameSpec, Function, JointKind, SystemSpec, TransformAxis,
 };
 use crate::error::{Error, Result};
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Vector3};
+use nalgebra::storage::{Storage, StorageMut};
+use nalgebra::{DMatrix, DVector, Dim, Isometry3, Matrix, Matrix3, Vector3};
 use num_dual::Dual64;
 
 /// A rigid transform as rotation matrix + translation, generic scalar.
@@ -686,64 +687,87 @@ impl DenseLu {
         let n = self.a.nrows();
         let scale = self.a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let tiny = scale * 1e-15 * (n.max(1) as f64);
-        for k in 0..n {
-            let mut p = k;
-            let mut best = self.a[(k, k)].abs();
-            for i in k + 1..n {
-                let v = self.a[(i, k)].abs();
-                if v > best {
-                    best = v;
-                    p = i;
-                }
-            }
-            self.piv[k] = p;
-            if !(best > tiny) || !best.is_finite() {
-                self.ok = false;
-                return false;
-            }
-            if p != k {
-                self.a.swap_rows(p, k);
-            }
-            let d = self.a[(k, k)];
-            for i in k + 1..n {
-                self.a[(i, k)] /= d;
-            }
-            for j in k + 1..n {
-                let akj = self.a[(k, j)];
-                if akj != 0.0 {
-                    for i in k + 1..n {
-                        let l = self.a[(i, k)];
-                        self.a[(i, j)] -= l * akj;
-                    }
-                }
-            }
-        }
-        self.ok = true;
-        true
+        self.ok = lu_factor(&mut self.a, &mut self.piv, n, tiny);
+        self.ok
     }
     /// Solve A x = b in place (after a successful `factor`).
     pub fn solve_in_place(&self, b: &mut [f64]) {
-        let n = self.a.nrows();
-        for k in 0..n {
-            let p = self.piv[k];
-            if p != k {
-                b.swap(p, k);
+        lu_solve(&self.a, &self.piv, self.a.nrows(), b);
+    }
+}
+
+/// Partial-pivoting LU of the leading `n x n` block of `a`, in place (unit
+/// lower factor below the diagonal, upper factor on and above it; row
+/// swaps in `piv`). False when a pivot is not finite or at most `tiny`.
+/// Shared by the dense tangent ([`DenseLu`]) and the 6x6 joint blocks of
+/// the structured factorisation.
+pub(crate) fn lu_factor<R: Dim, C: Dim, S: StorageMut<f64, R, C>>(
+    a: &mut Matrix<f64, R, C, S>,
+    piv: &mut [usize],
+    n: usize,
+    tiny: f64,
+) -> bool {
+    for k in 0..n {
+        let mut p = k;
+        let mut best = a[(k, k)].abs();
+        for i in k + 1..n {
+            let v = a[(i, k)].abs();
+            if v > best {
+                best = v;
+                p = i;
             }
         }
-        for j in 0..n {
-            let bj = b[j];
-            if bj != 0.0 {
-                for i in j + 1..n {
-                    b[i] -= self.a[(i, j)] * bj;
+        piv[k] = p;
+        if !best.is_finite() || best <= tiny {
+            return false;
+        }
+        if p != k {
+            a.swap_rows(p, k);
+        }
+        let d = a[(k, k)];
+        for i in k + 1..n {
+            a[(i, k)] /= d;
+        }
+        for j in k + 1..n {
+            let akj = a[(k, j)];
+            if akj != 0.0 {
+                for i in k + 1..n {
+                    let l = a[(i, k)];
+                    a[(i, j)] -= l * akj;
                 }
             }
         }
-        for j in (0..n).rev() {
-            b[j] /= self.a[(j, j)];
-            let bj = b[j];
-            for i in 0..j {
-                b[i] -= self.a[(i, j)] * bj;
+    }
+    true
+}
+
+/// Solve `A x = b` for the leading `n` entries of `b` in place, with the
+/// factors of [`lu_factor`] (entries past `n` are left as given).
+pub(crate) fn lu_solve<R: Dim, C: Dim, S: Storage<f64, R, C>>(
+    a: &Matrix<f64, R, C, S>,
+    piv: &[usize],
+    n: usize,
+    b: &mut [f64],
+) {
+    for k in 0..n {
+        let p = piv[k];
+        if p != k {
+            b.swap(p, k);
+        }
+    }
+    for j in 0..n {
+        let bj = b[j];
+        if bj != 0.0 {
+            for i in j + 1..n {
+                b[i] -= a[(i, j)] * bj;
             }
+        }
+    }
+    for j in (0..n).rev() {
+        b[j] /= a[(j, j)];
+        let bj = b[j];
+        for i in 0..j {
+            b[i] -= a[(i, j)] * bj;
         }
     }
 }

@@ -54,7 +54,7 @@
 use super::forces::{self, GimbalLock, LoadSet, Resolved};
 use super::kinematics;
 use super::scalar::{d6_eps, d6_var, D6};
-use super::system::{KinBuf, Pose, System};
+use super::system::{lu_factor, lu_solve, KinBuf, Pose, System};
 use nalgebra::{Matrix3, Matrix6, SVector, Vector3, Vector6};
 use num_dual::Derivative;
 
@@ -99,68 +99,15 @@ impl Lu6 {
                 scale = scale.max(a[(i, j)].abs());
             }
         }
-        let tiny = scale * 1e-13;
         let mut piv = [0, 1, 2, 3, 4, 5];
-        for k in 0..n {
-            let mut p = k;
-            let mut best = a[(k, k)].abs();
-            for i in k + 1..n {
-                let v = a[(i, k)].abs();
-                if v > best {
-                    best = v;
-                    p = i;
-                }
-            }
-            if !best.is_finite() || best <= tiny {
-                return None;
-            }
-            piv[k] = p;
-            if p != k {
-                a.swap_rows(p, k);
-            }
-            let d = a[(k, k)];
-            for i in k + 1..n {
-                a[(i, k)] /= d;
-            }
-            for j in k + 1..n {
-                let akj = a[(k, j)];
-                if akj != 0.0 {
-                    for i in k + 1..n {
-                        let l = a[(i, k)];
-                        a[(i, j)] -= l * akj;
-                    }
-                }
-            }
-        }
-        Some(Lu6 { a, piv, n })
+        lu_factor(&mut a, &mut piv, n, scale * 1e-13).then_some(Lu6 { a, piv, n })
     }
 
     /// Solve `D x = b` for the leading `n` entries (the rest stay as given:
     /// zero in, zero out).
     #[inline]
     fn solve(&self, b: &mut Vector6<f64>) {
-        let n = self.n;
-        for k in 0..n {
-            let p = self.piv[k];
-            if p != k {
-                b.swap_rows(p, k);
-            }
-        }
-        for j in 0..n {
-            let bj = b[j];
-            if bj != 0.0 {
-                for i in j + 1..n {
-                    b[i] -= self.a[(i, j)] * bj;
-                }
-            }
-        }
-        for j in (0..n).rev() {
-            b[j] /= self.a[(j, j)];
-            let bj = b[j];
-            for i in 0..j {
-                b[i] -= self.a[(i, j)] * bj;
-            }
-        }
+        lu_solve(&self.a, &self.piv, self.n, b.as_mut_slice());
     }
 }
 
