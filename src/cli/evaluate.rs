@@ -5,7 +5,8 @@
 //! `DIR/curves_{frontal,sagittal}.svg` (Fig. 5.7), atomically, after
 //! everything is computed.
 
-use crate::evaluate::{evaluate, load_model, load_truth, parse_cobb_ends, Align, CentreDef};
+use crate::evaluate::{evaluate, load_model, load_truth, parse_cobb_ends, Align, CentreDef, Truth};
+use crate::landmarks::Level;
 use std::path::PathBuf;
 
 /// Arguments of `evaluate`.
@@ -18,7 +19,19 @@ pub struct Args {
     /// folder of vertebral-body meshes `<LEVEL>*.stl|obj|vtp|ply`.
     #[arg(long, value_name = "CENTRES.csv|MESH_DIR")]
     pub truth: PathBuf,
-    /// Truth landmark set, for the truth's Cobb angle, apex and lordosis.
+    #[command(flatten)]
+    pub metrics: MetricArgs,
+    /// Output folder.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+/// How models are compared with a reference (shared by `evaluate` and
+/// `variability`).
+#[derive(Debug, clap::Args)]
+pub struct MetricArgs {
+    /// Truth landmark set, for the truth's Cobb angle, apex and lordosis
+    /// (and, in `variability`, the Cobb end vertebrae of every model).
     #[arg(long, value_name = "FILE")]
     pub truth_landmarks: Option<PathBuf>,
     /// Units of truth meshes (mm or m).
@@ -27,7 +40,7 @@ pub struct Args {
     /// Frame of truth meshes (LPS, RAS, opensim).
     #[arg(long, value_name = "FRAME")]
     pub truth_frame: Option<String>,
-    /// Superimposition of the truth on each model after the sacral
+    /// Superimposition of the reference on each model after the sacral
     /// registration: rigid (shape error), l5 (thesis), sacrum (none).
     #[arg(long, value_enum, default_value = "rigid")]
     pub align: Align,
@@ -36,29 +49,40 @@ pub struct Args {
     /// sphere fit, the thesis's definition).
     #[arg(long, value_enum, default_value = "endplates")]
     pub centre: CentreDef,
-    /// End vertebrae of the main curve, `UPPER,LOWER` (default: automatic).
+    /// End vertebrae of the main curve, `UPPER,LOWER` (default: automatic;
+    /// `variability`: the reference's automatic ends, for every model).
     #[arg(long, value_name = "UPPER,LOWER")]
     pub cobb_ends: Option<String>,
-    /// Output folder.
-    #[arg(long, value_name = "DIR")]
-    pub out: PathBuf,
+}
+
+impl MetricArgs {
+    /// The truth at `path` read with these options.
+    pub fn load_truth(&self, path: &std::path::Path) -> crate::error::Result<Truth> {
+        load_truth(
+            path,
+            self.truth_units.as_deref(),
+            self.truth_frame.as_deref(),
+            self.truth_landmarks.as_deref(),
+            self.centre,
+        )
+    }
+
+    /// `--cobb-ends`, parsed.
+    pub fn cobb_ends(&self) -> crate::error::Result<Option<(Level, Level)>> {
+        self.cobb_ends.as_deref().map(parse_cobb_ends).transpose()
+    }
 }
 
 /// Run `evaluate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
-    let ends = args.cobb_ends.as_deref().map(parse_cobb_ends).transpose()?;
-    let truth = load_truth(
-        &args.truth,
-        args.truth_units.as_deref(),
-        args.truth_frame.as_deref(),
-        args.truth_landmarks.as_deref(),
-        args.centre,
-    )?;
+    let opts = &args.metrics;
+    let ends = opts.cobb_ends()?;
+    let truth = opts.load_truth(&args.truth)?;
     let mut models = Vec::new();
     for m in &args.model {
-        models.push(load_model(m, args.centre)?);
+        models.push(load_model(m, opts.centre)?);
     }
-    let (report, figures) = evaluate(&models, &truth, args.align, ends, args.centre)?;
+    let (report, figures) = evaluate(&models, &truth, opts.align, ends, opts.centre)?;
     let mut files: Vec<(PathBuf, Vec<u8>)> = vec![(
         args.out.join("evaluation.json"),
         serde_json::to_string_pretty(&report)?.into_bytes(),

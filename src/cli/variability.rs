@@ -10,7 +10,6 @@
 
 use crate::build::generate::Method;
 use crate::evaluate::propagation::PropagationOptions;
-use crate::evaluate::{load_truth, parse_cobb_ends, Align, CentreDef};
 use crate::landmarks::variability;
 use crate::osim::Document;
 use anyhow::Context;
@@ -47,25 +46,8 @@ pub struct Args {
         conflicts_with = "no_models"
     )]
     pub truth: Option<PathBuf>,
-    /// Truth landmark set (truth Cobb angle, apex, lordosis; Cobb ends).
-    #[arg(long, value_name = "FILE")]
-    pub truth_landmarks: Option<PathBuf>,
-    /// Units of truth meshes (mm or m).
-    #[arg(long, value_name = "mm|m")]
-    pub truth_units: Option<String>,
-    /// Frame of truth meshes (LPS, RAS, opensim).
-    #[arg(long, value_name = "FRAME")]
-    pub truth_frame: Option<String>,
-    /// Superimposition of the reference on each model: rigid, l5 (thesis), sacrum.
-    #[arg(long, value_enum, default_value = "rigid")]
-    pub align: Align,
-    /// Vertebral centre: endplates or sphere (thesis).
-    #[arg(long, value_enum, default_value = "endplates")]
-    pub centre: CentreDef,
-    /// Cobb end vertebrae `UPPER,LOWER` for every model (default: the
-    /// reference's automatic ends).
-    #[arg(long, value_name = "UPPER,LOWER")]
-    pub cobb_ends: Option<String>,
+    #[command(flatten)]
+    pub metrics: super::evaluate::MetricArgs,
     /// Worker threads for the models (default: all cores).
     #[arg(long, value_name = "N")]
     pub jobs: Option<usize>,
@@ -108,16 +90,10 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
     } else {
         let method: Method = args.method.parse()?;
         let truth = match &args.truth {
-            Some(t) => Some(load_truth(
-                t,
-                args.truth_units.as_deref(),
-                args.truth_frame.as_deref(),
-                args.truth_landmarks.as_deref(),
-                args.centre,
-            )?),
+            Some(t) => Some(args.metrics.load_truth(t)?),
             None => None,
         };
-        let cobb_ends = args.cobb_ends.as_deref().map(parse_cobb_ends).transpose()?;
+        let cobb_ends = args.metrics.cobb_ends()?;
         let bp = super::generate::base_file(&args.base).with_context(|| {
             format!(
                 "base model for the per-palpation models (--base {}; --no-models skips them)",
@@ -131,8 +107,8 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
             PropagationOptions {
                 method,
                 truth,
-                align: args.align,
-                centre: args.centre,
+                align: args.metrics.align,
+                centre: args.metrics.centre,
                 cobb_ends,
                 progress: true,
                 keep_models: args.write_models,
