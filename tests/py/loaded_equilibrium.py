@@ -24,6 +24,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 import opensim as osim
+from moment_loading import MomentModel, newton
 
 osim.Logger.setLevelString("error")
 
@@ -31,94 +32,43 @@ osim.Logger.setLevelString("error")
 def main():
     model_path, cases_path = sys.argv[1], sys.argv[2]
     spec = json.load(open(cases_path))
-    model = osim.Model(model_path)
-    fs = model.getForceSet()
-    for i in range(fs.getSize()):
-        if "Bushing" not in fs.get(i).getConcreteClassName():
-            fs.get(i).set_appliesForce(False)  # muscles: not modelled by the tool
-    top = model.getBodySet().get(spec["body"])
-    pfs = []
-    for axis in range(3):
-        pf = osim.PrescribedForce(f"load_{axis}", top)
-        pf.setForceIsInGlobalFrame(True)
-        fns = []
-        for k in range(3):
-            # torque = t * e_axis, evaluated at time t = the moment component
-            f = osim.LinearFunction(1.0, 0.0) if k == axis else osim.Constant(0.0)
-            f.thisown = False
-            fns.append(f)
-        pf.setTorqueFunctions(*fns)
-        model.addForce(pf)
-        pfs.append(pf)
-    s = model.initSystem()
-    cs = model.getCoordinateSet()
-    names = [cs.get(i).getName() for i in range(cs.getSize())]
-    free = [n for n in names if not cs.get(n).getDefaultLocked()]
-    ids = osim.InverseDynamicsSolver(model)
-    nu = s.getNU()
-    zero = osim.Vector(nu, 0.0)
-    s.setU(zero)
-    coords = [cs.get(n) for n in free]
+    mm = MomentModel(model_path, spec["body"], gravity_off=False)
+    s, pfs = mm.s, mm.pfs
     out = []
     for case in spec["cases"]:
         m = case["moment"]
 
         def resid(qv):
-            r = np.zeros(nu)
-            # one moment component at a time (time carries its magnitude)
-            for c, v in zip(coords, qv):
-                c.setValue(s, float(v), False)
-            for axis, pf in enumerate(pfs):
+            # gravity and bushings, then one moment component at a time
+            # (time carries its magnitude)
+            mm.set_q(qv)
+            for pf in pfs:
                 pf.setAppliesForce(s, False)
             s.setTime(0.0)
-            model.realizeDynamics(s)
-            tau = ids.solve(s, zero)
-            base = np.array([tau.get(i) for i in range(nu)])
-            r += base
-            for axis, pf in enumerate(pfs):
+            base = mm.tau()
+            r = base.copy()
+            for axis in range(3):
                 if m[axis] == 0.0:
                     continue
                 for k, p in enumerate(pfs):
                     p.setAppliesForce(s, k == axis)
                 s.setTime(float(m[axis]))
-                model.realizeDynamics(s)
-                tau = ids.solve(s, zero)
-                r += np.array([tau.get(i) for i in range(nu)]) - base
+                r += mm.tau() - base
             return r
 
         def jac(q):
-            h = 1e-7
-            J = np.empty((nu, len(free)))
-            for k in range(len(free)):
-                dq = np.zeros(len(free))
-                dq[k] = h
-                J[:, k] = (resid(q + dq) - resid(q - dq)) / (2 * h)
-            return J
+            return mm.jacobian(resid, q)
 
-        q0 = np.array([case["q"][n] for n in free])
-        q = q0.copy()
-        r = resid(q)
+        q0 = np.array([case["q"][n] for n in mm.free])
+        r = resid(q0)
         r0 = float(np.abs(r).max())
-        J0 = jac(q)
+        J0 = jac(q0)
         # OpenSim's ID residual is M udot - applied = -applied: J0 = -d tau/d q
         # of the tool's convention, so the stiffness is K = J0 here.
         K = 0.5 * (J0 + J0.T)
         asym = float(np.abs(J0 - J0.T).max() / np.abs(J0).max())
         min_eig = float(np.linalg.eigvalsh(K).min())
-        it = 0
-        J = J0
-        while it == 0 or (np.abs(r).max() > 1e-10 and it < 4):
-            if it > 0:
-                J = jac(q)
-            step = np.linalg.solve(J, -r)
-            q_new = q + step
-            r_new = resid(q_new)
-            it += 1
-            stalled = np.abs(r_new).max() > 0.5 * np.abs(r).max()
-            if not stalled or it == 1:
-                q, r = q_new, r_new
-            if stalled:
-                break
+        q, r, it = newton(resid, jac, q0.copy(), r, J0)
         out.append(dict(
             moment=m,
             residual_at_tool_q=r0,
@@ -129,7 +79,7 @@ def main():
             jacobian_asymmetry=asym,
             min_stiffness_eigenvalue=min_eig,
         ))
-    print(json.dumps(dict(n_free=len(free), cases=out)))
+    print(json.dumps(dict(n_free=len(mm.free), cases=out)))
 
 
 if __name__ == "__main__":

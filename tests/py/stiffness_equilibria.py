@@ -29,6 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 import opensim as osim
+from moment_loading import MomentModel, newton
 
 osim.Logger.setLevelString("error")
 
@@ -36,71 +37,24 @@ osim.Logger.setLevelString("error")
 def main():
     model_path, cases_path = sys.argv[1], sys.argv[2]
     spec = json.load(open(cases_path))
-    model = osim.Model(model_path)
-    model.setGravity(osim.Vec3(0, 0, 0))
-    fs = model.getForceSet()
-    for i in range(fs.getSize()):
-        if "Bushing" not in fs.get(i).getConcreteClassName():
-            fs.get(i).set_appliesForce(False)  # e.g. muscles: not modelled by the tool
-    top = model.getBodySet().get(spec["body"])
-    pfs = []
-    for axis in range(3):
-        pf = osim.PrescribedForce(f"load_{axis}", top)
-        pf.setForceIsInGlobalFrame(True)
-        fns = []
-        for k in range(3):
-            f = osim.LinearFunction(1.0, 0.0) if k == axis else osim.Constant(0.0)
-            f.thisown = False
-            fns.append(f)
-        pf.setTorqueFunctions(*fns)
-        model.addForce(pf)
-        pfs.append(pf)
-    s = model.initSystem()
-    cs = model.getCoordinateSet()
-    names = [cs.get(i).getName() for i in range(cs.getSize())]
-    free = [n for n in names if not cs.get(n).getDefaultLocked()]
-    ids = osim.InverseDynamicsSolver(model)
-    nu = s.getNU()
-    zero = osim.Vector(nu, 0.0)
-    s.setU(zero)
-    coords = [cs.get(n) for n in free]
+    mm = MomentModel(model_path, spec["body"], gravity_off=True)
 
     def resid(qv):
-        for c, v in zip(coords, qv):
-            c.setValue(s, float(v), False)
-        model.realizeDynamics(s)
-        tau = ids.solve(s, zero)
-        return np.array([tau.get(i) for i in range(nu)])
+        mm.set_q(qv)
+        return mm.tau()
+
+    def jac(q):
+        return mm.jacobian(resid, q)
 
     out = []
     for case in spec["cases"]:
-        for axis, pf in enumerate(pfs):
-            pf.setAppliesForce(s, axis == case["axis"])
-        s.setTime(float(case["moment"]))
-        q0 = np.array([case["q"][n] for n in free])
-        q = q0.copy()
-        r = resid(q)
+        for axis, pf in enumerate(mm.pfs):
+            pf.setAppliesForce(mm.s, axis == case["axis"])
+        mm.s.setTime(float(case["moment"]))
+        q0 = np.array([case["q"][n] for n in mm.free])
+        r = resid(q0)
         r0 = float(np.abs(r).max())
-        it = 0
-        while it == 0 or (np.abs(r).max() > 1e-10 and it < 4):
-            h = 1e-7
-            J = np.empty((nu, len(free)))
-            for k in range(len(free)):
-                dq = np.zeros(len(free))
-                dq[k] = h
-                J[:, k] = (resid(q + dq) - resid(q - dq)) / (2 * h)
-            if J.shape[0] == J.shape[1]:
-                step = np.linalg.solve(J, -r)
-            else:
-                step = np.linalg.lstsq(J, -r, rcond=None)[0]
-            q_new = q + step
-            r_new = resid(q_new)
-            it += 1
-            stalled = np.abs(r_new).max() > 0.5 * np.abs(r).max()
-            if not stalled or it == 1:
-                q, r = q_new, r_new
-            if stalled:
-                break
+        q, r, it = newton(resid, jac, q0.copy(), r)
         out.append(dict(
             axis=case["axis"], moment=case["moment"],
             residual_at_tool_q=r0,
@@ -109,7 +63,7 @@ def main():
             newton_iterations=it,
             max_abs_q=float(np.abs(q0).max()),
         ))
-    print(json.dumps(dict(n_free=len(free), cases=out)))
+    print(json.dumps(dict(n_free=len(mm.free), cases=out)))
 
 
 if __name__ == "__main__":
