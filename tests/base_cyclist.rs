@@ -144,31 +144,7 @@ fn cyclist_base_model_in_opensim() {
     );
     let rows = r["scoliotic"].as_array().unwrap();
     assert!(!rows.is_empty());
-    let mut crossing = 0;
-    for row in rows {
-        let name = row["muscle"].as_str().unwrap();
-        let (len, straight) = (
-            row["length"].as_f64().unwrap(),
-            row["straight"].as_f64().unwrap(),
-        );
-        assert!(
-            len >= straight - 1e-12,
-            "{name}: path {len} shorter than straight {straight}"
-        );
-        let cl = row["min_clearance"].as_f64().unwrap();
-        assert!(
-            cl > 0.0,
-            "{name}: a path point is {:.2} mm inside a wrap sphere",
-            -cl * 1e3
-        );
-        if row["crosses_wrapped_sphere"].as_bool().unwrap() {
-            crossing += 1;
-            assert!(
-                row["wrap_points"].as_u64().unwrap() > 0,
-                "{name}: crosses its sphere but does not wrap"
-            );
-        }
-    }
+    let crossing = common::assert_wrap_rows(rows);
     println!(
         "scoliotic pose (LB 10 deg, AR 5 deg per level): {} muscles with PathWraps, {crossing} cross their sphere and wrap",
         rows.len()

@@ -97,3 +97,36 @@ pub fn run_py(python: &Path, script: &str, args: &[&str]) -> serde_json::Value {
 pub fn bin() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_osim-spine"))
 }
+
+/// The wrap checks of the `base` issue on OpenSim's rows for a posed model
+/// (`tests/py` scripts' `scoliotic` rows): no wrapped path shorter than the
+/// straight line, no path point inside a wrap sphere, every muscle whose
+/// straight path crosses its sphere wraps over it. Returns how many crossed.
+pub fn assert_wrap_rows(rows: &[serde_json::Value]) -> usize {
+    let mut crossing = 0;
+    for row in rows {
+        let name = row["muscle"].as_str().unwrap();
+        let (len, straight) = (
+            row["length"].as_f64().unwrap(),
+            row["straight"].as_f64().unwrap(),
+        );
+        assert!(
+            len >= straight - 1e-12,
+            "{name}: path {len} shorter than straight {straight}"
+        );
+        let cl = row["min_clearance"].as_f64().unwrap();
+        assert!(
+            cl > 0.0,
+            "{name}: a path point is {:.2} mm inside a wrap sphere",
+            -cl * 1e3
+        );
+        if row["crosses_wrapped_sphere"].as_bool().unwrap() {
+            crossing += 1;
+            assert!(
+                row["wrap_points"].as_u64().unwrap() > 0,
+                "{name}: crosses its sphere but does not wrap"
+            );
+        }
+    }
+    crossing
+}
