@@ -45,8 +45,6 @@ pub const MIN_LEVELS: usize = 4;
 /// Search range of tau (rad): 0.0006 to 57 deg of change of the relative
 /// rotation per level.
 pub const TAU_RANGE: [f64; 2] = [1e-5, 1.0];
-/// One tau per axis of the relative rotations (else one for all three).
-const PER_AXIS: bool = true;
 
 /// `--smooth`: whether to smooth the vertebral orientations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -340,20 +338,18 @@ pub fn smooth_orientations(
         24,
     )?;
     let mut log_tau = Vector3::repeat(common);
-    if PER_AXIS {
-        for _ in 0..2 {
-            for a in 0..3 {
-                log_tau[a] = maximise(
-                    |lt| {
-                        let mut t = log_tau;
-                        t[a] = lt;
-                        Ok(log_marginal(r, &w, &t.map(f64::exp), &zero)?.0)
-                    },
-                    lo,
-                    hi,
-                    12,
-                )?;
-            }
+    for _ in 0..2 {
+        for a in 0..3 {
+            log_tau[a] = maximise(
+                |lt| {
+                    let mut t = log_tau;
+                    t[a] = lt;
+                    Ok(log_marginal(r, &w, &t.map(f64::exp), &zero)?.0)
+                },
+                lo,
+                hi,
+                12,
+            )?;
         }
     }
     let tau = log_tau.map(f64::exp);
