@@ -113,8 +113,8 @@ impl System {
             ));
         }
         self.qdot(q, u, &mut ws.qdot)?;
-        for i in 0..q.len() {
-            ws.kd1.q[i] = Dual64::new(q[i], ws.qdot[i]);
+        for ((d, &qi), &ri) in ws.kd1.q.iter_mut().zip(q).zip(&ws.qdot) {
+            *d = Dual64::new(qi, ri);
         }
         // subspaces per unit speed; their dual parts are time derivatives
         // because the dual directions are the coordinate rates

@@ -287,7 +287,7 @@ const EULER_SINGULAR_COS: f64 = 1e-9;
 pub(crate) fn euler_rates_from_w(q0: f64, q1: f64, w: &[f64; 3]) -> Option<[f64; 3]> {
     let (s0, c0) = q0.sin_cos();
     let (s1, c1) = q1.sin_cos();
-    if !(c1.abs() > EULER_SINGULAR_COS) {
+    if c1.is_nan() || c1.abs() <= EULER_SINGULAR_COS {
         return None;
     }
     let r2 = (c0 * w[2] - s0 * w[1]) / c1;
@@ -311,7 +311,7 @@ pub(crate) fn euler_w_from_rates(q0: f64, q1: f64, r: &[f64; 3]) -> [f64; 3] {
 pub(crate) fn euler_force_to_speeds(q0: f64, q1: f64, f: &[f64; 3]) -> Option<[f64; 3]> {
     let (s0, c0) = q0.sin_cos();
     let (s1, c1) = q1.sin_cos();
-    if !(c1.abs() > EULER_SINGULAR_COS) {
+    if c1.is_nan() || c1.abs() <= EULER_SINGULAR_COS {
         return None;
     }
     let g = (f[2] - s1 * f[0]) / c1;
