@@ -5,7 +5,8 @@
 //! mix FreeJoint, BallJoint, GimbalJoint (u = qdot) and 6-DoF CustomJoint
 //! joints with random bushings (`tests/py/free_ball_chains.py`); the solver
 //! reads the same .osim files and must reproduce, at random (q, u):
-//! - OpenSim's `udot` and `qdot` within 1e-9 relative to the largest entry;
+//! - OpenSim's `udot` and `qdot` within 1e-9 relative to the largest entry,
+//!   and its bushing record values (with damping) within 1e-9 relative;
 //! - the kinetic energy `1/2 u^T M u` equal to `sum 1/2 m v^2 + 1/2 w^T I w`
 //!   over OpenSim's own body velocities (1e-9 relative), and the solver's
 //!   `Energy::kinetic` equal to it;
@@ -84,6 +85,7 @@ fn free_and_ball_joints_match_opensim() {
     let (mut worst_a, mut worst_qd, mut worst_ke, mut worst_sim, mut worst_eq) =
         (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
     let mut worst_raw = 0.0f64;
+    let mut worst_rec = 0.0f64;
     let mut n_states = 0;
     let mut n_mapped = 0;
     for m in out["models"].as_array().unwrap() {
@@ -153,6 +155,31 @@ fn free_and_ball_joints_match_opensim() {
                     a[i],
                     want[i]
                 );
+            }
+            // bushing records (damping through the deflection rates)
+            let recs = sys.bushing_records(&q, Some(&u), &mut ws).unwrap();
+            let want_rec = st["bushing_records"].as_object().unwrap();
+            assert_eq!(recs.len(), want_rec.len());
+            let scale = want_rec
+                .values()
+                .flat_map(|v| {
+                    v.as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|x| x.as_f64().unwrap().abs())
+                })
+                .fold(0.0f64, f64::max);
+            for (bn, rec) in &recs {
+                for (k, v) in rec.record_values.iter().enumerate() {
+                    let w = want_rec[bn][k].as_f64().unwrap();
+                    let rel = (v - w).abs() / scale;
+                    worst_rec = worst_rec.max(rel);
+                    assert!(
+                        rel < 1e-9,
+                        "{}: {bn} record[{k}] = {v}, OpenSim {w}",
+                        file.display()
+                    );
+                }
             }
             // kinetic energy: 1/2 u^T M u vs OpenSim's body velocities
             let mass = sys.mass_matrix(&q, &mut ws).unwrap();
@@ -271,7 +298,7 @@ fn free_and_ball_joints_match_opensim() {
     assert!(n_mapped > 0);
     eprintln!(
         "free/ball chains: {n_states} states ({n_mapped} angular-velocity speeds); max rel qdot diff {worst_qd:.2e}, \
-         udot {worst_a:.2e}, kinetic energy {worst_ke:.2e}; 0.05 s simulation max diff {worst_sim:.2e} \
+         udot {worst_a:.2e}, kinetic energy {worst_ke:.2e}, bushing records {worst_rec:.2e}; 0.05 s simulation max diff {worst_sim:.2e} \
          (extrapolated; raw dt = 1e-5: {worst_raw:.2e}); \
          equilibrium max diff {worst_eq:.2e}"
     );

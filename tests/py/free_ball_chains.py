@@ -16,7 +16,8 @@ Writes OUT_DIR/fb_chain_K.osim and prints JSON, per model:
   (Coordinate::getAccelerationValue), qdot (State::getQDot, mapped to the
   coordinates through their q slots), Coordinate::getSpeedValue, and per
   body the ground angular velocity, centre-of-mass velocity, mass, centre of
-  mass, inertia about it and rotation R_GB;
+  mass, inertia about it and rotation R_GB, and per bushing its record
+  values (forces and moments with damping at that state);
 - simulation: a random start (q, u) and the state after `duration` seconds
   of OpenSim's RungeKuttaMerson integrator at accuracy 1e-12;
 - statics: the equilibrium under 1/20 of the gravity (Newton on
@@ -173,9 +174,14 @@ def state_record(model, s, q, u):
             inertia=[mom.get(0), mom.get(1), mom.get(2), prod.get(0), prod.get(1), prod.get(2)],
             R=[[R.get(r, k) for k in range(3)] for r in range(3)],
         )
+    bushings = {}
+    for f in model.getForceSet():
+        rv = f.getRecordValues(s)
+        bushings[f.getName()] = [rv.get(i) for i in range(rv.size())]
     return dict(
         q={c.getName(): q[i] for i, c in enumerate(cs)},
         u={c.getName(): u[i] for i, c in enumerate(cs)},
+        bushing_records=bushings,
         speed_value={c.getName(): c.getSpeedValue(s) for c in cs},
         qdot={c.getName(): QD.get(slots[i]) for i, c in enumerate(cs)},
         udot={c.getName(): c.getAccelerationValue(s) for c in cs},
