@@ -282,16 +282,14 @@ fn free_and_ball_joints_match_opensim() {
             )
             .unwrap();
         let want = by_name(&sys, &sc["q"]);
-        for i in 0..n {
-            let dq = (sol.q[i] - want[i]).abs();
+        for (i, (got, w)) in sol.q.iter().zip(&want).enumerate() {
+            let dq = (got - w).abs();
             worst_eq = worst_eq.max(dq);
             assert!(
                 dq < 1e-8,
-                "{}: equilibrium {} = {} vs OpenSim {}",
+                "{}: equilibrium {} = {got} vs OpenSim {w}",
                 file.display(),
                 sys.dof_name(i),
-                sol.q[i],
-                want[i]
             );
         }
     }

@@ -836,7 +836,7 @@ fn free_ball_chain(damped: bool) -> SystemSpec {
         bushings: vec![],
         gravity: Vector3::new(1.0, -9.0, 2.0),
     };
-    let mut coord = |spec: &mut SystemSpec, name: String| {
+    let coord = |spec: &mut SystemSpec, name: String| {
         spec.coordinates.push(CoordinateSpec {
             name,
             default: 0.0,
