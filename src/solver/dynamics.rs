@@ -4,6 +4,12 @@
 //! derivative of each motion subspace comes exactly from a dual-number pass
 //! along the speeds), generalised accelerations, energy bookkeeping, and an
 //! implicit-midpoint integrator for stiff bushings.
+//!
+//! Everything here is in OpenSim's generalised speeds `u` (see
+//! [`crate::solver::kinematics`]): for FreeJoint/BallJoint rotations `u` is
+//! the angular velocity `w_FM` in F axes and `qdot = N(q) u`; the mass
+//! matrix is `H_u^T I H_u`, accelerations are `udot`, and the integrator
+//! advances `q` with `N(q) u`. For all other joints `u = qdot`.
 
 use super::forces::{self, LoadSet};
 use super::kinematics;
@@ -106,10 +112,13 @@ impl System {
                 "speeds must be finite, one per coordinate",
             ));
         }
-        for i in 0..q.len() {
-            ws.kd1.q[i] = Dual64::new(q[i], u[i]);
+        self.qdot(q, u, &mut ws.qdot)?;
+        for ((d, &qi), &ri) in ws.kd1.q.iter_mut().zip(q).zip(&ws.qdot) {
+            *d = Dual64::new(qi, ri);
         }
-        kinematics::forward(self, &mut ws.kd1);
+        // subspaces per unit speed; their dual parts are time derivatives
+        // because the dual directions are the coordinate rates
+        kinematics::forward_speeds(self, &mut ws.kd1);
         for (bi, x) in ws.kd1.x_gb.iter().enumerate() {
             ws.k64.x_gb[bi] = x.re();
         }
@@ -172,7 +181,9 @@ impl System {
     }
 
     /// Generalised accelerations `udot` at (q, u) under `loads`; `udot` has
-    /// one entry per free dof. Speeds are the coordinate rates.
+    /// one entry per free dof. Speeds are OpenSim's generalised speeds
+    /// (coordinate rates except FreeJoint/BallJoint rotations: see
+    /// [`System::qdot`]).
     pub fn accelerations(
         &self,
         q: &[f64],
@@ -201,9 +212,21 @@ impl System {
             w[1] -= ia[1] + cf[1];
         }
         forces::project(self, &mut ws.k64);
-        forces::add_fast_bushings(self, q, Some(u), &mut ws.k64.tau)
-            .map_err(|g| g.to_error(self))?;
-        ws.rhs.copy_from_slice(&ws.k64.tau);
+        if self.any_euler_speeds {
+            // fast-path bushings act on the coordinate rates: map their
+            // generalised force onto the speeds (N^T f)
+            ws.rhs.fill(0.0);
+            forces::add_fast_bushings(self, q, Some(&ws.qdot), &mut ws.rhs)
+                .map_err(|g| g.to_error(self))?;
+            self.rate_forces_to_speeds(q, &mut ws.rhs)?;
+            for (r, t) in ws.rhs.iter_mut().zip(&ws.k64.tau) {
+                *r += t;
+            }
+        } else {
+            forces::add_fast_bushings(self, q, Some(u), &mut ws.k64.tau)
+                .map_err(|g| g.to_error(self))?;
+            ws.rhs.copy_from_slice(&ws.k64.tau);
+        }
         self.mass_matrix_from_comp(ws);
         if !cholesky_in_place(&mut ws.mass) {
             return Err(Error::numerical("dynamics", "mass matrix is not positive definite (a massless body on a free degree of freedom?)"));
@@ -241,11 +264,12 @@ impl System {
         }
     }
 
-    /// The mass matrix at q (a copy, for tests and inspection).
+    /// The mass matrix at q in the generalised speeds (kinetic energy
+    /// `1/2 u^T M u`; a copy, for tests and inspection).
     pub fn mass_matrix(&self, q: &[f64], ws: &mut Workspace) -> Result<nalgebra::DMatrix<f64>> {
         self.check_q(q)?;
         ws.k64.q.copy_from_slice(q);
-        kinematics::forward(self, &mut ws.k64);
+        kinematics::forward_speeds(self, &mut ws.k64);
         for bi in 0..self.bodies.len() {
             ws.comp[bi] = self.body_inertia(ws, bi);
         }
@@ -276,7 +300,8 @@ impl System {
         })
     }
 
-    /// Generalised force of the loads alone at (q) (for the work of loads).
+    /// Power of the loads at (q, u): their generalised force on the speeds
+    /// dotted with `u`.
     pub fn load_power(
         &self,
         q: &[f64],
@@ -285,8 +310,14 @@ impl System {
         ws: &mut Workspace,
     ) -> Result<f64> {
         self.check_q(q)?;
+        if u.len() != q.len() {
+            return Err(Error::invalid(
+                "solver",
+                "load power: one speed per free coordinate",
+            ));
+        }
         ws.k64.q.copy_from_slice(q);
-        kinematics::forward(self, &mut ws.k64);
+        kinematics::forward_speeds(self, &mut ws.k64);
         for w in ws.k64.w.iter_mut() {
             *w = [Vector3::zeros(), Vector3::zeros()];
         }
@@ -342,7 +373,9 @@ pub(crate) fn cholesky_solve(l: &nalgebra::DMatrix<f64>, b: &mut [f64]) {
 /// Implicit-midpoint integrator (symplectic, A-stable; energy is conserved to
 /// O(dt^2) without damping) with a Newton solve of the stage equation. The
 /// Newton matrix uses a finite-difference Jacobian of the accelerations,
-/// refreshed only when convergence slows.
+/// refreshed only when convergence slows. The stage coordinates solve
+/// `yq = q + (dt/2) N(yq) yu` (a fixed point, exact in one pass when every
+/// speed is a coordinate rate).
 pub struct Integrator {
     pub dt: f64,
     /// Newton tolerance on the stage speeds (rad/s or m/s).
@@ -357,6 +390,9 @@ pub struct Integrator {
     g: Vec<f64>,
     tmpq: Vec<f64>,
     tmpu: Vec<f64>,
+    /// Start of the current step, and rates scratch (angular-velocity speeds).
+    q0: Vec<f64>,
+    qd: Vec<f64>,
 }
 
 /// One output sample of a trajectory.
@@ -383,7 +419,50 @@ impl Integrator {
             g: vec![0.0; n],
             tmpq: vec![0.0; n],
             tmpu: vec![0.0; n],
+            q0: vec![0.0; n],
+            qd: vec![0.0; n],
         }
+    }
+
+    /// Stage coordinates `yq = q + h2 N(yq) yu`. With coordinate-rate speeds
+    /// only, `yq = q + h2 yu` directly; otherwise a fixed-point iteration
+    /// (a contraction for any step the Newton iteration converges with).
+    fn stage_q(
+        sys: &System,
+        h2: f64,
+        q: &[f64],
+        yu: &[f64],
+        yq: &mut [f64],
+        qd: &mut [f64],
+    ) -> Result<()> {
+        for i in 0..q.len() {
+            yq[i] = q[i] + h2 * yu[i];
+        }
+        if !sys.any_euler_speeds {
+            return Ok(());
+        }
+        for _ in 0..100 {
+            sys.qdot(yq, yu, qd)?;
+            let mut change = 0.0f64;
+            let mut scale = 1.0f64;
+            for i in 0..q.len() {
+                let v = q[i] + h2 * qd[i];
+                change = change.max((v - yq[i]).abs());
+                scale = scale.max(v.abs());
+                yq[i] = v;
+            }
+            if change <= 4.0 * f64::EPSILON * scale {
+                return Ok(());
+            }
+            if !change.is_finite() {
+                break;
+            }
+        }
+        Err(Error::numerical(
+            "dynamics",
+            "implicit step: the stage coordinates did not converge (angular velocity too large \
+             for the time step): reduce the step size",
+        ))
     }
 
     /// Newton matrix `I - (h/2) [(h/2) A_q + A_u]` at the midpoint guess.
@@ -396,9 +475,13 @@ impl Integrator {
             let eu = 1e-6 * (1.0 + self.yu[j].abs());
             self.tmpq.copy_from_slice(&self.yq);
             self.tmpu.copy_from_slice(&self.yu);
-            // combined direction: d/dyu of a(q0 + h2 yu, yu)
-            self.tmpq[j] += h2 * eu;
+            // combined direction: d/dyu of a(q0 + h2 N yu, yu)
             self.tmpu[j] += eu;
+            if sys.any_euler_speeds {
+                Self::stage_q(sys, h2, &self.q0, &self.tmpu, &mut self.tmpq, &mut self.qd)?;
+            } else {
+                self.tmpq[j] += h2 * eu;
+            }
             sys.accelerations(&self.tmpq, &self.tmpu, loads, ws, &mut self.a1)?;
             let _ = eq;
             for i in 0..n {
@@ -427,12 +510,13 @@ impl Integrator {
     ) -> Result<()> {
         let n = self.n;
         let h2 = 0.5 * self.dt;
-        // initial guess: explicit half step
+        // initial guess: explicit half step (the call checks q and u)
         sys.accelerations(q, u, loads, ws, &mut self.a0)?;
+        self.q0.copy_from_slice(q);
         for i in 0..n {
             self.yu[i] = u[i] + h2 * self.a0[i];
-            self.yq[i] = q[i] + h2 * self.yu[i];
         }
+        Self::stage_q(sys, h2, q, &self.yu, &mut self.yq, &mut self.qd)?;
         let mut refreshed = false;
         if !self.have_jac {
             self.jacobian(sys, loads, ws)?;
@@ -440,9 +524,7 @@ impl Integrator {
         }
         let mut it = 0;
         loop {
-            for i in 0..n {
-                self.yq[i] = q[i] + h2 * self.yu[i];
-            }
+            Self::stage_q(sys, h2, q, &self.yu, &mut self.yq, &mut self.qd)?;
             sys.accelerations(&self.yq, &self.yu, loads, ws, &mut self.a1)?;
             for i in 0..n {
                 self.g[i] = -(self.yu[i] - u[i] - h2 * self.a1[i]);
@@ -472,8 +554,8 @@ impl Integrator {
                 // refresh the Jacobian and restart from the explicit guess
                 for i in 0..n {
                     self.yu[i] = u[i] + h2 * self.a0[i];
-                    self.yq[i] = q[i] + h2 * self.yu[i];
                 }
+                Self::stage_q(sys, h2, q, &self.yu, &mut self.yq, &mut self.qd)?;
                 self.jacobian(sys, loads, ws)?;
                 refreshed = true;
                 it = 0;
@@ -482,8 +564,8 @@ impl Integrator {
                 refreshed = true;
             }
         }
+        Self::stage_q(sys, h2, q, &self.yu, &mut self.yq, &mut self.qd)?;
         for i in 0..n {
-            self.yq[i] = q[i] + h2 * self.yu[i];
             q[i] = 2.0 * self.yq[i] - q[i];
             u[i] = 2.0 * self.yu[i] - u[i];
         }

@@ -1,7 +1,8 @@
 //! Adapter from the typed OpenSim model ([`crate::osim::model::Model`]) to
 //! the solver's [`SystemSpec`]: bodies, joints (WeldJoint, PinJoint,
-//! UniversalJoint, SliderJoint, BallJoint, FreeJoint, CustomJoint with any
-//! axes and functions), coordinates (mapped by name), BushingForces, gravity.
+//! UniversalJoint, SliderJoint, BallJoint, GimbalJoint, FreeJoint,
+//! CustomJoint with any axes and functions; BallJoint and FreeJoint keep
+//! OpenSim's angular-velocity speeds, see [`JointKind::Free`]), coordinates (mapped by name), BushingForces, gravity.
 //! Muscles and other force elements contribute no force to the solver; see
 //! [`ignored_forces`]. Coordinate coupler constraints are not enforced.
 
@@ -366,6 +367,14 @@ impl SystemSpec {
                     JointKind::Slider { coord: own[0] }
                 }
                 (OJointKind::Other, "BallJoint") => {
+                    need(3)?;
+                    JointKind::Ball {
+                        coords: [own[0], own[1], own[2]],
+                    }
+                }
+                (OJointKind::Other, "GimbalJoint") => {
+                    // body-fixed X-Y-Z like BallJoint, but Simbody's Gimbal
+                    // mobilizer has u = qdot: a plain three-axis rotation
                     need(3)?;
                     JointKind::Custom {
                         axes: Box::new([

@@ -8,6 +8,14 @@
 //! entry points for geometric work outside the solver (the base builder's
 //! default and test poses, muscle paths, views): one forward kinematics for
 //! the whole crate.
+//!
+//! Generalised speeds: `u = qdot` except for the rotational dofs of
+//! FreeJoint/BallJoint (`Joint::euler_speeds`), whose speeds are OpenSim's
+//! angular velocity `w_FM` in F axes. [`forward`] gives the motion subspace
+//! per unit coordinate rate (`dV/dqdot`, what the statics project on);
+//! [`forward_speeds`] the subspace per unit speed (`dV/du`, what the
+//! dynamics use). [`System::qdot`] and [`System::speeds_from_qdot`] map
+//! between the two.
 
 use super::scalar::{rot_axis, v3, Scalar};
 use super::system::{AxisSource, Joint, KinBuf, Pose, System};
@@ -58,8 +66,20 @@ impl System {
     }
 }
 
-/// Compute `kb.x_gb` and `kb.h` from `kb.q`.
+/// Compute `kb.x_gb` and `kb.h` from `kb.q`; `kb.h` per unit coordinate
+/// rate (the statics' generalised forces are `h^T W`).
 pub fn forward<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
+    forward_mode(sys, kb, false);
+}
+
+/// Like [`forward`] but `kb.h` per unit generalised speed (OpenSim's `u`):
+/// for FreeJoint/BallJoint rotations the F axes themselves. Identical to
+/// [`forward`] when no joint has angular-velocity speeds.
+pub fn forward_speeds<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
+    forward_mode(sys, kb, sys.any_euler_speeds);
+}
+
+fn forward_mode<T: Scalar>(sys: &System, kb: &mut KinBuf<T>, speeds: bool) {
     for bi in 0..sys.bodies.len() {
         let b = &sys.bodies[bi];
         let x_gp = match b.parent {
@@ -70,22 +90,30 @@ pub fn forward<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
         let range = j.dof_start..j.dof_start + j.dof_count;
         let q = kb.q.get(range.clone()).unwrap_or(&[]);
         let h = kb.h.get_mut(range).unwrap_or(&mut []);
-        kb.x_gb[bi] = joint_forward(j, &x_gp, q, h);
+        kb.x_gb[bi] = joint_forward(j, &x_gp, q, h, speeds && j.euler_speeds);
     }
 }
 
 /// One joint: the child body's pose in ground from its parent's pose `x_gp`
 /// and the joint's own free dofs `q` (`dof_count` values), and the joint's
-/// motion subspace written into `h` (`dof_count` entries).
+/// motion subspace written into `h` (`dof_count` entries): per unit
+/// coordinate rate, or with `w_speeds` the first three dofs per unit
+/// angular velocity about F's X, Y, Z axes (FreeJoint/BallJoint speeds).
 pub(crate) fn joint_forward<T: Scalar>(
     j: &Joint,
     x_gp: &Pose<T>,
     q: &[T],
     h: &mut [[Vector3<T>; 2]],
+    w_speeds: bool,
 ) -> Pose<T> {
     let x_gf = x_gp.compose_c(&j.x_pf);
     let mut local = [[Vector3::zeros(); 2]; 6];
     let x_fm = joint_local(j, q, &mut local);
+    if w_speeds {
+        for (l, ax) in local.iter_mut().zip(&j.axes).take(3) {
+            *l = [v3(&ax.unit), Vector3::zeros()];
+        }
+    }
     let x_gm = x_gf.compose(&x_fm);
     for (k, [w_f, v_f]) in local.iter().enumerate().take(j.dof_count) {
         let w = x_gf.r * w_f;
@@ -246,5 +274,142 @@ pub(crate) fn joint_local_tangent(
         for m in 0..n {
             out[(k, m)] -= w[k].dot(&v[m].cross(f_f));
         }
+    }
+}
+
+/// Cosine of the middle Euler angle below which the angle-rate map of a
+/// FreeJoint/BallJoint is singular (gimbal lock at +-90 degrees).
+const EULER_SINGULAR_COS: f64 = 1e-9;
+
+/// `qdot = N(q) w` for body-fixed X-Y-Z angles `(q0, q1, .)` and the
+/// angular velocity `w` in the outer (F) axes: the inverse of
+/// `w = [x, Rx(q0) y, Rx(q0) Ry(q1) z] qdot`. None at gimbal lock.
+pub(crate) fn euler_rates_from_w(q0: f64, q1: f64, w: &[f64; 3]) -> Option<[f64; 3]> {
+    let (s0, c0) = q0.sin_cos();
+    let (s1, c1) = q1.sin_cos();
+    if c1.is_nan() || c1.abs() <= EULER_SINGULAR_COS {
+        return None;
+    }
+    let r2 = (c0 * w[2] - s0 * w[1]) / c1;
+    Some([w[0] - s1 * r2, c0 * w[1] + s0 * w[2], r2])
+}
+
+/// `w = E(q) qdot`, the angular velocity in F axes of body-fixed X-Y-Z
+/// angle rates.
+pub(crate) fn euler_w_from_rates(q0: f64, q1: f64, r: &[f64; 3]) -> [f64; 3] {
+    let (s0, c0) = q0.sin_cos();
+    let (s1, c1) = q1.sin_cos();
+    [
+        r[0] + s1 * r[2],
+        c0 * r[1] - s0 * c1 * r[2],
+        s0 * r[1] + c0 * c1 * r[2],
+    ]
+}
+
+/// The generalised force on the angular-velocity speeds of a generalised
+/// force `f` on the angle rates: `N^T f` (equal power). None at gimbal lock.
+pub(crate) fn euler_force_to_speeds(q0: f64, q1: f64, f: &[f64; 3]) -> Option<[f64; 3]> {
+    let (s0, c0) = q0.sin_cos();
+    let (s1, c1) = q1.sin_cos();
+    if c1.is_nan() || c1.abs() <= EULER_SINGULAR_COS {
+        return None;
+    }
+    let g = (f[2] - s1 * f[0]) / c1;
+    Some([f[0], c0 * f[1] - s0 * g, s0 * f[1] + c0 * g])
+}
+
+impl System {
+    /// True when some generalised speeds are not coordinate rates
+    /// (a FreeJoint or BallJoint: angular-velocity speeds as in OpenSim).
+    pub fn has_angular_velocity_speeds(&self) -> bool {
+        self.any_euler_speeds
+    }
+
+    /// True when free dof `i` is a rotational FreeJoint/BallJoint dof whose
+    /// speed is an angular-velocity component rather than its rate.
+    pub fn dof_speed_is_angular_velocity(&self, i: usize) -> bool {
+        self.dof_body
+            .get(i)
+            .and_then(|&b| self.bodies.get(b))
+            .is_some_and(|b| b.joint.euler_speeds && i < b.joint.dof_start + 3)
+    }
+
+    fn check_qu(&self, q: &[f64], a: &[f64], out: &[f64]) -> Result<()> {
+        self.check_q(q)?;
+        if a.len() != q.len() || out.len() != q.len() || a.iter().any(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                "solver",
+                "speeds and rates must be finite, one per free coordinate",
+            ));
+        }
+        Ok(())
+    }
+
+    fn gimbal_error(&self, j: &Joint, q1: f64) -> Error {
+        Error::numerical(
+            "solver",
+            format!(
+                "joint '{}': its second rotation angle is {q1} rad (gimbal lock at +-90 degrees): \
+                 the angular velocity does not determine the angle rates there",
+                j.name
+            ),
+        )
+    }
+
+    /// Coordinate rates from generalised speeds: `qdot = N(q) u` (the
+    /// identity except for FreeJoint/BallJoint rotations, whose speeds are
+    /// the angular velocity of M in F, F axes, as in OpenSim 4.6). Errors at
+    /// a gimbal lock of such a joint.
+    pub fn qdot(&self, q: &[f64], u: &[f64], qdot: &mut [f64]) -> Result<()> {
+        self.check_qu(q, u, qdot)?;
+        qdot.copy_from_slice(u);
+        if !self.any_euler_speeds {
+            return Ok(());
+        }
+        for b in &self.bodies {
+            let j = &b.joint;
+            if !j.euler_speeds {
+                continue;
+            }
+            let s = j.dof_start;
+            let w = [u[s], u[s + 1], u[s + 2]];
+            let r = euler_rates_from_w(q[s], q[s + 1], &w)
+                .ok_or_else(|| self.gimbal_error(j, q[s + 1]))?;
+            qdot[s..s + 3].copy_from_slice(&r);
+        }
+        Ok(())
+    }
+
+    /// Generalised speeds from coordinate rates (the inverse of
+    /// [`System::qdot`]; defined at every q).
+    pub fn speeds_from_qdot(&self, q: &[f64], qdot: &[f64], u: &mut [f64]) -> Result<()> {
+        self.check_qu(q, qdot, u)?;
+        u.copy_from_slice(qdot);
+        for b in &self.bodies {
+            let j = &b.joint;
+            if !j.euler_speeds {
+                continue;
+            }
+            let s = j.dof_start;
+            let r = [qdot[s], qdot[s + 1], qdot[s + 2]];
+            u[s..s + 3].copy_from_slice(&euler_w_from_rates(q[s], q[s + 1], &r));
+        }
+        Ok(())
+    }
+
+    /// Turn a generalised force on the coordinate rates into the one on the
+    /// generalised speeds, in place: `f <- N(q)^T f` (equal power).
+    pub(crate) fn rate_forces_to_speeds(&self, q: &[f64], f: &mut [f64]) -> Result<()> {
+        for b in &self.bodies {
+            let j = &b.joint;
+            if !j.euler_speeds {
+                continue;
+            }
+            let s = j.dof_start;
+            let r = euler_force_to_speeds(q[s], q[s + 1], &[f[s], f[s + 1], f[s + 2]])
+                .ok_or_else(|| self.gimbal_error(j, q[s + 1]))?;
+            f[s..s + 3].copy_from_slice(&r);
+        }
+        Ok(())
     }
 }

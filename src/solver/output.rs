@@ -79,10 +79,13 @@ impl System {
         ws: &mut Workspace,
     ) -> Result<BTreeMap<String, BushingRecord>> {
         self.check_q(q)?;
-        let zeros = vec![0.0; q.len()];
-        let u = u.unwrap_or(&zeros);
+        // deflection rates from the coordinate rates of the speeds
+        let mut qdot = vec![0.0; q.len()];
+        if let Some(u) = u {
+            self.qdot(q, u, &mut qdot)?;
+        }
         for i in 0..q.len() {
-            ws.kd1.q[i] = Dual64::new(q[i], u.get(i).copied().unwrap_or(0.0));
+            ws.kd1.q[i] = Dual64::new(q[i], qdot[i]);
         }
         kinematics::forward(self, &mut ws.kd1);
         let mut out = BTreeMap::new();

@@ -11,6 +11,10 @@
 //! `R_FM = R(a0, f0) R(a1, f1) R(a2, f2)` (each rotation about its axis in the
 //! frame produced by the previous ones) and `p_FM = f3 a3 + f4 a4 + f5 a5`
 //! (along F's axes), with unit axes.
+//!
+//! Generalised speeds `u` are the coordinate rates (`u = qdot`) for every
+//! joint kind except [`JointKind::Free`] and [`JointKind::Ball`], whose
+//! rotational speeds are OpenSim's: the angular velocity `w_FM` in F axes.
 
 pub use super::expr::Expr;
 pub use super::law::Curve;
@@ -67,10 +71,17 @@ pub enum JointKind {
     Universal { coords: [usize; 2] },
     /// Translation along F's X axis (OpenSim SliderJoint).
     Slider { coord: usize },
-    /// Body-fixed X-Y-Z rotations then translation along F's axes. The
-    /// generalised speeds here are the coordinate rates (OpenSim's FreeJoint
-    /// uses the angular velocity instead; positions and equilibria are the same).
+    /// OpenSim FreeJoint: body-fixed X-Y-Z rotations then translation
+    /// along F's axes. As in OpenSim 4.6 (Simbody's Free mobilizer with
+    /// Euler angles), the three rotational generalised speeds are the
+    /// angular velocity of M in F expressed in F (`u_rot = w_FM`, not the
+    /// angle rates: `qdot_rot = N(q) u_rot`); the translational speeds are
+    /// the coordinate rates. See [`crate::solver::System::qdot`].
     Free { coords: [usize; 6] },
+    /// OpenSim BallJoint: body-fixed X-Y-Z rotations, no translation; the
+    /// generalised speeds are the angular velocity of M in F expressed in F
+    /// (Simbody's Ball mobilizer with Euler angles), like [`JointKind::Free`].
+    Ball { coords: [usize; 3] },
     /// OpenSim CustomJoint: rotation1..3 then translation1..3.
     Custom { axes: Box<[TransformAxis; 6]> },
 }

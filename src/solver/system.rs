@@ -105,6 +105,10 @@ pub(crate) struct Joint {
     pub dof_start: usize,
     /// Number of free dofs.
     pub dof_count: usize,
+    /// OpenSim FreeJoint/BallJoint speeds: the joint's first three dofs are
+    /// body-fixed X-Y-Z angles whose generalised speeds are the angular
+    /// velocity of M in F, F axes (`qdot = N(q) u`); false: `u = qdot`.
+    pub euler_speeds: bool,
 }
 
 /// A compiled body.
@@ -156,6 +160,8 @@ pub struct System {
     pub(crate) dof_rotational: Vec<bool>,
     pub(crate) bushings: Vec<Bushing>,
     pub(crate) gravity: Vector3<f64>,
+    /// Some joint has angular-velocity speeds (`Joint::euler_speeds`).
+    pub(crate) any_euler_speeds: bool,
 }
 
 fn lower_joint(kind: &JointKind) -> [TransformAxis; 6] {
@@ -197,8 +203,31 @@ fn lower_joint(kind: &JointKind) -> [TransformAxis; 6] {
             TransformAxis::identity(y, coords[4]),
             TransformAxis::identity(z, coords[5]),
         ],
+        JointKind::Ball { coords } => [
+            TransformAxis::identity(x, coords[0]),
+            TransformAxis::identity(y, coords[1]),
+            TransformAxis::identity(z, coords[2]),
+            fixed(x),
+            fixed(y),
+            fixed(z),
+        ],
         JointKind::Custom { axes } => (**axes).clone(),
     }
+}
+
+/// True when a lowered joint of kind Free or Ball keeps OpenSim's
+/// angular-velocity speeds: its three rotation axes are X, Y, Z driven one
+/// to one by its dofs 0, 1, 2. With a locked rotation coordinate (a
+/// constraint on the angular velocity in OpenSim) the remaining dofs fall
+/// back to coordinate-rate speeds.
+fn has_euler_speeds(kind: &JointKind, axes: &[Axis; 6]) -> bool {
+    if !matches!(kind, JointKind::Free { .. } | JointKind::Ball { .. }) {
+        return false;
+    }
+    axes.iter().take(3).enumerate().all(|(ai, ax)| {
+        matches!(&ax.source, AxisSource::Dof(k, Function::Linear { slope, intercept })
+            if *k == ai && *slope == 1.0 && *intercept == 0.0)
+    })
 }
 
 fn check_finite_pose(x: &Isometry3<f64>) -> bool {
@@ -396,6 +425,7 @@ impl System {
                 .map_err(|_| Error::invalid(ctx, format!("joint '{}': needs six axes", js.name)))?;
             let b = &spec.bodies[bi];
             let x_bm = Pose::from_isometry(&js.x_bm);
+            let euler_speeds = has_euler_speeds(&js.kind, &axes);
             bodies.push(Body {
                 name: b.name.clone(),
                 parent: js.parent.map(|p| body_map[p]),
@@ -410,6 +440,7 @@ impl System {
                     axes,
                     dof_start,
                     dof_count: local.len(),
+                    euler_speeds,
                 },
             });
         }
@@ -469,7 +500,9 @@ impl System {
         if !spec.gravity.iter().all(|v| v.is_finite()) {
             return Err(Error::invalid(ctx, "gravity not finite"));
         }
+        let any_euler_speeds = bodies.iter().any(|b| b.joint.euler_speeds);
         Ok(System {
+            any_euler_speeds,
             bodies,
             body_map,
             coords: spec.coordinates.clone(),
@@ -804,6 +837,8 @@ pub struct Workspace {
     pub(crate) hdot: Vec<[Vector3<f64>; 2]>,
     pub(crate) comp: Vec<super::dynamics::SpatialInertia>,
     pub(crate) rhs: Vec<f64>,
+    /// Coordinate rates of the current speeds (`qdot = N(q) u`).
+    pub(crate) qdot: Vec<f64>,
 }
 
 impl Workspace {
@@ -827,6 +862,7 @@ impl Workspace {
             hdot: vec![[Vector3::zeros(), Vector3::zeros()]; n],
             comp: vec![super::dynamics::SpatialInertia::zero(); nb],
             rhs: vec![0.0; n],
+            qdot: vec![0.0; n],
         }
     }
 

@@ -817,3 +817,263 @@ fn every_law_fast_path_equals_general_formula_and_sensitivities() {
         }
     }
 }
+
+/// Ground -> FreeJoint (bushing on the joint frames: the fast path) ->
+/// BallJoint (bushing on offset frames) -> FreeJoint (offset frames), with
+/// full inertias, soft bushings, optional damping and gravity.
+fn free_ball_chain(damped: bool) -> SystemSpec {
+    let c = if damped { 1.0 } else { 0.0 };
+    let law = BushingModel::Linear {
+        rot_stiffness: Vector3::new(8.0, 5.0, 6.0),
+        trans_stiffness: Vector3::new(900.0, 1500.0, 700.0),
+        rot_damping: Vector3::new(0.05, 0.04, 0.03) * c,
+        trans_damping: Vector3::new(3.0, 2.0, 4.0) * c,
+    };
+    let mut spec = SystemSpec {
+        bodies: vec![],
+        joints: vec![],
+        coordinates: vec![],
+        bushings: vec![],
+        gravity: Vector3::new(1.0, -9.0, 2.0),
+    };
+    let coord = |spec: &mut SystemSpec, name: String| {
+        spec.coordinates.push(CoordinateSpec {
+            name,
+            default: 0.0,
+            range: [-10.0, 10.0],
+            clamped: false,
+            locked: false,
+        });
+        spec.coordinates.len() - 1
+    };
+    for i in 0..3 {
+        let r = nalgebra::Rotation3::from_euler_angles(0.3 * i as f64, -0.2, 0.5);
+        let ib = ellipsoid_inertia(1.0 + 0.3 * i as f64, 0.08, 0.05, 0.1);
+        spec.bodies.push(BodySpec {
+            name: format!("b{i}"),
+            mass: 1.0 + 0.3 * i as f64,
+            com: Vector3::new(0.02, -0.01 * i as f64, 0.015),
+            inertia: r.matrix() * ib * r.matrix().transpose(),
+        });
+        let x_pf = iso([0.01, 0.05, -0.01], [0.2, -0.3 + 0.1 * i as f64, 0.4]);
+        let x_bm = iso([0.0, -0.02, 0.0], [-0.1, 0.25, 0.15 * i as f64]);
+        let kind = if i == 1 {
+            JointKind::Ball {
+                coords: std::array::from_fn(|k| coord(&mut spec, format!("j{i}_{k}"))),
+            }
+        } else {
+            JointKind::Free {
+                coords: std::array::from_fn(|k| coord(&mut spec, format!("j{i}_{k}"))),
+            }
+        };
+        let parent = (i > 0).then(|| i - 1);
+        spec.joints.push(JointSpec {
+            name: format!("j{i}"),
+            parent,
+            child: i,
+            x_pf,
+            x_bm,
+            kind,
+        });
+        let (f1, f2) = if i == 0 {
+            (x_pf, x_bm)
+        } else {
+            (
+                iso([0.01, 0.05, -0.01], [0.25, -0.3, 0.4]),
+                iso([0.001, -0.02, 0.0], [-0.1, 0.3, 0.0]),
+            )
+        };
+        spec.bushings.push(BushingSpec {
+            name: format!("bu{i}"),
+            frame1: FrameSpec {
+                body: parent,
+                transform: f1,
+            },
+            frame2: FrameSpec {
+                body: Some(i),
+                transform: f2,
+            },
+            model: law.clone(),
+        });
+    }
+    spec
+}
+
+fn free_ball_state(n: usize, seed: usize) -> (Vec<f64>, Vec<f64>) {
+    let wave = |i: usize, k: usize| (((i * 7 + k * 3 + seed) % 11) as f64 / 11.0 - 0.5) * 2.0;
+    // dofs per joint: 6 (free), 3 (ball), 6 (free); rotations first
+    let rot = |i: usize| i < 3 || (6..9).contains(&i) || (9..12).contains(&i);
+    let q = (0..n)
+        .map(|i| {
+            if rot(i) {
+                0.6 * wave(i, 1)
+            } else {
+                0.01 * wave(i, 2)
+            }
+        })
+        .collect();
+    let u = (0..n)
+        .map(|i| {
+            if rot(i) {
+                2.0 * wave(i, 3)
+            } else {
+                0.1 * wave(i, 4)
+            }
+        })
+        .collect();
+    (q, u)
+}
+
+#[test]
+fn free_and_ball_speeds_are_angular_velocities() {
+    let sys = System::new(&free_ball_chain(true)).unwrap();
+    assert_eq!(sys.n_dofs(), 15);
+    assert!(sys.has_angular_velocity_speeds());
+    assert!(sys.bushing_on_joint_frames(0));
+    let mapped: Vec<usize> = (0..15)
+        .filter(|&i| sys.dof_speed_is_angular_velocity(i))
+        .collect();
+    assert_eq!(mapped, vec![0, 1, 2, 6, 7, 8, 9, 10, 11]);
+    let (q, u) = free_ball_state(15, 0);
+    let mut qd = vec![0.0; 15];
+    sys.qdot(&q, &u, &mut qd).unwrap();
+    // the angular velocity of M in F (F axes) from the joint transform's
+    // finite-difference derivative along qdot equals the speeds
+    for (j, s) in [("j0", 0usize), ("j1", 6), ("j2", 9)] {
+        let h = 1e-6;
+        let at = |e: f64| -> Vec<f64> { q.iter().zip(&qd).map(|(a, b)| a + e * b).collect() };
+        let r = |e: f64| {
+            sys.joint_transform(j, &at(e))
+                .unwrap()
+                .rotation
+                .to_rotation_matrix()
+                .into_inner()
+        };
+        let wx = (r(h) - r(-h)) / (2.0 * h) * r(0.0).transpose();
+        let w = Vector3::new(wx[(2, 1)], wx[(0, 2)], wx[(1, 0)]);
+        for k in 0..3 {
+            assert!(
+                (w[k] - u[s + k]).abs() < 1e-7,
+                "{j}: w {w:?} vs u {:?}",
+                &u[s..s + 3]
+            );
+        }
+    }
+    // translations keep u = qdot
+    assert_eq!(&qd[3..6], &u[3..6]);
+    assert_eq!(&qd[12..15], &u[12..15]);
+    // round trip
+    let mut back = vec![0.0; 15];
+    sys.speeds_from_qdot(&q, &qd, &mut back).unwrap();
+    for i in 0..15 {
+        assert!((back[i] - u[i]).abs() < 1e-13, "{i}");
+    }
+    // gimbal lock of a Free joint: an error, not a panic or a NaN
+    let mut ql = q.clone();
+    ql[1] = std::f64::consts::FRAC_PI_2;
+    assert!(sys.qdot(&ql, &u, &mut qd).is_err());
+    // a CustomJoint system has coordinate-rate speeds
+    assert!(!System::new(&spine_chain(2))
+        .unwrap()
+        .has_angular_velocity_speeds());
+}
+
+#[test]
+fn free_and_ball_kinetic_energy_equals_body_velocity_energy() {
+    let spec = free_ball_chain(true);
+    let sys = System::new(&spec).unwrap();
+    let mut ws = Workspace::new(&sys);
+    let n = sys.n_dofs();
+    for seed in 0..4 {
+        let (q, u) = free_ball_state(n, seed);
+        let mut qd = vec![0.0; n];
+        sys.qdot(&q, &u, &mut qd).unwrap();
+        // body velocities by central differences of the poses along qdot
+        let h = 1e-6;
+        let at = |e: f64| -> Vec<f64> { q.iter().zip(&qd).map(|(a, b)| a + e * b).collect() };
+        let (xp, xm, x0) = (
+            sys.body_transforms(&at(h)).unwrap(),
+            sys.body_transforms(&at(-h)).unwrap(),
+            sys.body_transforms(&q).unwrap(),
+        );
+        let mut ke = 0.0;
+        for (k, (name, x)) in x0.iter().enumerate() {
+            let b = spec.bodies.iter().find(|b| &b.name == name).unwrap();
+            let r = x.rotation.to_rotation_matrix().into_inner();
+            let rdot = (xp[k].1.rotation.to_rotation_matrix().into_inner()
+                - xm[k].1.rotation.to_rotation_matrix().into_inner())
+                / (2.0 * h);
+            let wx = rdot * r.transpose();
+            let w = Vector3::new(
+                wx[(2, 1)] - wx[(1, 2)],
+                wx[(0, 2)] - wx[(2, 0)],
+                wx[(1, 0)] - wx[(0, 1)],
+            ) * 0.5;
+            let c = |x: &Isometry3<f64>| x * nalgebra::Point3::from(b.com);
+            let v = (c(&xp[k].1) - c(&xm[k].1)) / (2.0 * h);
+            let ig = r * b.inertia * r.transpose();
+            ke += 0.5 * b.mass * v.norm_squared() + 0.5 * w.dot(&(ig * w));
+        }
+        let m = sys.mass_matrix(&q, &mut ws).unwrap();
+        let uv = nalgebra::DVector::from_vec(u.clone());
+        let ke_m = 0.5 * uv.dot(&(&m * &uv));
+        let ke_e = sys.energy(&q, &u, &mut ws).unwrap().kinetic;
+        assert!((ke_m - ke).abs() < 1e-8 * ke, "{ke_m} vs {ke}");
+        assert!((ke_e - ke).abs() < 1e-8 * ke, "{ke_e} vs {ke}");
+        // reading the speeds as coordinate rates would give another energy
+        let qv = nalgebra::DVector::from_vec(qd.clone());
+        assert!((0.5 * qv.dot(&(&m * &qv)) - ke).abs() > 1e-3 * ke);
+    }
+}
+
+#[test]
+fn free_and_ball_power_balance_and_energy_conservation() {
+    // undamped: d/dt (T + V) = 0 at every state, i.e. u . (M udot) equals
+    // the power of the conservative forces; checked through the energy
+    // along a short simulation (implicit midpoint: O(dt^2) drift)
+    let sys = System::new(&free_ball_chain(false)).unwrap();
+    let mut ws = Workspace::new(&sys);
+    let n = sys.n_dofs();
+    let (q0, u0) = free_ball_state(n, 2);
+    let e0 = sys.energy(&q0, &u0, &mut ws).unwrap();
+    // instantaneous power: dE/dt along (qdot, udot) by central differences
+    let mut qd = vec![0.0; n];
+    sys.qdot(&q0, &u0, &mut qd).unwrap();
+    let mut a = vec![0.0; n];
+    sys.accelerations(&q0, &u0, &LoadSet::empty(), &mut ws, &mut a)
+        .unwrap();
+    let h = 1e-6;
+    let step = |e: f64| -> (Vec<f64>, Vec<f64>) {
+        (
+            q0.iter().zip(&qd).map(|(x, d)| x + e * d).collect(),
+            u0.iter().zip(&a).map(|(x, d)| x + e * d).collect(),
+        )
+    };
+    let (qp, up) = step(h);
+    let (qm, um) = step(-h);
+    let de = (sys.energy(&qp, &up, &mut ws).unwrap().total()
+        - sys.energy(&qm, &um, &mut ws).unwrap().total())
+        / (2.0 * h);
+    assert!(
+        de.abs() < 1e-6 * e0.kinetic,
+        "dE/dt = {de} (kinetic energy {})",
+        e0.kinetic
+    );
+    let mut worst = 0.0f64;
+    for dt in [2e-4, 1e-4] {
+        let mut integ = dynamics::Integrator::new(&sys, dt);
+        let traj = integ
+            .run(&sys, &LoadSet::empty(), &mut ws, &q0, &u0, 0.1, 10)
+            .unwrap();
+        let drift = traj.iter().fold(0.0f64, |m, s| {
+            let e = sys.energy(s.q.as_slice(), s.u.as_slice(), &mut ws).unwrap();
+            m.max((e.total() - e0.total()).abs())
+        });
+        assert!(drift < 1e-3 * e0.kinetic, "dt {dt}: drift {drift}");
+        if worst > 0.0 {
+            // second order: halving dt divides the drift by about 4
+            assert!(worst / drift > 3.0, "{worst} -> {drift}");
+        }
+        worst = drift;
+    }
+}
