@@ -135,16 +135,8 @@ impl LoadCase {
 
 /// Parse `[[case]]` tables from TOML text; ids must be unique.
 pub fn parse_cases(text: &str, file: &Path) -> Result<Vec<LoadCase>> {
-    let parsed: CaseFile = toml::from_str(text).map_err(|e| {
-        let location = match e.span() {
-            Some(s) => format!(
-                "line {}",
-                text[..s.start.min(text.len())].lines().count().max(1)
-            ),
-            None => "file".to_string(),
-        };
-        Error::parse(file, location, e.message().to_string())
-    })?;
+    let text = strip_bom(text);
+    let parsed: CaseFile = toml::from_str(text).map_err(|e| toml_error(text, file, e))?;
     if parsed.case.is_empty() {
         return Err(Error::parse(
             file,
@@ -287,11 +279,91 @@ fn toml_error(text: &str, file: &Path, e: toml::de::Error) -> Error {
     let location = match e.span() {
         Some(s) => format!(
             "line {}",
-            text[..s.start.min(text.len())].lines().count().max(1)
+            text.get(..s.start)
+                .map(|t| t.matches('\n').count() + 1)
+                .unwrap_or(1)
         ),
         None => "file".to_string(),
     };
     Error::parse(file, location, e.message().to_string())
+}
+
+/// The content of an `experiment.toml`, parsed and validated as far as it
+/// can be without the model ([`parse_experiment_toml`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExperimentFile {
+    /// `[specimen] model`: the nominal model, relative to the file.
+    pub model: String,
+    /// `[specimen] fixed_body`.
+    pub fixed_body: String,
+    /// `[specimen] gravity`.
+    pub gravity: bool,
+    /// `[units]`.
+    pub units: Units,
+    /// The `[[case]]` tables, in file order (ids unique, values checked).
+    pub cases: Vec<LoadCase>,
+}
+
+/// Strip a UTF-8 byte-order mark (spreadsheet and Windows editors write one).
+fn strip_bom(text: &str) -> &str {
+    text.strip_prefix('\u{feff}').unwrap_or(text)
+}
+
+/// Parse the text of an `experiment.toml` (`file` names it in messages):
+/// `[specimen]`, `[units]` and at least one `[[case]]`, ids unique. Unit
+/// names are matched without regard to case (`"deg"`, `"DEG"`).
+pub fn parse_experiment_toml(text: &str, file: &Path) -> Result<ExperimentFile> {
+    let text = strip_bom(text);
+    let raw: ExperimentToml = toml::from_str(text).map_err(|e| toml_error(text, file, e))?;
+    let units = Units {
+        angle: match raw.units.angle.trim().to_ascii_lowercase().as_str() {
+            "deg" => "deg",
+            "rad" => "rad",
+            _ => {
+                return Err(Error::parse(
+                    file,
+                    "[units] angle",
+                    format!("expected \"deg\" or \"rad\", got \"{}\"", raw.units.angle),
+                ))
+            }
+        },
+        length: match raw.units.length.trim().to_ascii_lowercase().as_str() {
+            "mm" => "mm",
+            "m" => "m",
+            _ => {
+                return Err(Error::parse(
+                    file,
+                    "[units] length",
+                    format!("expected \"mm\" or \"m\", got \"{}\"", raw.units.length),
+                ))
+            }
+        },
+    };
+    if raw.case.is_empty() {
+        return Err(Error::parse(
+            file,
+            "file",
+            "no [[case]] table: an experiment needs at least one load case",
+        ));
+    }
+    let mut seen = BTreeSet::new();
+    for (i, c) in raw.case.iter().enumerate() {
+        c.validate(file, i)?;
+        if !seen.insert(c.id.clone()) {
+            return Err(Error::parse(
+                file,
+                format!("[[case]] #{}", i + 1),
+                format!("duplicate case id '{}'", c.id),
+            ));
+        }
+    }
+    Ok(ExperimentFile {
+        model: raw.specimen.model,
+        fixed_body: raw.specimen.fixed_body,
+        gravity: raw.specimen.gravity,
+        units,
+        cases: raw.case,
+    })
 }
 
 impl Experiment {
@@ -299,58 +371,16 @@ impl Experiment {
     pub fn read(dir: impl AsRef<Path>) -> Result<Experiment> {
         let dir = dir.as_ref().to_path_buf();
         let toml_path = dir.join("experiment.toml");
-        let text = std::fs::read_to_string(&toml_path).map_err(|e| Error::io(&toml_path, e))?;
-        let raw: ExperimentToml =
-            toml::from_str(&text).map_err(|e| toml_error(&text, &toml_path, e))?;
-        let units = Units {
-            angle: match raw.units.angle.as_str() {
-                "deg" => "deg",
-                "rad" => "rad",
-                other => {
-                    return Err(Error::parse(
-                        &toml_path,
-                        "[units] angle",
-                        format!("expected \"deg\" or \"rad\", got \"{other}\""),
-                    ))
-                }
-            },
-            length: match raw.units.length.as_str() {
-                "mm" => "mm",
-                "m" => "m",
-                other => {
-                    return Err(Error::parse(
-                        &toml_path,
-                        "[units] length",
-                        format!("expected \"mm\" or \"m\", got \"{other}\""),
-                    ))
-                }
-            },
-        };
-        if raw.case.is_empty() {
-            return Err(Error::parse(
-                &toml_path,
-                "file",
-                "no [[case]] table: an experiment needs at least one load case",
-            ));
-        }
-        let mut seen = BTreeSet::new();
-        for (i, c) in raw.case.iter().enumerate() {
-            c.validate(&toml_path, i)?;
-            if !seen.insert(c.id.clone()) {
-                return Err(Error::parse(
-                    &toml_path,
-                    format!("[[case]] #{}", i + 1),
-                    format!("duplicate case id '{}'", c.id),
-                ));
-            }
-        }
-        let model_path = dir.join(&raw.specimen.model);
+        let text = read_text(&toml_path)?;
+        let raw = parse_experiment_toml(&text, &toml_path)?;
+        let units = raw.units;
+        let model_path = dir.join(&raw.model);
         let doc = Document::read(&model_path)?;
         let model = doc.model()?;
         let mut spec = SystemSpec::from_model(&model)?;
         let bodies: Vec<String> = spec.bodies.iter().map(|b| b.name.clone()).collect();
         let known = |n: &str| bodies.iter().any(|b| b == n);
-        let fixed = raw.specimen.fixed_body.clone();
+        let fixed = raw.fixed_body.clone();
         if !known(&fixed) {
             return Err(Error::parse(
                 &toml_path,
@@ -362,7 +392,7 @@ impl Experiment {
                 ),
             ));
         }
-        for (i, c) in raw.case.iter().enumerate() {
+        for (i, c) in raw.cases.iter().enumerate() {
             if !known(&c.body) {
                 return Err(Error::parse(
                     &toml_path,
@@ -383,7 +413,7 @@ impl Experiment {
                 ));
             }
         }
-        if !raw.specimen.gravity {
+        if !raw.gravity {
             spec.gravity = Vector3::zeros();
         }
         spec = System::with_body_fixed(&spec, &fixed)?;
@@ -401,7 +431,8 @@ impl Experiment {
             })
             .collect();
         let csv_path = dir.join("kinematics.csv");
-        let rows = read_kinematics(&csv_path, &raw.case, &units, &|u, l| {
+        let csv_text = read_text(&csv_path)?;
+        let rows = parse_kinematics(&csv_text, &csv_path, &raw.cases, &units, &|u, l| {
             if !known(u) {
                 return Err(format!(
                     "unknown body '{u}' in column upper (bodies: {})",
@@ -425,7 +456,7 @@ impl Experiment {
             }
         })?;
         let mut warnings = Vec::new();
-        for (i, c) in raw.case.iter().enumerate() {
+        for (i, c) in raw.cases.iter().enumerate() {
             if !rows.iter().any(|r| r.case == i) {
                 warnings.push(format!(
                     "case '{}' has no row in kinematics.csv: it is not used",
@@ -445,9 +476,9 @@ impl Experiment {
             doc,
             spec,
             fixed_body: fixed,
-            gravity: raw.specimen.gravity,
+            gravity: raw.gravity,
             units,
-            cases: raw.case,
+            cases: raw.cases,
             rows,
             warnings,
         })
@@ -502,24 +533,59 @@ impl Experiment {
 const MAX_ANGLE_RAD: f64 = 1.0;
 const MAX_TRANSLATION_M: f64 = 0.05;
 
-type PairCheck<'a> = dyn Fn(&str, &str) -> std::result::Result<(), String> + 'a;
+/// Checks an `upper`/`lower` pair of body names: `Err(message)` when the
+/// pair is not an adjacent pair of the model (see [`Experiment::read`]).
+pub type PairCheck<'a> = dyn Fn(&str, &str) -> std::result::Result<(), String> + 'a;
 
-fn read_kinematics(
+/// Largest experiment file accepted (a study with thousands of rows is < 1 MB).
+pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
+
+/// Read a text file, refusing huge files before reading and non-UTF-8 text.
+fn read_text(path: &Path) -> Result<String> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.len() > MAX_FILE_BYTES {
+        return Err(Error::parse(
+            path,
+            "file",
+            format!(
+                "file is {} bytes; experiment files are limited to {MAX_FILE_BYTES} bytes",
+                meta.len()
+            ),
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    String::from_utf8(bytes)
+        .map_err(|e| Error::parse(path, "file", format!("not UTF-8 text ({e})")))
+}
+
+/// Parse the text of a `kinematics.csv` (`path` names it in messages).
+///
+/// Columns are found by name (`case,upper,lower,rx,ry,rz,tx,ty,tz`, any
+/// order, names matched without regard to case; other columns are ignored).
+/// Cells are trimmed and may be quoted; an empty cell, or a cell missing at
+/// the end of a short row, is "not measured"; cells beyond the header must
+/// be empty (trailing commas). Lines starting with `#` are comments; a
+/// UTF-8 byte-order mark and CRLF line ends are accepted. `cases` are the
+/// experiment's load cases, `check_pair` validates each `upper`/`lower`.
+pub fn parse_kinematics(
+    text: &str,
     path: &Path,
     cases: &[LoadCase],
     units: &Units,
     check_pair: &PairCheck,
 ) -> Result<Vec<Measurement>> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let text = strip_bom(text);
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(true)
-        .flexible(false)
+        .flexible(true)
+        .comment(Some(b'#'))
         .trim(csv::Trim::All)
-        .from_reader(file);
+        .from_reader(text.as_bytes());
     let headers = rdr
         .headers()
         .map_err(|e| Error::parse(path, "line 1", format!("cannot read the header: {e}")))?
         .clone();
+    let header_line = headers.position().map(|p| p.line()).unwrap_or(1);
     let mut col = [0usize; 9];
     for (k, name) in ["case", "upper", "lower"]
         .iter()
@@ -529,7 +595,7 @@ fn read_kinematics(
         let hits: Vec<usize> = headers
             .iter()
             .enumerate()
-            .filter(|(_, h)| h == name)
+            .filter(|(_, h)| h.eq_ignore_ascii_case(name))
             .map(|(i, _)| i)
             .collect();
         match hits.as_slice() {
@@ -537,7 +603,7 @@ fn read_kinematics(
             [] => {
                 return Err(Error::parse(
                     path,
-                    "line 1",
+                    format!("line {header_line}"),
                     format!(
                         "missing column '{name}' (expected case,upper,lower,rx,ry,rz,tx,ty,tz)"
                     ),
@@ -546,7 +612,7 @@ fn read_kinematics(
             _ => {
                 return Err(Error::parse(
                     path,
-                    "line 1",
+                    format!("line {header_line}"),
                     format!("column '{name}' appears more than once"),
                 ))
             }
@@ -569,6 +635,25 @@ fn read_kinematics(
         })?;
         let line = rec.position().map(|p| p.line()).unwrap_or(0);
         let at = format!("line {line}");
+        if rec.iter().all(str::is_empty) {
+            continue; // a row of empty cells (spreadsheet export)
+        }
+        if let Some((k, cell)) = rec
+            .iter()
+            .enumerate()
+            .skip(headers.len())
+            .find(|(_, c)| !c.is_empty())
+        {
+            return Err(Error::parse(
+                path,
+                at,
+                format!(
+                    "cell {} ('{cell}') is beyond the {} columns of the header",
+                    k + 1,
+                    headers.len()
+                ),
+            ));
+        }
         let field = |k: usize| rec.get(col[k]).unwrap_or("");
         let id = field(0);
         let Some(&ci) = case_idx.get(id) else {
