@@ -575,17 +575,20 @@ pub fn parse_kinematics(
     check_pair: &PairCheck,
 ) -> Result<Vec<Measurement>> {
     let text = strip_bom(text);
+    // `#` comment lines blanked here: the csv crate would not count them in
+    // its line numbers.
+    let text = crate::util::blank_comment_lines(text);
+    let line_at = |p: &csv::Position| crate::util::csv_line(&text, p);
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(true)
         .flexible(true)
-        .comment(Some(b'#'))
         .trim(csv::Trim::All)
         .from_reader(text.as_bytes());
     let headers = rdr
         .headers()
         .map_err(|e| Error::parse(path, "line 1", format!("cannot read the header: {e}")))?
         .clone();
-    let header_line = headers.position().map(|p| p.line()).unwrap_or(1);
+    let header_line = headers.position().map(line_at).unwrap_or(1);
     let mut col = [0usize; 9];
     for (k, name) in ["case", "upper", "lower"]
         .iter()
@@ -629,11 +632,11 @@ pub fn parse_kinematics(
         let rec = rec.map_err(|e| {
             let at = e
                 .position()
-                .map(|p| format!("line {}", p.line()))
+                .map(|p| format!("line {}", line_at(p)))
                 .unwrap_or_else(|| "file".into());
             Error::parse(path, at, e.to_string())
         })?;
-        let line = rec.position().map(|p| p.line()).unwrap_or(0);
+        let line = rec.position().map(line_at).unwrap_or(0);
         let at = format!("line {line}");
         if rec.iter().all(str::is_empty) {
             continue; // a row of empty cells (spreadsheet export)
@@ -808,6 +811,161 @@ follower_load = 400.0
         ] {
             let e = parse_cases(text, p).unwrap_err().to_string();
             assert!(e.contains(needle) && e.contains("bad.toml"), "{e}");
+        }
+    }
+
+    const TOML: &str = "[specimen]\nmodel = \"specimen.osim\"\nfixed_body = \"sacrum\"\ngravity = false\n\n[units]\nangle = \"deg\"\nlength = \"mm\"\n\n[[case]]\nid = \"FE_neg_7.5\"\nbody = \"lumbar4\"\nmoment = [0.0, 0.0, -7.5]\nmoment_frame = \"ground\"\n\n[[case]]\nid = \"LB\"\nbody = \"lumbar4\"\nmoment = [7.5, 0.0, 0.0]\nmoment_frame = \"body\"\n";
+
+    fn adjacent(u: &str, l: &str) -> std::result::Result<(), String> {
+        match (u, l) {
+            ("lumbar5", "sacrum") | ("lumbar4", "lumbar5") => Ok(()),
+            _ => Err(format!("'{u}' and '{l}' are not an adjacent pair")),
+        }
+    }
+
+    fn kin(text: &str) -> Result<Vec<Measurement>> {
+        let e = parse_experiment_toml(TOML, Path::new("experiment.toml")).unwrap();
+        parse_kinematics(
+            text,
+            Path::new("kinematics.csv"),
+            &e.cases,
+            &e.units,
+            &adjacent,
+        )
+    }
+
+    #[test]
+    fn experiment_toml_follows_the_format() {
+        let e = parse_experiment_toml(TOML, Path::new("experiment.toml")).unwrap();
+        assert_eq!(e.model, "specimen.osim");
+        assert_eq!(e.fixed_body, "sacrum");
+        assert!(!e.gravity);
+        assert_eq!((e.units.angle, e.units.length), ("deg", "mm"));
+        assert_eq!(e.cases.len(), 2);
+        assert_eq!(e.cases[1].moment_frame, Some(FrameName::Body));
+        // optional keys default to zero / ground
+        assert_eq!(e.cases[0].force, [0.0; 3]);
+        assert_eq!(e.cases[0].follower_load, 0.0);
+        // a byte-order mark and CRLF line ends; unit names in any case
+        let crlf = format!(
+            "\u{feff}{}",
+            TOML.replace('\n', "\r\n").replace("\"deg\"", "\"DEG\"")
+        );
+        let e2 = parse_experiment_toml(&crlf, Path::new("experiment.toml")).unwrap();
+        assert_eq!(e2.cases, e.cases);
+        assert_eq!(e2.units.angle, "deg");
+        // errors name the file and where
+        let p = Path::new("experiment.toml");
+        for (text, needles) in [
+            (
+                TOML.replace("angle = \"deg\"", "angle = \"grad\""),
+                vec!["[units] angle", "\"deg\" or \"rad\""],
+            ),
+            (
+                TOML.replace("length = \"mm\"", "length = \"cm\""),
+                vec!["[units] length"],
+            ),
+            (
+                TOML.replace("[units]\nangle = \"deg\"\nlength = \"mm\"\n", ""),
+                vec!["units"],
+            ),
+            (TOML.replace("gravity = false\n", ""), vec!["gravity"]),
+            (
+                TOML.replace("moment_frame = \"body\"", "moment_frame = \"local\""),
+                vec!["line 20", "local"],
+            ),
+            (
+                TOML.replace("id = \"LB\"", "id = \"FE_neg_7.5\""),
+                vec!["[[case]] #2", "duplicate case id"],
+            ),
+            (
+                TOML.split("[[case]]").next().unwrap().to_string(),
+                vec!["no [[case]]"],
+            ),
+        ] {
+            let e = parse_experiment_toml(&text, p).unwrap_err().to_string();
+            assert!(e.contains("experiment.toml"), "{e}");
+            for n in needles {
+                assert!(e.contains(n), "`{n}` not in: {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn kinematics_csv_variants() {
+        let d2r = std::f64::consts::PI / 180.0;
+        // the documented layout
+        let rows = kin("case,upper,lower,rx,ry,rz,tx,ty,tz\nFE_neg_7.5,lumbar5,sacrum,-0.0213,0.0011,-5.871,0.412,-0.035,0.020\n").unwrap();
+        assert_eq!(rows.len(), 1);
+        assert!((rows[0].values[2].unwrap() - (-5.871 * d2r)).abs() < 1e-15);
+        assert!((rows[0].values[3].unwrap() - 0.412e-3).abs() < 1e-15);
+        assert_eq!(rows[0].line, 2);
+        // BOM, CRLF, upper-case and reordered columns, an extra column,
+        // quoted cells, a comment, blank translation cells, a short row
+        // (translations left out), trailing commas, an all-empty row
+        let text = "\u{feff}# rig 2\r\nUpper,LOWER,Case,RX,ry,rz,tx,ty,tz,note\r\n\"lumbar5\",sacrum,\"FE_neg_7.5\",1,2,3,,,,ok\r\nlumbar4,lumbar5,FE_neg_7.5,4,5,6\r\n,,,,,,,,,\r\nlumbar5,sacrum,LB,7,8,9,1,2,3,,,\r\n";
+        let rows = kin(text).unwrap();
+        assert_eq!(rows.len(), 3);
+        assert_eq!(
+            (rows[0].upper.as_str(), rows[0].lower.as_str()),
+            ("lumbar5", "sacrum")
+        );
+        assert_eq!(rows[0].case, 0);
+        assert_eq!(rows[2].case, 1);
+        for (r, want) in rows
+            .iter()
+            .zip([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]])
+        {
+            for k in 0..3 {
+                assert!((r.values[k].unwrap() - want[k] * d2r).abs() < 1e-15);
+            }
+        }
+        assert_eq!(rows[0].values[3..], [None, None, None]);
+        assert_eq!(rows[1].values[3..], [None, None, None]);
+        assert!((rows[2].values[5].unwrap() - 3e-3).abs() < 1e-15);
+        assert_eq!(rows[2].line, 6);
+        // errors name the file, the line and what was expected
+        for (text, needles) in [
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty\n",
+                vec!["line 1", "missing column 'tz'"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz,RX\n",
+                vec!["column 'rx' appears more than once"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,1,2,3,,,,5\n",
+                vec!["line 2", "beyond the 9 columns"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,NaN,2,3\n",
+                vec!["line 2", "column rx", "finite"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,1;5,2,3\n",
+                vec!["line 2", "column rx", "'1;5' is not a number"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nXX,lumbar5,sacrum,1,2,3\n",
+                vec!["line 2", "case 'XX'"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,sacrum,lumbar5,1,2,3\n",
+                vec!["line 2", "not an adjacent pair"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,1\nLB,lumbar5,sacrum,2\n",
+                vec!["line 3", "duplicate row", "line 2"],
+            ),
+            ("case,upper,lower,rx,ry,rz,tx,ty,tz\n", vec!["no data rows"]),
+            ("", vec!["missing column 'case'"]),
+        ] {
+            let e = kin(text).unwrap_err().to_string();
+            assert!(e.contains("kinematics.csv"), "{e}");
+            for n in needles {
+                assert!(e.contains(n), "`{n}` not in: {e}");
+            }
         }
     }
 }
