@@ -619,6 +619,12 @@ fn json_variants_read_as_the_same_set() {
     let det = set.detection.unwrap();
     assert_eq!(det.detected_units, Some(Units::Millimetre));
     assert_eq!(det.detected_frame, Some(Frame::Lps));
+    // "a tool that guesses must say what it guessed": the checker reports
+    // both guesses (LM004 units, LM005 frame) and the ignored key (LM008).
+    let r = osim_spine::landmarks::check::check_file(&p);
+    for code in ["LM004", "LM005", "LM008"] {
+        assert!(r.has(code), "{code}: {:?}", r.findings);
+    }
     // A name given twice is refused, not merged.
     let dup = format!(
         "{{\"units\": \"mm\", \"frame\": \"LPS\", \"landmarks\": {{{}, {}}}}}",
