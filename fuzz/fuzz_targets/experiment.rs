@@ -20,7 +20,9 @@ fn adjacent(u: &str, l: &str) -> Result<(), String> {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(text) = std::str::from_utf8(data) else { return };
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
     let (toml_text, csv_text) = text.split_once("\n=====\n").unwrap_or((text, ""));
     let _ = parse_cases(toml_text, Path::new("fuzz-loads.toml"));
     let Ok(exp) = parse_experiment_toml(toml_text, Path::new("experiment.toml")) else {

@@ -15,12 +15,17 @@ fn exercise(raw: &io::RawLandmarks) {
     let _ = check::check_raw(raw);
     if let Ok(set) = raw.to_set() {
         // An accepted set has finite coordinates in metres.
-        assert!(set.points.values().all(|p| p.coords.iter().all(|x| x.is_finite())));
+        assert!(set
+            .points
+            .values()
+            .all(|p| p.coords.iter().all(|x| x.is_finite())));
     }
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(text) = std::str::from_utf8(data) else { return };
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
     if let Ok(pals) = io::parse_csv(text, Path::new("fuzz.csv")) {
         for p in &pals {
             exercise(&p.raw);

@@ -31,7 +31,9 @@ fn exercise(t: &table::Table) {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(text) = std::str::from_utf8(data) else { return };
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
     if let Ok(t) = table::parse_toml(text, Path::new("fuzz.toml")) {
         exercise(&t);
     }

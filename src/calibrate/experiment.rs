@@ -916,8 +916,8 @@ follower_load = 400.0
             .iter()
             .zip([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]])
         {
-            for k in 0..3 {
-                assert!((r.values[k].unwrap() - want[k] * d2r).abs() < 1e-15);
+            for (v, w) in r.values.iter().zip(want) {
+                assert!((v.unwrap() - w * d2r).abs() < 1e-15);
             }
         }
         assert_eq!(rows[0].values[3..], [None, None, None]);
