@@ -47,6 +47,46 @@ pub fn fmt_f64(x: f64) -> String {
     }
 }
 
+/// `text` with every line whose first non-blank character is `#` made
+/// empty (line ends kept), so a CSV reader that skips empty lines still
+/// reports the file's own line numbers (the csv crate does not count
+/// comment lines it skips itself).
+pub fn blank_comment_lines(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for l in text.split_inclusive('\n') {
+        if l.trim_start().starts_with('#') {
+            if l.ends_with("\r\n") {
+                out.push_str("\r\n");
+            } else if l.ends_with('\n') {
+                out.push('\n');
+            }
+        } else {
+            out.push_str(l);
+        }
+    }
+    out
+}
+
+/// The 1-based line of `text` on which a csv-crate record starts. The
+/// crate's own `Position::line` miscounts CRLF files and skipped blank
+/// lines, and its byte offset may point at the line end before the record:
+/// count the newlines before the offset, then step over line ends.
+pub fn csv_line(text: &str, pos: &csv::Position) -> u64 {
+    let b = usize::try_from(pos.byte())
+        .unwrap_or(usize::MAX)
+        .min(text.len());
+    let bytes = text.as_bytes();
+    let mut line = bytes[..b].iter().filter(|&&c| c == b'\n').count() as u64 + 1;
+    for &c in &bytes[b..] {
+        match c {
+            b'\n' => line += 1,
+            b'\r' => {}
+            _ => break,
+        }
+    }
+    line
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -77,5 +117,32 @@ mod tests {
             assert_eq!(fmt_f64(x).parse::<f64>().unwrap(), x);
         }
         assert_eq!(fmt_f64(-0.0), "0");
+    }
+
+    #[test]
+    fn csv_lines_are_the_file_lines() {
+        for text in [
+            "\r\nh,a\r\nx,1\r\n# c\r\n,\r\nz,3\r\n",
+            "\nh,a\nx,1\n# c\n,\nz,3\n",
+            "h,a\r\n\r\nx,1\r\n\r\n\r\n,\nz,3",
+        ] {
+            let blank = blank_comment_lines(text);
+            // where each record starts, by hand: the line holding its first cell
+            let want: Vec<u64> = blank
+                .split('\n')
+                .enumerate()
+                .filter(|(_, l)| !l.trim_end_matches('\r').is_empty())
+                .map(|(i, _)| i as u64 + 1)
+                .collect();
+            let mut r = csv::ReaderBuilder::new()
+                .flexible(true)
+                .has_headers(false)
+                .from_reader(blank.as_bytes());
+            let got: Vec<u64> = r
+                .records()
+                .map(|rec| csv_line(&blank, rec.unwrap().position().unwrap()))
+                .collect();
+            assert_eq!(got, want, "{text:?}");
+        }
     }
 }

@@ -69,6 +69,82 @@ fn reduced(src: &Path, dst: &Path, keep: impl Fn(&str) -> bool) {
     std::fs::write(dst.join("kinematics.csv"), csv).unwrap();
 }
 
+/// The effect vocabulary of `../shared/formats/experiment.md`.
+const EFFECTS: [&str; 7] = [
+    "none",
+    "level_dependent_stiffness",
+    "nonlinear_stiffness",
+    "asymmetric_stiffness",
+    "coupled_stiffness",
+    "joint_pose_error",
+    "preload_stiffening",
+];
+
+/// Every required key of diagnosis.json, with the type and values the
+/// format gives it (`experiment.md`, "diagnosis.json").
+fn assert_diagnosis_schema(d: &serde_json::Value, exp: &Experiment, name: &str) {
+    let v = &d["verdict"];
+    let effect = v["effect"].as_str().expect("verdict.effect is a string");
+    assert!(
+        EFFECTS.contains(&effect) || effect == "unidentifiable",
+        "{name}: verdict.effect {effect}"
+    );
+    let conf = v["confidence"]
+        .as_f64()
+        .expect("verdict.confidence is a number");
+    assert!((0.0..=1.0).contains(&conf), "{name}: confidence {conf}");
+    let ranked = v["ranked"].as_array().expect("verdict.ranked is a list");
+    assert!(!ranked.is_empty(), "{name}: ranked is empty");
+    for r in ranked {
+        let e = r["effect"].as_str().expect("ranked[].effect is a string");
+        assert!(EFFECTS.contains(&e), "{name}: ranked effect {e}");
+        assert!(r["score"].as_f64().is_some(), "{name}: ranked score {r}");
+    }
+    let ids: Vec<&str> = exp.cases.iter().map(|c| c.id.as_str()).collect();
+    let where_ = d["where"].as_array().expect("where is a list");
+    assert!(!where_.is_empty(), "{name}: where is empty");
+    for w in where_ {
+        let case = w["case"].as_str().expect("where[].case is a string");
+        if effect == "unidentifiable" {
+            continue; // names the experiment that would separate the candidates
+        }
+        assert!(ids.contains(&case), "{name}: where case {case}");
+        let upper = w["upper"].as_str().expect("where[].upper is a string");
+        let lower = w["lower"].as_str().expect("where[].lower is a string");
+        assert!(
+            exp.rows
+                .iter()
+                .any(|r| r.upper == upper && r.lower == lower),
+            "{name}: where pair {upper}/{lower} is not a measured pair"
+        );
+        let dof = w["dof"].as_str().expect("where[].dof is a string");
+        assert!(
+            osim_spine::calibrate::experiment::DOF_NAMES.contains(&dof),
+            "{name}: dof {dof}"
+        );
+        let share = w["share"].as_f64().expect("where[].share is a number");
+        assert!((0.0..=1.0).contains(&share), "{name}: share {share}");
+    }
+    let h = &d["heldout"];
+    for c in h["cases"].as_array().expect("heldout.cases is a list") {
+        let c = c.as_str().expect("heldout.cases[] are strings");
+        assert!(ids.contains(&c), "{name}: held-out case {c}");
+    }
+    let b = h["baseline_rmse"].as_f64().expect("heldout.baseline_rmse");
+    let a = h["augmented_rmse"]
+        .as_f64()
+        .expect("heldout.augmented_rmse");
+    let shrink = h["shrink"].as_f64().expect("heldout.shrink");
+    assert!(b >= 0.0 && a >= 0.0, "{name}: rmse {b} {a}");
+    if b > 0.0 {
+        // 1 - augmented / baseline, up to the 4-decimal rounding of the report
+        assert!(
+            (shrink - (1.0 - a / b)).abs() < 2e-3 * (1.0 + a / b),
+            "{name}: shrink {shrink}"
+        );
+    }
+}
+
 #[test]
 fn verdicts_match_the_withheld_labels_and_the_gap_shrinks() {
     // one `none`, one stiffness-form and one geometric effect (CI time)
@@ -83,6 +159,8 @@ fn verdicts_match_the_withheld_labels_and_the_gap_shrinks() {
             o.verdict, o.confidence
         );
         assert_eq!(o.verdict, want, "{name}");
+        let json = osim_spine::diagnose::report::diagnosis_json(&o, &exp, None);
+        assert_diagnosis_schema(&json, &exp, name);
         // held-out cases never enter a fit
         for &h in &o.design.heldout {
             assert!(!o.design.train.contains(&h));
@@ -111,6 +189,7 @@ fn single_magnitude_makes_nonlinear_truth_unidentifiable_and_names_the_cases() {
         serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap())
             .unwrap();
     assert_eq!(d["verdict"]["effect"], "unidentifiable", "{}", d["verdict"]);
+    assert_diagnosis_schema(&d, &Experiment::read(&red).unwrap(), "dev-16 one magnitude");
     let named: Vec<String> = d["where"]
         .as_array()
         .unwrap()

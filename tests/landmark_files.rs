@@ -112,7 +112,7 @@ fn bad_files_give_clear_errors() {
         (
             "bad2.json",
             "{\"units\": \"mm\", \"landmark\": {}}".into(),
-            "unknown field `landmark`",
+            "missing field `landmarks`",
         ),
         (
             "trunc.json",
@@ -396,4 +396,244 @@ fn cli_check_exit_codes_and_github_format() {
     let (code, out) = run(&["check", d.path().join("nope.csv").to_str().unwrap()]);
     assert_eq!(code, 1);
     assert!(out.contains("LM001"), "{out}");
+}
+
+/// The CSV of `set` in mm, LPS, header comments included, with the rows
+/// turned into `(name, [x, y, z])` so the variants below can respell them.
+fn lps_mm_rows(set: &LandmarkSet) -> Vec<(String, [String; 3])> {
+    csv_string(set, Units::Millimetre, Frame::Lps)
+        .lines()
+        .skip(3)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (
+                f[0].to_string(),
+                [f[1].to_string(), f[2].to_string(), f[3].to_string()],
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn csv_spreadsheet_variants_read_as_the_same_set() {
+    // BOM, CRLF, upper-case quoted header, quoted cells, trailing commas,
+    // lower-case names, comment lines between rows, blank lines: all carry
+    // the same landmarks (format: "name,x,y,z", `# units:` / `# frame:`).
+    let d = tempfile::tempdir().unwrap();
+    let truth = clean();
+    let rows = lps_mm_rows(&truth);
+    let mut text =
+        String::from("\u{feff}# units: mm\r\n#frame:lps\r\n\"NAME\",\"X\",\"Y\",\"Z\",,\r\n");
+    for (i, (n, [x, y, z])) in rows.iter().enumerate() {
+        let n = if i % 2 == 0 {
+            n.to_lowercase()
+        } else {
+            n.clone()
+        };
+        text.push_str(&format!("\"{n}\", \"{x}\" ,{y},{z},,\r\n"));
+        if i == 3 {
+            text.push_str("# a comment between rows\r\n\r\n");
+        }
+    }
+    let set = load(&write(d.path(), "excel.csv", &text)).unwrap();
+    assert!(max_dist(&set, &truth) < 1e-12, "{}", max_dist(&set, &truth));
+    let det = set.detection.unwrap();
+    assert_eq!(det.declared_units, Some(Units::Millimetre));
+    assert_eq!(det.declared_frame, Some(Frame::Lps));
+    // A trailing cell that is not empty is still an error naming the line.
+    let mut bad = String::from("name,x,y,z\n");
+    for (i, (n, [x, y, z])) in rows.iter().enumerate() {
+        let extra = if i == 2 { ",7" } else { "" };
+        bad.push_str(&format!("{n},{x},{y},{z}{extra}\n"));
+    }
+    let e = err_of(&write(d.path(), "extra.csv", &bad));
+    assert!(
+        e.contains("line 4: expected 4 comma-separated fields, found 5"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_set_of_some_levels_ending_at_s1_is_read() {
+    // "A set may cover any contiguous run of levels ending at S1".
+    let d = tempfile::tempdir().unwrap();
+    let truth = clean();
+    let keep = |n: &str| {
+        ["L3_", "L4_", "L5_", "S1_"]
+            .iter()
+            .any(|p| n.starts_with(p))
+    };
+    let mut text = String::from("# units: mm\n# frame: LPS\nname,x,y,z\n");
+    for (n, [x, y, z]) in lps_mm_rows(&truth).iter().filter(|(n, _)| keep(n)) {
+        text.push_str(&format!("{n},{x},{y},{z}\n"));
+    }
+    let set = load(&write(d.path(), "l3_s1.csv", &text)).unwrap();
+    let levels: std::collections::BTreeSet<Level> = set.points.keys().map(|k| k.level).collect();
+    assert_eq!(
+        levels.into_iter().collect::<Vec<_>>(),
+        vec![Level::L3, Level::L4, Level::L5, Level::S1]
+    );
+    let n = truth.points.keys().filter(|k| keep(&k.to_string())).count();
+    assert_eq!(set.points.len(), n);
+    for (k, p) in &set.points {
+        assert!((p - truth.points[k]).norm() < 1e-12);
+    }
+    // ... and the checker finds no error in it (only info/warnings).
+    let r = osim_spine::landmarks::check::check_file(&d.path().join("l3_s1.csv"));
+    assert_eq!(
+        r.count(osim_spine::landmarks::check::Severity::Error),
+        0,
+        "{:?}",
+        r.findings
+    );
+}
+
+/// A TRC in OpenSim's layout (mm, OpenSim frame) of `set`, marker names
+/// `names` (extra non-landmark names get a fixed point), `frames` frames.
+fn trc_text(set: &LandmarkSet, extra: &[&str], padded_names: bool, eol: &str) -> String {
+    let mut names: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
+    names.extend(set.points.keys().map(|k| k.to_string()));
+    let sep = if padded_names { "\t\t\t" } else { "\t" };
+    let mut t = format!(
+        "PathFileType\t4\t(X/Y/Z)\tp.trc{eol}DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames{eol}60.00\t60.00\t2\t{n}\tmm\t60.00\t1\t2{eol}Frame#\tTime\t{}{eol}\t\t{}{eol}{eol}",
+        names.join(sep),
+        (1..=names.len())
+            .map(|i| format!("X{i}\tY{i}\tZ{i}"))
+            .collect::<Vec<_>>()
+            .join("\t"),
+        n = names.len()
+    );
+    for f in 1..=2 {
+        let mut vals: Vec<String> = extra.iter().map(|_| "1.0\t2.0\t3.0".to_string()).collect();
+        vals.extend(set.points.values().map(|p| {
+            let q = p.coords * 1e3;
+            format!("{}\t{}\t{}", q.x, q.y, q.z)
+        }));
+        t.push_str(&format!(
+            "{f}\t{:.4}\t{}{eol}",
+            (f - 1) as f64 / 60.0,
+            vals.join("\t")
+        ));
+    }
+    t
+}
+
+#[test]
+fn trc_variants_read_as_the_same_set() {
+    let d = tempfile::tempdir().unwrap();
+    let truth = clean();
+    // OpenSim's layout with extra skin markers before the landmarks, CRLF and a BOM.
+    let text = format!(
+        "\u{feff}{}",
+        trc_text(&truth, &["C7", "R.ASIS"], true, "\r\n")
+    );
+    let p = write(d.path(), "skin.trc", &text);
+    let raw = read_path(&p).unwrap();
+    assert!(
+        raw.notes.iter().any(|n| n.contains("C7, R.ASIS")),
+        "{:?}",
+        raw.notes
+    );
+    let set = raw.to_set().unwrap();
+    assert!(max_dist(&set, &truth) < 1e-9, "{}", max_dist(&set, &truth));
+    // The checker says what it skipped (LM008) and finds no error.
+    let r = osim_spine::landmarks::check::check_file(&p);
+    assert!(r.has("LM008"), "{:?}", r.findings);
+    // Marker names not padded with two empty cells: OpenSim still maps the
+    // i-th name to columns 2+3i.
+    let text = trc_text(&truth, &[], false, "\n");
+    let set = load(&write(d.path(), "tight.trc", &text)).unwrap();
+    assert!(max_dist(&set, &truth) < 1e-9, "{}", max_dist(&set, &truth));
+    // Header keys and values separated by spaces, not tabs.
+    let text = trc_text(&truth, &[], true, "\n")
+        .replacen(
+            "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+            "DataRate CameraRate NumFrames NumMarkers Units OrigDataRate OrigDataStartFrame OrigNumFrames",
+            1,
+        )
+        .replacen("60.00\t60.00\t2\t", "60.00 60.00 2 ", 1);
+    let text = {
+        // the rest of line 3 too
+        let mut lines: Vec<String> = text.lines().map(String::from).collect();
+        lines[2] = lines[2].replace('\t', " ");
+        lines.join("\n") + "\n"
+    };
+    let set = load(&write(d.path(), "spaces.trc", &text)).unwrap();
+    assert!(max_dist(&set, &truth) < 1e-9);
+    // Metres in the Units column.
+    let text = trc_text(&truth, &[], true, "\n");
+    let m: String = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| match i {
+            2 => l.replace("\tmm\t", "\tm\t") + "\n",
+            i if i >= 6 && !l.is_empty() => {
+                let f: Vec<String> = l
+                    .split('\t')
+                    .enumerate()
+                    .map(|(k, c)| {
+                        if k < 2 {
+                            c.to_string()
+                        } else {
+                            (c.parse::<f64>().unwrap() / 1e3).to_string()
+                        }
+                    })
+                    .collect();
+                f.join("\t") + "\n"
+            }
+            _ => format!("{l}\n"),
+        })
+        .collect();
+    let set = load(&write(d.path(), "metres.trc", &m)).unwrap();
+    assert!(max_dist(&set, &truth) < 1e-9);
+    assert_eq!(set.detection.unwrap().declared_units, Some(Units::Metre));
+    // A misspelt landmark (a level prefix, a bad code) is not skipped.
+    let text = trc_text(&truth, &["L3_SECC"], true, "\n");
+    let e = err_of(&write(d.path(), "typo.trc", &text));
+    assert!(e.contains("unknown landmark name `L3_SECC`"), "{e}");
+}
+
+#[test]
+fn json_variants_read_as_the_same_set() {
+    let d = tempfile::tempdir().unwrap();
+    let truth = clean();
+    let entries: Vec<String> = lps_mm_rows(&truth)
+        .iter()
+        .map(|(n, [x, y, z])| format!("\"{n}\": [{x}, {y}, {z}]"))
+        .collect();
+    // Both `units` and `frame` optional (detected), metadata keys ignored
+    // with a note, BOM and CRLF accepted.
+    let json = format!(
+        "\u{feff}{{\"subject\": \"P01\", \"landmarks\": {{{}}}}}",
+        entries.join(",\r\n")
+    );
+    let p = write(d.path(), "bare.json", &json);
+    let raw = read_path(&p).unwrap();
+    assert!(
+        raw.notes.iter().any(|n| n.contains("subject")),
+        "{:?}",
+        raw.notes
+    );
+    let set = raw.to_set().unwrap();
+    assert!(max_dist(&set, &truth) < 1e-12);
+    let det = set.detection.unwrap();
+    assert_eq!(det.detected_units, Some(Units::Millimetre));
+    assert_eq!(det.detected_frame, Some(Frame::Lps));
+    // "a tool that guesses must say what it guessed": the checker reports
+    // both guesses (LM004 units, LM005 frame) and the ignored key (LM008).
+    let r = osim_spine::landmarks::check::check_file(&p);
+    for code in ["LM004", "LM005", "LM008"] {
+        assert!(r.has(code), "{code}: {:?}", r.findings);
+    }
+    // A name given twice is refused, not merged.
+    let dup = format!(
+        "{{\"units\": \"mm\", \"frame\": \"LPS\", \"landmarks\": {{{}, {}}}}}",
+        entries.join(","),
+        entries[0]
+    );
+    let e = err_of(&write(d.path(), "dup.json", &dup));
+    assert!(e.contains("duplicate landmark"), "{e}");
+    // Without the `landmarks` object: a clear error.
+    let e = err_of(&write(d.path(), "nolm.json", "{\"units\": \"mm\"}"));
+    assert!(e.contains("missing field `landmarks`"), "{e}");
 }

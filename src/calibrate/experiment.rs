@@ -135,16 +135,8 @@ impl LoadCase {
 
 /// Parse `[[case]]` tables from TOML text; ids must be unique.
 pub fn parse_cases(text: &str, file: &Path) -> Result<Vec<LoadCase>> {
-    let parsed: CaseFile = toml::from_str(text).map_err(|e| {
-        let location = match e.span() {
-            Some(s) => format!(
-                "line {}",
-                text[..s.start.min(text.len())].lines().count().max(1)
-            ),
-            None => "file".to_string(),
-        };
-        Error::parse(file, location, e.message().to_string())
-    })?;
+    let text = strip_bom(text);
+    let parsed: CaseFile = toml::from_str(text).map_err(|e| toml_error(text, file, e))?;
     if parsed.case.is_empty() {
         return Err(Error::parse(
             file,
@@ -287,11 +279,91 @@ fn toml_error(text: &str, file: &Path, e: toml::de::Error) -> Error {
     let location = match e.span() {
         Some(s) => format!(
             "line {}",
-            text[..s.start.min(text.len())].lines().count().max(1)
+            text.get(..s.start)
+                .map(|t| t.matches('\n').count() + 1)
+                .unwrap_or(1)
         ),
         None => "file".to_string(),
     };
     Error::parse(file, location, e.message().to_string())
+}
+
+/// The content of an `experiment.toml`, parsed and validated as far as it
+/// can be without the model ([`parse_experiment_toml`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExperimentFile {
+    /// `[specimen] model`: the nominal model, relative to the file.
+    pub model: String,
+    /// `[specimen] fixed_body`.
+    pub fixed_body: String,
+    /// `[specimen] gravity`.
+    pub gravity: bool,
+    /// `[units]`.
+    pub units: Units,
+    /// The `[[case]]` tables, in file order (ids unique, values checked).
+    pub cases: Vec<LoadCase>,
+}
+
+/// Strip a UTF-8 byte-order mark (spreadsheet and Windows editors write one).
+fn strip_bom(text: &str) -> &str {
+    text.strip_prefix('\u{feff}').unwrap_or(text)
+}
+
+/// Parse the text of an `experiment.toml` (`file` names it in messages):
+/// `[specimen]`, `[units]` and at least one `[[case]]`, ids unique. Unit
+/// names are matched without regard to case (`"deg"`, `"DEG"`).
+pub fn parse_experiment_toml(text: &str, file: &Path) -> Result<ExperimentFile> {
+    let text = strip_bom(text);
+    let raw: ExperimentToml = toml::from_str(text).map_err(|e| toml_error(text, file, e))?;
+    let units = Units {
+        angle: match raw.units.angle.trim().to_ascii_lowercase().as_str() {
+            "deg" => "deg",
+            "rad" => "rad",
+            _ => {
+                return Err(Error::parse(
+                    file,
+                    "[units] angle",
+                    format!("expected \"deg\" or \"rad\", got \"{}\"", raw.units.angle),
+                ))
+            }
+        },
+        length: match raw.units.length.trim().to_ascii_lowercase().as_str() {
+            "mm" => "mm",
+            "m" => "m",
+            _ => {
+                return Err(Error::parse(
+                    file,
+                    "[units] length",
+                    format!("expected \"mm\" or \"m\", got \"{}\"", raw.units.length),
+                ))
+            }
+        },
+    };
+    if raw.case.is_empty() {
+        return Err(Error::parse(
+            file,
+            "file",
+            "no [[case]] table: an experiment needs at least one load case",
+        ));
+    }
+    let mut seen = BTreeSet::new();
+    for (i, c) in raw.case.iter().enumerate() {
+        c.validate(file, i)?;
+        if !seen.insert(c.id.clone()) {
+            return Err(Error::parse(
+                file,
+                format!("[[case]] #{}", i + 1),
+                format!("duplicate case id '{}'", c.id),
+            ));
+        }
+    }
+    Ok(ExperimentFile {
+        model: raw.specimen.model,
+        fixed_body: raw.specimen.fixed_body,
+        gravity: raw.specimen.gravity,
+        units,
+        cases: raw.case,
+    })
 }
 
 impl Experiment {
@@ -299,58 +371,16 @@ impl Experiment {
     pub fn read(dir: impl AsRef<Path>) -> Result<Experiment> {
         let dir = dir.as_ref().to_path_buf();
         let toml_path = dir.join("experiment.toml");
-        let text = std::fs::read_to_string(&toml_path).map_err(|e| Error::io(&toml_path, e))?;
-        let raw: ExperimentToml =
-            toml::from_str(&text).map_err(|e| toml_error(&text, &toml_path, e))?;
-        let units = Units {
-            angle: match raw.units.angle.as_str() {
-                "deg" => "deg",
-                "rad" => "rad",
-                other => {
-                    return Err(Error::parse(
-                        &toml_path,
-                        "[units] angle",
-                        format!("expected \"deg\" or \"rad\", got \"{other}\""),
-                    ))
-                }
-            },
-            length: match raw.units.length.as_str() {
-                "mm" => "mm",
-                "m" => "m",
-                other => {
-                    return Err(Error::parse(
-                        &toml_path,
-                        "[units] length",
-                        format!("expected \"mm\" or \"m\", got \"{other}\""),
-                    ))
-                }
-            },
-        };
-        if raw.case.is_empty() {
-            return Err(Error::parse(
-                &toml_path,
-                "file",
-                "no [[case]] table: an experiment needs at least one load case",
-            ));
-        }
-        let mut seen = BTreeSet::new();
-        for (i, c) in raw.case.iter().enumerate() {
-            c.validate(&toml_path, i)?;
-            if !seen.insert(c.id.clone()) {
-                return Err(Error::parse(
-                    &toml_path,
-                    format!("[[case]] #{}", i + 1),
-                    format!("duplicate case id '{}'", c.id),
-                ));
-            }
-        }
-        let model_path = dir.join(&raw.specimen.model);
+        let text = read_text(&toml_path)?;
+        let raw = parse_experiment_toml(&text, &toml_path)?;
+        let units = raw.units;
+        let model_path = dir.join(&raw.model);
         let doc = Document::read(&model_path)?;
         let model = doc.model()?;
         let mut spec = SystemSpec::from_model(&model)?;
         let bodies: Vec<String> = spec.bodies.iter().map(|b| b.name.clone()).collect();
         let known = |n: &str| bodies.iter().any(|b| b == n);
-        let fixed = raw.specimen.fixed_body.clone();
+        let fixed = raw.fixed_body.clone();
         if !known(&fixed) {
             return Err(Error::parse(
                 &toml_path,
@@ -362,7 +392,7 @@ impl Experiment {
                 ),
             ));
         }
-        for (i, c) in raw.case.iter().enumerate() {
+        for (i, c) in raw.cases.iter().enumerate() {
             if !known(&c.body) {
                 return Err(Error::parse(
                     &toml_path,
@@ -383,7 +413,7 @@ impl Experiment {
                 ));
             }
         }
-        if !raw.specimen.gravity {
+        if !raw.gravity {
             spec.gravity = Vector3::zeros();
         }
         spec = System::with_body_fixed(&spec, &fixed)?;
@@ -401,7 +431,8 @@ impl Experiment {
             })
             .collect();
         let csv_path = dir.join("kinematics.csv");
-        let rows = read_kinematics(&csv_path, &raw.case, &units, &|u, l| {
+        let csv_text = read_text(&csv_path)?;
+        let rows = parse_kinematics(&csv_text, &csv_path, &raw.cases, &units, &|u, l| {
             if !known(u) {
                 return Err(format!(
                     "unknown body '{u}' in column upper (bodies: {})",
@@ -425,7 +456,7 @@ impl Experiment {
             }
         })?;
         let mut warnings = Vec::new();
-        for (i, c) in raw.case.iter().enumerate() {
+        for (i, c) in raw.cases.iter().enumerate() {
             if !rows.iter().any(|r| r.case == i) {
                 warnings.push(format!(
                     "case '{}' has no row in kinematics.csv: it is not used",
@@ -445,9 +476,9 @@ impl Experiment {
             doc,
             spec,
             fixed_body: fixed,
-            gravity: raw.specimen.gravity,
+            gravity: raw.gravity,
             units,
-            cases: raw.case,
+            cases: raw.cases,
             rows,
             warnings,
         })
@@ -502,24 +533,62 @@ impl Experiment {
 const MAX_ANGLE_RAD: f64 = 1.0;
 const MAX_TRANSLATION_M: f64 = 0.05;
 
-type PairCheck<'a> = dyn Fn(&str, &str) -> std::result::Result<(), String> + 'a;
+/// Checks an `upper`/`lower` pair of body names: `Err(message)` when the
+/// pair is not an adjacent pair of the model (see [`Experiment::read`]).
+pub type PairCheck<'a> = dyn Fn(&str, &str) -> std::result::Result<(), String> + 'a;
 
-fn read_kinematics(
+/// Largest experiment file accepted (a study with thousands of rows is < 1 MB).
+pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
+
+/// Read a text file, refusing huge files before reading and non-UTF-8 text.
+fn read_text(path: &Path) -> Result<String> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.len() > MAX_FILE_BYTES {
+        return Err(Error::parse(
+            path,
+            "file",
+            format!(
+                "file is {} bytes; experiment files are limited to {MAX_FILE_BYTES} bytes",
+                meta.len()
+            ),
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    String::from_utf8(bytes)
+        .map_err(|e| Error::parse(path, "file", format!("not UTF-8 text ({e})")))
+}
+
+/// Parse the text of a `kinematics.csv` (`path` names it in messages).
+///
+/// Columns are found by name (`case,upper,lower,rx,ry,rz,tx,ty,tz`, any
+/// order, names matched without regard to case; other columns are ignored).
+/// Cells are trimmed and may be quoted; an empty cell, or a cell missing at
+/// the end of a short row, is "not measured"; cells beyond the header must
+/// be empty (trailing commas). Lines starting with `#` are comments; a
+/// UTF-8 byte-order mark and CRLF line ends are accepted. `cases` are the
+/// experiment's load cases, `check_pair` validates each `upper`/`lower`.
+pub fn parse_kinematics(
+    text: &str,
     path: &Path,
     cases: &[LoadCase],
     units: &Units,
     check_pair: &PairCheck,
 ) -> Result<Vec<Measurement>> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let text = strip_bom(text);
+    // `#` comment lines blanked here: the csv crate would not count them in
+    // its line numbers.
+    let text = crate::util::blank_comment_lines(text);
+    let line_at = |p: &csv::Position| crate::util::csv_line(&text, p);
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(true)
-        .flexible(false)
+        .flexible(true)
         .trim(csv::Trim::All)
-        .from_reader(file);
+        .from_reader(text.as_bytes());
     let headers = rdr
         .headers()
         .map_err(|e| Error::parse(path, "line 1", format!("cannot read the header: {e}")))?
         .clone();
+    let header_line = headers.position().map(line_at).unwrap_or(1);
     let mut col = [0usize; 9];
     for (k, name) in ["case", "upper", "lower"]
         .iter()
@@ -529,7 +598,7 @@ fn read_kinematics(
         let hits: Vec<usize> = headers
             .iter()
             .enumerate()
-            .filter(|(_, h)| h == name)
+            .filter(|(_, h)| h.eq_ignore_ascii_case(name))
             .map(|(i, _)| i)
             .collect();
         match hits.as_slice() {
@@ -537,7 +606,7 @@ fn read_kinematics(
             [] => {
                 return Err(Error::parse(
                     path,
-                    "line 1",
+                    format!("line {header_line}"),
                     format!(
                         "missing column '{name}' (expected case,upper,lower,rx,ry,rz,tx,ty,tz)"
                     ),
@@ -546,7 +615,7 @@ fn read_kinematics(
             _ => {
                 return Err(Error::parse(
                     path,
-                    "line 1",
+                    format!("line {header_line}"),
                     format!("column '{name}' appears more than once"),
                 ))
             }
@@ -563,12 +632,31 @@ fn read_kinematics(
         let rec = rec.map_err(|e| {
             let at = e
                 .position()
-                .map(|p| format!("line {}", p.line()))
+                .map(|p| format!("line {}", line_at(p)))
                 .unwrap_or_else(|| "file".into());
             Error::parse(path, at, e.to_string())
         })?;
-        let line = rec.position().map(|p| p.line()).unwrap_or(0);
+        let line = rec.position().map(line_at).unwrap_or(0);
         let at = format!("line {line}");
+        if rec.iter().all(str::is_empty) {
+            continue; // a row of empty cells (spreadsheet export)
+        }
+        if let Some((k, cell)) = rec
+            .iter()
+            .enumerate()
+            .skip(headers.len())
+            .find(|(_, c)| !c.is_empty())
+        {
+            return Err(Error::parse(
+                path,
+                at,
+                format!(
+                    "cell {} ('{cell}') is beyond the {} columns of the header",
+                    k + 1,
+                    headers.len()
+                ),
+            ));
+        }
         let field = |k: usize| rec.get(col[k]).unwrap_or("");
         let id = field(0);
         let Some(&ci) = case_idx.get(id) else {
@@ -723,6 +811,161 @@ follower_load = 400.0
         ] {
             let e = parse_cases(text, p).unwrap_err().to_string();
             assert!(e.contains(needle) && e.contains("bad.toml"), "{e}");
+        }
+    }
+
+    const TOML: &str = "[specimen]\nmodel = \"specimen.osim\"\nfixed_body = \"sacrum\"\ngravity = false\n\n[units]\nangle = \"deg\"\nlength = \"mm\"\n\n[[case]]\nid = \"FE_neg_7.5\"\nbody = \"lumbar4\"\nmoment = [0.0, 0.0, -7.5]\nmoment_frame = \"ground\"\n\n[[case]]\nid = \"LB\"\nbody = \"lumbar4\"\nmoment = [7.5, 0.0, 0.0]\nmoment_frame = \"body\"\n";
+
+    fn adjacent(u: &str, l: &str) -> std::result::Result<(), String> {
+        match (u, l) {
+            ("lumbar5", "sacrum") | ("lumbar4", "lumbar5") => Ok(()),
+            _ => Err(format!("'{u}' and '{l}' are not an adjacent pair")),
+        }
+    }
+
+    fn kin(text: &str) -> Result<Vec<Measurement>> {
+        let e = parse_experiment_toml(TOML, Path::new("experiment.toml")).unwrap();
+        parse_kinematics(
+            text,
+            Path::new("kinematics.csv"),
+            &e.cases,
+            &e.units,
+            &adjacent,
+        )
+    }
+
+    #[test]
+    fn experiment_toml_follows_the_format() {
+        let e = parse_experiment_toml(TOML, Path::new("experiment.toml")).unwrap();
+        assert_eq!(e.model, "specimen.osim");
+        assert_eq!(e.fixed_body, "sacrum");
+        assert!(!e.gravity);
+        assert_eq!((e.units.angle, e.units.length), ("deg", "mm"));
+        assert_eq!(e.cases.len(), 2);
+        assert_eq!(e.cases[1].moment_frame, Some(FrameName::Body));
+        // optional keys default to zero / ground
+        assert_eq!(e.cases[0].force, [0.0; 3]);
+        assert_eq!(e.cases[0].follower_load, 0.0);
+        // a byte-order mark and CRLF line ends; unit names in any case
+        let crlf = format!(
+            "\u{feff}{}",
+            TOML.replace('\n', "\r\n").replace("\"deg\"", "\"DEG\"")
+        );
+        let e2 = parse_experiment_toml(&crlf, Path::new("experiment.toml")).unwrap();
+        assert_eq!(e2.cases, e.cases);
+        assert_eq!(e2.units.angle, "deg");
+        // errors name the file and where
+        let p = Path::new("experiment.toml");
+        for (text, needles) in [
+            (
+                TOML.replace("angle = \"deg\"", "angle = \"grad\""),
+                vec!["[units] angle", "\"deg\" or \"rad\""],
+            ),
+            (
+                TOML.replace("length = \"mm\"", "length = \"cm\""),
+                vec!["[units] length"],
+            ),
+            (
+                TOML.replace("[units]\nangle = \"deg\"\nlength = \"mm\"\n", ""),
+                vec!["units"],
+            ),
+            (TOML.replace("gravity = false\n", ""), vec!["gravity"]),
+            (
+                TOML.replace("moment_frame = \"body\"", "moment_frame = \"local\""),
+                vec!["line 20", "local"],
+            ),
+            (
+                TOML.replace("id = \"LB\"", "id = \"FE_neg_7.5\""),
+                vec!["[[case]] #2", "duplicate case id"],
+            ),
+            (
+                TOML.split("[[case]]").next().unwrap().to_string(),
+                vec!["no [[case]]"],
+            ),
+        ] {
+            let e = parse_experiment_toml(&text, p).unwrap_err().to_string();
+            assert!(e.contains("experiment.toml"), "{e}");
+            for n in needles {
+                assert!(e.contains(n), "`{n}` not in: {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn kinematics_csv_variants() {
+        let d2r = std::f64::consts::PI / 180.0;
+        // the documented layout
+        let rows = kin("case,upper,lower,rx,ry,rz,tx,ty,tz\nFE_neg_7.5,lumbar5,sacrum,-0.0213,0.0011,-5.871,0.412,-0.035,0.020\n").unwrap();
+        assert_eq!(rows.len(), 1);
+        assert!((rows[0].values[2].unwrap() - (-5.871 * d2r)).abs() < 1e-15);
+        assert!((rows[0].values[3].unwrap() - 0.412e-3).abs() < 1e-15);
+        assert_eq!(rows[0].line, 2);
+        // BOM, CRLF, upper-case and reordered columns, an extra column,
+        // quoted cells, a comment, blank translation cells, a short row
+        // (translations left out), trailing commas, an all-empty row
+        let text = "\u{feff}# rig 2\r\nUpper,LOWER,Case,RX,ry,rz,tx,ty,tz,note\r\n\"lumbar5\",sacrum,\"FE_neg_7.5\",1,2,3,,,,ok\r\nlumbar4,lumbar5,FE_neg_7.5,4,5,6\r\n,,,,,,,,,\r\nlumbar5,sacrum,LB,7,8,9,1,2,3,,,\r\n";
+        let rows = kin(text).unwrap();
+        assert_eq!(rows.len(), 3);
+        assert_eq!(
+            (rows[0].upper.as_str(), rows[0].lower.as_str()),
+            ("lumbar5", "sacrum")
+        );
+        assert_eq!(rows[0].case, 0);
+        assert_eq!(rows[2].case, 1);
+        for (r, want) in rows
+            .iter()
+            .zip([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]])
+        {
+            for (v, w) in r.values.iter().zip(want) {
+                assert!((v.unwrap() - w * d2r).abs() < 1e-15);
+            }
+        }
+        assert_eq!(rows[0].values[3..], [None, None, None]);
+        assert_eq!(rows[1].values[3..], [None, None, None]);
+        assert!((rows[2].values[5].unwrap() - 3e-3).abs() < 1e-15);
+        assert_eq!(rows[2].line, 6);
+        // errors name the file, the line and what was expected
+        for (text, needles) in [
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty\n",
+                vec!["line 1", "missing column 'tz'"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz,RX\n",
+                vec!["column 'rx' appears more than once"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,1,2,3,,,,5\n",
+                vec!["line 2", "beyond the 9 columns"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,NaN,2,3\n",
+                vec!["line 2", "column rx", "finite"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,1;5,2,3\n",
+                vec!["line 2", "column rx", "'1;5' is not a number"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nXX,lumbar5,sacrum,1,2,3\n",
+                vec!["line 2", "case 'XX'"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,sacrum,lumbar5,1,2,3\n",
+                vec!["line 2", "not an adjacent pair"],
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,1\nLB,lumbar5,sacrum,2\n",
+                vec!["line 3", "duplicate row", "line 2"],
+            ),
+            ("case,upper,lower,rx,ry,rz,tx,ty,tz\n", vec!["no data rows"]),
+            ("", vec!["missing column 'case'"]),
+        ] {
+            let e = kin(text).unwrap_err().to_string();
+            assert!(e.contains("kinematics.csv"), "{e}");
+            for n in needles {
+                assert!(e.contains(n), "`{n}` not in: {e}");
+            }
         }
     }
 }

@@ -117,6 +117,9 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         eprintln!("warning: {} {}", f.code, f.message);
     }
     let set = raw.to_set()?;
+    for n in &raw.notes {
+        println!("landmarks: {n}");
+    }
     if let Some(d) = &set.detection {
         println!("landmarks: {}", d.summary());
     }

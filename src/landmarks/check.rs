@@ -13,6 +13,7 @@
 //! | LM005 | info | frame not declared: detected from the anatomy |
 //! | LM006 | error | units neither declared nor detectable |
 //! | LM007 | error | frame neither declared nor detectable |
+//! | LM008 | info | reader remark (TRC frames averaged, non-landmark markers or JSON keys ignored) |
 //! | LM010 | warning | unknown landmark name (ignored) |
 //! | LM011 | warning | non-canonical spelling of a landmark name |
 //! | LM012 | error | duplicate landmark name |
@@ -306,6 +307,9 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
             Severity::Info,
             format!("units not declared; detected: {}", det.units_evidence),
         ));
+    }
+    for note in &raw.notes {
+        out.push(file_level("LM008", Severity::Info, note.clone()));
     }
     if det.frame_conflict() {
         out.push(file_level(

@@ -12,13 +12,19 @@
 //! - CSV: `# units:` / `# frame:` header comments; optional leading
 //!   `operator,repetition` columns (repeated palpations); a single-palpation
 //!   file may also carry `# operator:` / `# repetition:` comments.
-//! - TRC: units from the header's `Units` column; no frame (detected). With
+//! - TRC: units from the header's `Units` column; no frame (detected); the
+//!   i-th marker name owns data columns `2+3i..2+3i+2` as in OpenSim;
+//!   markers without a `<LEVEL>_` prefix (skin or model markers) are
+//!   skipped and named in the notes. With
 //!   several frames the landmark is the **mean over the frames** where it is
 //!   present (palpations are static); frames that disagree by more than
 //!   5 mm are refused as not static.
 //! - JSON: `{"units", "frame", "landmarks": {name: [x, y, z]}}`, optional
-//!   `operator`, `repetition`; unknown keys are refused; duplicate names are
-//!   detected (not silently merged).
+//!   `operator`, `repetition`; other top-level keys (metadata) are ignored
+//!   and named in the notes; duplicate names are detected (not silently
+//!   merged).
+//! - Every reader accepts a UTF-8 byte-order mark and CRLF line ends; CSV
+//!   cells may be quoted and rows may end with empty cells (trailing commas).
 //! - Files larger than [`MAX_FILE_BYTES`] are refused before reading.
 
 use super::detect::{self, Detection};
@@ -151,6 +157,11 @@ pub fn load(path: &Path) -> Result<LandmarkSet> {
     read_path(path)?.to_set()
 }
 
+/// Strip a UTF-8 byte-order mark (spreadsheet and Windows editors write one).
+fn strip_bom(text: &str) -> &str {
+    text.strip_prefix('\u{feff}').unwrap_or(text)
+}
+
 fn strip_quotes(s: &str) -> &str {
     let t = s.trim();
     t.strip_prefix('"')
@@ -196,7 +207,7 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
     let mut columns: Option<(bool, usize)> = None; // (has operator columns, n fields)
                                                    // Palpations in order of first appearance.
     let mut groups: Vec<((String, u32), Vec<RawPoint>)> = Vec::new();
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let text = strip_bom(text);
     for (i, raw_line) in text.lines().enumerate() {
         let line_no = i + 1;
         let line = raw_line.trim();
@@ -233,7 +244,12 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
             }
             continue;
         }
-        let fields: Vec<&str> = line.split(',').map(strip_quotes).collect();
+        let mut fields: Vec<&str> = line.split(',').map(strip_quotes).collect();
+        // Trailing empty cells (spreadsheet exports write `a,b,c,`) are not fields.
+        let keep = columns.map(|(_, n)| n).unwrap_or(1);
+        while fields.len() > keep && fields.last().is_some_and(|f| f.is_empty()) {
+            fields.pop();
+        }
         let Some((with_op, n)) = columns else {
             let lower: Vec<String> = fields.iter().map(|f| f.to_ascii_lowercase()).collect();
             let lower: Vec<&str> = lower.iter().map(String::as_str).collect();
@@ -347,7 +363,7 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
 
 /// Parse an OpenSim TRC marker file (see the module docs).
 pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
-    let lines: Vec<&str> = text.lines().collect();
+    let lines: Vec<&str> = strip_bom(text).lines().collect();
     let at = |i: usize| -> Result<&str> {
         lines.get(i).copied().ok_or_else(|| {
             Error::parse(
@@ -360,8 +376,17 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
     if !at(0)?.trim_start().starts_with("PathFileType") {
         return Err(Error::parse(path, "line 1", "TRC: expected `PathFileType`"));
     }
-    let keys: Vec<&str> = at(1)?.split('\t').map(str::trim).collect();
-    let vals: Vec<&str> = at(2)?.split('\t').map(str::trim).collect();
+    // Keys and values are tab-separated; a header written with spaces only
+    // (no tab on the line) is split on whitespace.
+    let cells = |l: &'_ str| -> Vec<String> {
+        if l.contains('\t') {
+            l.split('\t').map(|c| c.trim().to_string()).collect()
+        } else {
+            l.split_whitespace().map(str::to_string).collect()
+        }
+    };
+    let keys = cells(at(1)?);
+    let vals = cells(at(2)?);
     let units_idx = keys.iter().position(|k| k.eq_ignore_ascii_case("Units"));
     let units = match units_idx.and_then(|k| vals.get(k)) {
         Some(u) => Some(Units::parse_label(u).ok_or_else(|| {
@@ -388,15 +413,36 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
             "TRC: expected `Frame#<TAB>Time<TAB>marker names`",
         ));
     }
+    // As OpenSim reads it: the i-th non-empty name after `Frame#` and `Time`
+    // owns data columns 2 + 3i .. 2 + 3i + 2, whether the names are padded
+    // with two empty cells (as OpenSim writes them) or not.
     let mut markers: Vec<(usize, String)> = Vec::new(); // (first column, name)
-    for (c, s) in cols.iter().enumerate().skip(2) {
+    let mut ignored: Vec<String> = Vec::new();
+    for s in cols.iter().skip(2) {
         let s = s.trim();
-        if !s.is_empty() {
-            markers.push((c, s.to_string()));
+        if s.is_empty() {
+            continue;
+        }
+        let column = 2 + 3 * (markers.len() + ignored.len());
+        // A marker file may carry other markers (skin markers, model
+        // markers): names without a vertebral level prefix are not
+        // landmarks and are skipped; `L3_SECC` (a level, a bad code) stays
+        // and is reported as an unknown landmark name.
+        let has_level = s
+            .split_once('_')
+            .is_some_and(|(l, _)| l.parse::<super::Level>().is_ok());
+        if has_level {
+            markers.push((column, s.to_string()));
+        } else {
+            ignored.push(s.to_string());
         }
     }
     if markers.is_empty() {
-        return Err(Error::parse(path, "line 4", "TRC: no marker names"));
+        return Err(Error::parse(
+            path,
+            "line 4",
+            "TRC: no landmark markers (names <LEVEL>_<CODE>)",
+        ));
     }
     let mut sums = vec![[0.0f64; 3]; markers.len()];
     let mut mins = vec![[f64::INFINITY; 3]; markers.len()];
@@ -472,6 +518,13 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
         });
     }
     let mut notes = Vec::new();
+    if !ignored.is_empty() {
+        notes.push(format!(
+            "TRC: {} marker(s) without a <LEVEL>_ prefix ignored: {}",
+            ignored.len(),
+            ignored.join(", ")
+        ));
+    }
     if n_frames > 1 {
         notes.push(format!(
             "TRC: {n_frames} frames averaged per marker (largest spread {max_spread:.2} mm)"
@@ -514,13 +567,16 @@ impl<'de> serde::Deserialize<'de> for Entries {
 }
 
 #[derive(serde::Deserialize)]
-#[serde(deny_unknown_fields)]
 struct JsonFile {
     units: Option<String>,
     frame: Option<String>,
     operator: Option<String>,
     repetition: Option<u32>,
     landmarks: Entries,
+    /// Other top-level keys (metadata such as a subject id): ignored, named
+    /// in the notes.
+    #[serde(flatten)]
+    other: std::collections::BTreeMap<String, serde_json::Value>,
 }
 
 fn line_of(text: &str, needle: &str) -> Option<usize> {
@@ -530,6 +586,7 @@ fn line_of(text: &str, needle: &str) -> Option<usize> {
 
 /// Parse a JSON landmark file.
 pub fn parse_json(text: &str, path: &Path) -> Result<Vec<Palpation>> {
+    let text = strip_bom(text);
     if text.trim().is_empty() {
         return Err(Error::parse(
             path,
@@ -592,6 +649,11 @@ pub fn parse_json(text: &str, path: &Path) -> Result<Vec<Palpation>> {
     if points.is_empty() {
         return Err(Error::parse(path, "landmarks", "no landmarks"));
     }
+    let mut notes = Vec::new();
+    if !f.other.is_empty() {
+        let keys: Vec<&str> = f.other.keys().map(String::as_str).collect();
+        notes.push(format!("JSON: ignored top-level keys {}", keys.join(", ")));
+    }
     Ok(vec![Palpation {
         operator: f.operator.unwrap_or_else(|| "1".into()),
         repetition: f.repetition.unwrap_or(1),
@@ -601,7 +663,7 @@ pub fn parse_json(text: &str, path: &Path) -> Result<Vec<Palpation>> {
             declared_units: units,
             declared_frame: frame,
             points,
-            notes: Vec::new(),
+            notes,
         },
     }])
 }

@@ -498,6 +498,7 @@ fn toml_row(path: &Path, loc: String, r: &TomlRow, units: &Units) -> Result<Row>
 
 /// Parse a TOML table (`path` names it in messages).
 pub fn parse_toml(text: &str, path: &Path) -> Result<Table> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let f: TomlFile = toml::from_str(text)
         .map_err(|e| Error::parse(path, "TOML", e.to_string().trim_end().to_string()))?;
     if let Some(fmt) = &f.format {
@@ -572,9 +573,13 @@ pub fn parse_toml(text: &str, path: &Path) -> Result<Table> {
 /// columns `ratio_rx .. ratio_tz` (unit `1`), then one row per level (`*`:
 /// every level). Empty cells are "not given". Linear form only.
 pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    // `#` comment lines blanked here: the csv crate would not count them in
+    // its line numbers.
+    let text = crate::util::blank_comment_lines(text);
+    let line_at = |p: &csv::Position| crate::util::csv_line(&text, p);
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(false)
-        .comment(Some(b'#'))
         .flexible(false)
         .trim(csv::Trim::All)
         .from_reader(text.as_bytes());
@@ -584,7 +589,7 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
         Some(Err(e)) => return Err(Error::parse(path, "line 1", e.to_string())),
         None => return Err(Error::parse(path, "line 1", "empty table (no header row)")),
     };
-    let hline = header.position().map(|p| p.line()).unwrap_or(1);
+    let hline = header.position().map(line_at).unwrap_or(1);
     // column -> (kind 0 stiffness / 1 damping / 2 ratio, dof, factor)
     let mut cols: Vec<Option<(usize, usize, f64)>> = Vec::new();
     let mut seen = std::collections::BTreeSet::new();
@@ -693,7 +698,7 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
     let mut levels = Vec::new();
     for rec in records {
         let rec = rec.map_err(|e| Error::parse(path, "CSV", e.to_string()))?;
-        let line = rec.position().map(|p| p.line()).unwrap_or(0);
+        let line = rec.position().map(line_at).unwrap_or(0);
         let name = rec.get(0).unwrap_or("").to_string();
         if name.is_empty() {
             return Err(Error::parse(
@@ -956,6 +961,19 @@ mod tests {
             let v: toml::Table = toml::from_str(&format!("v = {t}")).unwrap();
             assert_eq!(v["v"].as_float().unwrap(), x, "{t}");
         }
+    }
+
+    #[test]
+    fn csv_with_bom_and_comments_names_the_right_line() {
+        let head = "level,rx [N*m/rad],tx [N/mm]\n";
+        let t = format!("\u{feff}# thesis Table 5.1\n{head}# lumbar\nL5_S1,68.8,149\n");
+        let tab = parse_csv(&t, Path::new("t.csv")).unwrap();
+        assert_eq!(tab.levels[0].name, "L5_S1");
+        assert_eq!(tab.levels[0].stiffness[3], Some(149000.0));
+        // line 5 of the file, after two comment lines
+        let bad = format!("# a\n{head}# b\nL5_S1,68.8,149\nL4_L5,x,149\n");
+        let e = parse_csv(&bad, Path::new("t.csv")).unwrap_err().to_string();
+        assert!(e.contains("line 5"), "{e}");
     }
 
     #[test]
