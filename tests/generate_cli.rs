@@ -534,6 +534,60 @@ fn evaluate_measures_a_known_offset() {
     let _ = Path::new(".");
 }
 
+/// The default combination of the fits (`--smooth chain`) on the README
+/// example: applied, the joint mismatch SD per axis and the per-level
+/// posterior SDs (no larger than the fits') are reported, 6 pose
+/// parameters per vertebra, deterministic output.
+#[test]
+fn chain_smoothing_is_the_default_and_reported() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut reports = Vec::new();
+    for k in 0..2 {
+        let out = tmp.path().join(format!("c{k}/patient.osim"));
+        let o = run(&[
+            "generate",
+            "--landmarks",
+            "fixtures/example-scoliosis.csv",
+            "--out",
+            out.to_str().unwrap(),
+            "--no-self-check",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+        assert!(
+            stdout.contains("orientation smoothing: posterior poses of the kinematic chain"),
+            "{stdout}"
+        );
+        reports.push(std::fs::read(tmp.path().join(format!("c{k}/patient_report.json"))).unwrap());
+        let osim = std::fs::read(&out).unwrap();
+        if k == 1 {
+            let first = std::fs::read(tmp.path().join("c0/patient.osim")).unwrap();
+            assert_eq!(first, osim, "model not deterministic");
+        }
+    }
+    assert_eq!(reports[0], reports[1], "report not deterministic");
+    let r: serde_json::Value = serde_json::from_slice(&reports[0]).unwrap();
+    let s = &r["smoothing"];
+    assert_eq!(s["mode"], "chain");
+    assert_eq!(s["applied"], true);
+    let n = r["levels_from_landmarks"].as_array().unwrap().len();
+    assert_eq!(s["parameters"].as_u64().unwrap() as usize, 6 * n);
+    let sd = s["joint_sd_mm"].as_array().unwrap();
+    assert_eq!(sd.len(), 3);
+    assert!(sd.iter().all(|t| t.as_f64().unwrap() > 0.0));
+    let levels = s["levels"].as_array().unwrap();
+    assert_eq!(levels.len(), n);
+    for l in levels {
+        for a in 0..3 {
+            let (fit, post) = (
+                l["fit_sd_deg"][a].as_f64().unwrap(),
+                l["posterior_sd_deg"][a].as_f64().unwrap(),
+            );
+            assert!(post > 0.0 && post <= fit * (1.0 + 1e-9), "{l}");
+        }
+    }
+}
+
 /// `--smooth auto` on the README example (noisy landmarks, one planted
 /// outlier): the report states tau per axis, the effective smoothing and
 /// per-level posterior SDs no larger than the fits' SDs; the output is

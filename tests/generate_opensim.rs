@@ -144,7 +144,39 @@ fn shapes() -> Vec<Shape> {
             ],
             fe: vec![("L1_L2", 4.0)],
         },
+        // Curvature that changes smoothly from level to level (no sharp
+        // turn at the end vertebrae): relative lateral bending
+        // 9 sin(pi (j + 1/2) / 8) deg and axial rotation a third of it
+        // at joint j = 0 (T1_T2) .. 16 (L5_S1): a thoracic and a lumbar
+        // curve of 46 deg of lateral bending each; with the axial
+        // rotation in the kyphotic thorax the frontal Cobb angle of the
+        // thoracic curve reads about 60 deg.
+        Shape {
+            name: "smooth double curve",
+            cobb: 55.0,
+            lb: smooth_wave(9.0),
+            ar: smooth_wave(3.0),
+            fe: vec![],
+        },
     ]
+}
+
+/// `amp sin(pi (j + 1/2) / 8)` (deg) at the 17 joints T1_T2 .. L5_S1.
+fn smooth_wave(amp: f64) -> Vec<(&'static str, f64)> {
+    const JOINTS: [&str; 17] = [
+        "T1_T2", "T2_T3", "T3_T4", "T4_T5", "T5_T6", "T6_T7", "T7_T8", "T8_T9", "T9_T10",
+        "T10_T11", "T11_T12", "T12_L1", "L1_L2", "L2_L3", "L3_L4", "L4_L5", "L5_S1",
+    ];
+    JOINTS
+        .iter()
+        .enumerate()
+        .map(|(j, n)| {
+            (
+                *n,
+                amp * (std::f64::consts::PI * (j as f64 + 0.5) / 8.0).sin(),
+            )
+        })
+        .collect()
 }
 
 /// OpenSim's posed markers and vertebral-body sphere centres (ground, m).
@@ -293,8 +325,13 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
         std::fs::write(&cs, centres_csv(&posed.spheres, &x)).unwrap();
         // Smoothing must keep the noise-free acceptance (exact data: the
         // posterior is the data).
-        for (method, smooth) in [("lsq", "off"), ("lsq+smooth", "auto"), ("thesis", "off")] {
-            let fit = method.trim_end_matches("+smooth");
+        for (fit, smooth) in [
+            ("lsq", "chain"),
+            ("lsq", "off"),
+            ("lsq", "curvature"),
+            ("thesis", "off"),
+        ] {
+            let method = format!("{fit}+{smooth}");
             let out = tmp
                 .path()
                 .join(format!("gen{k}_{fit}_{smooth}/patient.osim"));
@@ -373,8 +410,8 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
                     .unwrap();
             let rmse2 = r2["models"][0]["centre_rmse_mm"].as_f64().unwrap();
             assert!(rmse2 < 0.5, "{}: sphere-centre RMSE {rmse2} mm", shape.name);
-            // Acceptance 3 in OpenSim (once per shape).
-            if method == "lsq" {
+            // Acceptance 3 in OpenSim (once per shape, default method).
+            if method == "lsq+chain" {
                 check_in_opensim(&py, &out);
             }
         }
@@ -562,11 +599,10 @@ fn noise_study_table() {
     let mut rng = ChaCha8Rng::seed_from_u64(77);
     println!("| noise | shape | method | median centre RMSE (mm) | median RMSE, sacral frame (mm) | Cobb SD, automatic ends (deg) | Cobb SD, truth's ends (deg) | mean Cobb error, automatic / truth's ends (deg) | truth Cobb (deg) |");
     println!("|---|---|---|---|---|---|---|---|---|");
-    let mut worst_default = (0.0f64, 0.0f64);
-    let mut worst_3d = 0.0f64;
-    let mut lsq_vs_thesis = Vec::new();
+    // Per (noise level, shape): the default method's figures and the
+    // comparisons the assertions need.
+    let mut rows: Vec<StudyRow> = Vec::new();
     let mut outlier_rows = Vec::new();
-    let mut smooth_rows = Vec::new();
     let levels = [
         (2.0, "2 mm SD per axis"),
         (2.0 / 3f64.sqrt(), "2 mm SD 3-D (1.15 per axis)"),
@@ -660,11 +696,7 @@ fn noise_study_table() {
                         which.insert(name, ());
                     }
                 }
-                for (name, method, smooth) in [
-                    ("lsq", Method::Lsq, Smooth::Off),
-                    ("lsq+smooth", Method::Lsq, Smooth::Auto),
-                    ("thesis", Method::Thesis, Smooth::Off),
-                ] {
+                for (name, method, smooth) in METHODS {
                     let (rmse, rs, cobb, fl, fixed) =
                         one_run(&base_doc, &to_text(&noisy), &truth, method, smooth, ends);
                     let s = stats.entry(name).or_insert(Stats {
@@ -678,7 +710,7 @@ fn noise_study_table() {
                         clean_flags: 0,
                         clean_vertebrae: 0,
                     });
-                    if name == "lsq" {
+                    if name == DEFAULT {
                         s.clean_flags += fl.len();
                         s.clean_vertebrae += 17;
                     }
@@ -686,7 +718,7 @@ fn noise_study_table() {
                     s.rmse_sacral.push(rs);
                     s.cobb.push(cobb);
                     s.cobb_fixed.push(fixed);
-                    if with_outliers && name == "lsq" && d < draws.min(20) {
+                    if with_outliers && name == DEFAULT && d < draws.min(20) {
                         let (rmse_bad, _, _, flagged, _) =
                             one_run(&base_doc, &to_text(&bad), &truth, method, smooth, ends);
                         displaced_rmse_diff.push(rmse_bad - rmse);
@@ -699,10 +731,10 @@ fn noise_study_table() {
                     }
                 }
             }
-            for (method, s) in &stats {
+            let bias = |v: &[f64]| v.iter().map(|c| c - truth_cobb).sum::<f64>() / v.len() as f64;
+            for (method, _, _) in METHODS {
+                let s = &stats[method];
                 let (mr, cs, cf) = (median(&s.rmse), sd(&s.cobb), sd(&s.cobb_fixed));
-                let bias =
-                    |v: &[f64]| v.iter().map(|c| c - truth_cobb).sum::<f64>() / v.len() as f64;
                 println!(
                 "| {noise_label} | {} | {method} | {mr:.2} | {:.2} | {cs:.2} | {cf:.2} | {:+.2} / {:+.2} | {truth_cobb:.1} ({}-{}){other} |",
                 shape.name,
@@ -712,33 +744,40 @@ fn noise_study_table() {
                 tc.upper,
                 tc.lower
             );
-                if *method == "lsq+smooth" {
-                    smooth_rows.push((noise_label, shape.name, mr, cf, bias(&s.cobb_fixed)));
-                }
-                if *method == "lsq" && !with_outliers {
-                    worst_3d = worst_3d.max(cf);
-                }
-                if *method == "lsq" && with_outliers {
-                    let th = &stats["thesis"];
-                    lsq_vs_thesis.push((mr < median(&th.rmse), cs < sd(&th.cobb)));
-                    worst_default = (worst_default.0.max(mr), worst_default.1.max(cf));
-                    outlier_rows.push((
-                        shape.name,
-                        s.displaced,
-                        s.flagged_right,
-                        s.flagged,
-                        median(&displaced_rmse_diff),
-                        s.clean_flags,
-                        s.clean_vertebrae,
-                    ));
-                }
+            }
+            let (def, off, th) = (&stats[DEFAULT], &stats["lsq"], &stats["thesis"]);
+            rows.push(StudyRow {
+                noise: noise_label,
+                per_axis: with_outliers,
+                shape: shape.name,
+                rmse: median(&def.rmse),
+                cobb_sd: sd(&def.cobb_fixed),
+                bias: bias(&def.cobb_fixed),
+                beats_independent_rmse: median(&def.rmse) < median(&off.rmse),
+                beats_thesis: median(&def.rmse) < median(&th.rmse) && sd(&def.cobb) < sd(&th.cobb),
+            });
+            if with_outliers {
+                outlier_rows.push((
+                    shape.name,
+                    def.displaced,
+                    def.flagged_right,
+                    def.flagged,
+                    median(&displaced_rmse_diff),
+                    def.clean_flags,
+                    def.clean_vertebrae,
+                ));
             }
         }
     }
-    for (noise, shape, mr, cf, b) in &smooth_rows {
+    for r in &rows {
         println!(
-            "lsq+smooth, {noise}, {shape}: median RMSE {mr:.2} mm, Cobb SD {cf:.2} deg, bias {b:+.2} deg (targets 2.5 mm, 3 deg, 1 deg: {})",
-            if *mr <= 2.5 && *cf <= 3.0 && b.abs() <= 1.0 { "met" } else { "missed" }
+            "{DEFAULT}, {}, {}: median RMSE {:.2} mm, Cobb SD {:.2} deg, bias {:+.2} deg (targets 2.5 mm, 3 deg: {})",
+            r.noise,
+            r.shape,
+            r.rmse,
+            r.cobb_sd,
+            r.bias,
+            if r.rmse <= 2.5 && r.cobb_sd <= 3.0 { "met" } else { "missed" }
         );
     }
     println!();
@@ -747,26 +786,27 @@ fn noise_study_table() {
     for (name, n, right, all, diff, cf, cv) in &outlier_rows {
         println!("| {name} | {n} | {right} | {all} | {diff:+.2} | {cf} ({cv}) |");
     }
-    // The default method (lsq) against the targets and the thesis method.
-    assert!(
-        worst_default.0 <= 2.5,
-        "median centre RMSE {} mm > 2.5",
-        worst_default.0
-    );
-    assert!(
-        lsq_vs_thesis.iter().all(|(a, b)| *a && *b),
-        "lsq is not better than thesis: {lsq_vs_thesis:?}"
-    );
-    println!(
-        "Cobb SD of lsq (truth's end vertebrae): worst shape {:.2} deg at 2 mm per axis (target 3: {}), {worst_3d:.2} deg at 2 mm 3-D",
-        worst_default.1,
-        if worst_default.1 <= 3.0 { "met" } else { "missed" }
-    );
-    // Measured at 2 mm per axis: 2.4-3.2 deg, about the information limit of
-    // independent per-vertebra fits (frontal rotation of one vertebra from
-    // its 14 landmarks ~2 deg); guard against regressions.
-    assert!(worst_default.1 <= 3.6, "Cobb SD {} deg", worst_default.1);
-    assert!(worst_3d <= 2.5, "Cobb SD {worst_3d} deg at 2 mm 3-D noise");
+    // The default method against the targets (acceptance 2: median RMSE
+    // <= 2.5 mm and Cobb SD <= 3 deg at 2 mm per axis), unbiased (the
+    // chain prior holds exactly for a spine posed by joint rotations; the
+    // mean of 50 draws has a standard error of about 0.4 deg), better than
+    // the independent fits on RMSE and than the thesis method.
+    for r in &rows {
+        let what = format!("{} ({})", r.shape, r.noise);
+        assert!(r.rmse <= 2.5, "{what}: median centre RMSE {} mm", r.rmse);
+        let sd_max = if r.per_axis { 3.0 } else { 2.0 };
+        assert!(r.cobb_sd <= sd_max, "{what}: Cobb SD {} deg", r.cobb_sd);
+        assert!(
+            r.bias.abs() <= 1.0,
+            "{what}: mean Cobb error {} deg",
+            r.bias
+        );
+        assert!(
+            r.beats_independent_rmse,
+            "{what}: chain RMSE not below lsq's"
+        );
+        assert!(r.beats_thesis, "{what}: not better than the thesis method");
+    }
     for (name, n, right, _, diff, cf, cv) in &outlier_rows {
         assert!(
             *right as f64 >= 0.85 * *n as f64,
@@ -783,6 +823,27 @@ fn noise_study_table() {
             "{name}: {cf} false flags in {cv} vertebrae"
         );
     }
+}
+
+/// The default of `generate` and the methods the study compares it with.
+const DEFAULT: &str = "lsq+chain";
+const METHODS: [(&str, Method, Smooth); 4] = [
+    ("lsq+chain", Method::Lsq, Smooth::Chain),
+    ("lsq", Method::Lsq, Smooth::Off),
+    ("lsq+curvature", Method::Lsq, Smooth::Curvature),
+    ("thesis", Method::Thesis, Smooth::Off),
+];
+
+/// The default method's figures for one noise level and shape.
+struct StudyRow {
+    noise: &'static str,
+    per_axis: bool,
+    shape: &'static str,
+    rmse: f64,
+    cobb_sd: f64,
+    bias: f64,
+    beats_independent_rmse: bool,
+    beats_thesis: bool,
 }
 
 fn to_text(pts: &BTreeMap<String, Vector3<f64>>) -> String {

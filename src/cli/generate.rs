@@ -34,9 +34,12 @@ pub struct Args {
     /// thesis (ISB frames from the 6 joint landmarks).
     #[arg(long, default_value = "lsq")]
     pub method: String,
-    /// Orientation smoothing along the spine: auto (empirical-Bayes
-    /// spinal-continuity posterior, lsq only) or off (independent fits).
-    #[arg(long, default_value = "off")]
+    /// How the per-vertebra fits are combined along the spine (lsq only):
+    /// chain (neighbours meet at their joints, disc mismatch estimated from
+    /// the data; unbiased), curvature (smoothness prior on the
+    /// orientations; flattens sharp curves; `auto` is an alias) or off
+    /// (independent fits).
+    #[arg(long, default_value = "chain")]
     pub smooth: String,
     /// Skip the self-check (bushings, muscles through bone, equilibrium).
     #[arg(long)]

@@ -40,6 +40,7 @@
 //! the disc below, X anterior, Y cranial, Z right; see
 //! [`crate::build::base`]); only the poses change.
 
+pub mod chain;
 pub mod example;
 pub mod pose;
 pub mod scale;
@@ -72,8 +73,8 @@ pub struct GenerateOptions {
     /// Outlier threshold of the lsq method in noise SDs
     /// ([`pose::OUTLIER_SIGMAS`] by default).
     pub outlier_sigmas: f64,
-    /// Spinal-continuity smoothing of the vertebral orientations
-    /// ([`smooth`]; lsq only).
+    /// How the per-vertebra fits are combined along the spine (lsq only):
+    /// [`Smooth::Chain`] by default ([`chain`]), [`smooth`], or off.
     pub smooth: Smooth,
 }
 
@@ -84,7 +85,7 @@ impl Default for GenerateOptions {
             self_check: true,
             views: true,
             outlier_sigmas: pose::OUTLIER_SIGMAS,
-            smooth: Smooth::Off,
+            smooth: Smooth::Chain,
         }
     }
 }
@@ -201,6 +202,9 @@ pub struct SmoothingReport {
     /// the number of parameters (3 per vertebra).
     pub effective_dof: Option<f64>,
     pub parameters: usize,
+    /// `--smooth chain`: REML estimate of the SD of the joint mismatch
+    /// (mm) along the lower body's X, Y, Z axes.
+    pub joint_sd_mm: Option<[f64; 3]>,
     /// Per level, cranial to caudal.
     pub levels: Vec<SmoothingLevel>,
 }
@@ -428,7 +432,34 @@ pub fn generate(
         )?;
         fits.insert(*l, f);
     }
-    let smoothing = smooth_fits(&mut fits, &vert_levels, &patient, &markers, opts, noise)?;
+    // Base joint centres between consecutive vertebrae, in each body
+    // (the chain smoothing's prior).
+    let mut joint_centres: BTreeMap<Level, (Point3<f64>, Point3<f64>)> = BTreeMap::new();
+    for jf in model.joint_frames()? {
+        let (Some(lu), Some(ll)) = (
+            Level::from_body_name(&jf.child_body),
+            Level::from_body_name(&jf.parent_body),
+        ) else {
+            continue;
+        };
+        let (Some(xu), Some(xl)) = (poses0.get(&jf.child_body), poses0.get(&jf.parent_body)) else {
+            continue;
+        };
+        if lu.caudal() == Some(ll) {
+            let in_lower = Point3::from(jf.parent_in_body.translation.vector);
+            let in_upper = xu.inverse() * (xl * in_lower);
+            joint_centres.insert(lu, (in_upper, in_lower));
+        }
+    }
+    let smoothing = smooth_fits(
+        &mut fits,
+        &vert_levels,
+        &patient,
+        &markers,
+        &joint_centres,
+        opts,
+        noise,
+    )?;
 
     // ---- 3. scaling
     let mut doc = base.clone();
@@ -653,6 +684,7 @@ fn smooth_fits(
     chain: &[Level],
     patient: &BTreeMap<Level, Points>,
     markers: &BTreeMap<Level, (String, Points)>,
+    joint_centres: &BTreeMap<Level, (Point3<f64>, Point3<f64>)>,
     opts: &GenerateOptions,
     noise: Option<f64>,
 ) -> Result<SmoothingReport> {
@@ -663,6 +695,7 @@ fn smooth_fits(
         tau_deg: None,
         effective_dof: None,
         parameters: 3 * chain.len(),
+        joint_sd_mm: None,
         levels: Vec::new(),
     };
     if opts.smooth == Smooth::Off {
@@ -695,6 +728,9 @@ fn smooth_fits(
         used.push(pts);
     }
     let sigma = noise.unwrap_or(0.0);
+    if opts.smooth == Smooth::Chain {
+        return chain_fits(fits, chain, patient, &used, joint_centres, sigma, rep);
+    }
     let Some(s) = smooth::smooth_orientations(&rots, &info, sigma)? else {
         rep.note = if chain.len() < smooth::MIN_LEVELS {
             format!(
@@ -743,6 +779,91 @@ fn smooth_fits(
         s.tau.z.to_degrees(),
         s.effective_dof,
         3 * chain.len()
+    );
+    Ok(rep)
+}
+
+/// [`chain::smooth_chain`] on the lsq fits: neighbours meet at the base
+/// model's joint centres (scaled with each body).
+fn chain_fits(
+    fits: &mut BTreeMap<Level, pose::VertebraFit>,
+    chain: &[Level],
+    patient: &BTreeMap<Level, Points>,
+    used: &[Vec<(Code, Point3<f64>)>],
+    joint_centres: &BTreeMap<Level, (Point3<f64>, Point3<f64>)>,
+    sigma: f64,
+    mut rep: SmoothingReport,
+) -> Result<SmoothingReport> {
+    rep.parameters = 6 * chain.len();
+    let mut verts = Vec::with_capacity(chain.len());
+    for (l, pts) in chain.iter().zip(used) {
+        let Some(f) = fits.get(l) else {
+            return Err(Error::invalid(format!("vertebra {l}"), "no fit to smooth"));
+        };
+        let posed: Vec<Point3<f64>> = pts.iter().map(|(_, p)| f.pose * p).collect();
+        let n = posed.len().max(1);
+        let c = posed.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n as f64;
+        verts.push(chain::ChainVertebra {
+            pose: f.pose,
+            centroid: c.into(),
+            info_rot: smooth::rotation_information(&posed),
+            n,
+        });
+    }
+    let mut joints = Vec::new();
+    for (k, w) in chain.windows(2).enumerate() {
+        let (Some((qu, pl)), Some(fu), Some(fl)) =
+            (joint_centres.get(&w[0]), fits.get(&w[0]), fits.get(&w[1]))
+        else {
+            continue;
+        };
+        joints.push(chain::ChainJoint {
+            upper: k,
+            lower: k + 1,
+            in_upper: pose::scale_point(qu, &fu.scale),
+            in_lower: pose::scale_point(pl, &fl.scale),
+        });
+    }
+    let Some(s) = chain::smooth_chain(&verts, &joints, sigma)? else {
+        rep.note = if joints.is_empty() {
+            "not applied: no joint between two landmarked vertebrae".into()
+        } else {
+            "not applied: no landmark noise (the fits are exact)".into()
+        };
+        return Ok(rep);
+    };
+    for (k, l) in chain.iter().enumerate() {
+        let (Some(f), Some(pts), Some(x), Some(pl)) =
+            (fits.get_mut(l), used.get(k), s.poses.get(k), patient.get(l))
+        else {
+            continue;
+        };
+        let before = f.pose.rotation;
+        f.pose = *x;
+        f.residuals = pts
+            .iter()
+            .filter_map(|(code, p)| Some((*code, (pl.get(code)? - f.pose * p).norm())))
+            .collect();
+        rep.levels.push(SmoothingLevel {
+            level: l.to_string(),
+            fit_sd_deg: s.raw_sd[k].map(f64::to_degrees),
+            posterior_sd_deg: s.posterior_sd[k].map(f64::to_degrees),
+            correction_deg: before.angle_to(&x.rotation).to_degrees(),
+        });
+    }
+    rep.applied = true;
+    rep.effective_dof = Some(s.effective_dof);
+    rep.joint_sd_mm = Some(std::array::from_fn(|a| s.s[a] * 1e3));
+    rep.note = format!(
+        "posterior poses of the kinematic chain (joint mismatch SD {:.2} / {:.2} / {:.2} mm along the lower body's X / Y / Z, common offset {:.2} / {:.2} / {:.2} mm; {:.1} of {} pose parameters kept)",
+        s.s.x * 1e3,
+        s.s.y * 1e3,
+        s.s.z * 1e3,
+        s.mu.x * 1e3,
+        s.mu.y * 1e3,
+        s.mu.z * 1e3,
+        s.effective_dof,
+        6 * chain.len()
     );
     Ok(rep)
 }

@@ -1,5 +1,6 @@
 //! Spinal-continuity smoothing of the vertebral orientations (empirical
-//! Bayes), an option of `generate` (`--smooth auto`).
+//! Bayes), an option of `generate` (`--smooth curvature`; the default is
+//! the kinematic chain of [`super::chain`]).
 //!
 //! Model, for `n` vertebrae ordered cranial to caudal (the sacrum, the
 //! registration frame, is not part of the chain):
@@ -46,12 +47,19 @@ pub const MIN_LEVELS: usize = 4;
 /// rotation per level.
 pub const TAU_RANGE: [f64; 2] = [1e-5, 1.0];
 
-/// `--smooth`: whether to smooth the vertebral orientations.
+/// `--smooth`: how the per-vertebra fits are combined along the spine
+/// (lsq method only).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Smooth {
-    /// Empirical-Bayes spinal-continuity smoothing (lsq method only).
-    Auto,
+    /// Kinematic chain (the default): neighbouring vertebrae meet at the
+    /// base model's joint centres, up to a disc mismatch whose size the
+    /// data estimate ([`super::chain`]). Unbiased for any curvature.
+    Chain,
+    /// Spinal-continuity prior on the orientations (this module): lower
+    /// variance, but it flattens the curve where it turns (1.5-2.5 deg of
+    /// Cobb angle on sharp curves). Also accepted as `auto`.
+    Curvature,
     /// Per-vertebra fits as they are.
     Off,
 }
@@ -60,11 +68,12 @@ impl std::str::FromStr for Smooth {
     type Err = Error;
     fn from_str(s: &str) -> Result<Smooth> {
         match s.trim().to_ascii_lowercase().as_str() {
-            "auto" => Ok(Smooth::Auto),
+            "chain" => Ok(Smooth::Chain),
+            "curvature" | "auto" => Ok(Smooth::Curvature),
             "off" => Ok(Smooth::Off),
             o => Err(Error::invalid(
                 "--smooth",
-                format!("'{o}' is not a smoothing mode: expected 'auto' or 'off'"),
+                format!("'{o}' is not a smoothing mode: expected 'chain', 'curvature' or 'off'"),
             )),
         }
     }
@@ -73,7 +82,8 @@ impl std::str::FromStr for Smooth {
 impl std::fmt::Display for Smooth {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
-            Smooth::Auto => "auto",
+            Smooth::Chain => "chain",
+            Smooth::Curvature => "curvature",
             Smooth::Off => "off",
         })
     }
