@@ -10,7 +10,7 @@ Prints JSON:
  "muscles": {name: {"length": L, "straight": S,
                     "path": [{"kind": "point"|"wrap", "body": b,
                               "ground": [x, y, z]}...],
-                    "polyline": [{"ground": [x, y, z], "body": b|null}...],
+                    "polyline": [{"ground": [x, y, z], "body": b|null, "name": n}...],
                     "wraps": [...]}}}
 `path` is GeometryPath.getCurrentPath (the muscle's own active points and
 the wrap tangent points); `polyline` is the path OpenSim's length is the
@@ -95,7 +95,7 @@ def main():
             path.append({"kind": kind, "body": p.getParentFrame().findBaseFrame().getName(), "ground": g})
             if wp is None:
                 own.append(g)
-                poly.append({"ground": g, "body": path[-1]["body"]})
+                poly.append({"ground": g, "body": path[-1]["body"], "name": p.getName()})
                 continue
             arc_len = wp.getWrapLength(s)
             if arc_len > 0.0 and poly:
