@@ -55,17 +55,26 @@ fn readme_example_paths_clear_the_vertebrae_in_opensim() {
         selfc.len()
     );
     for c in &crossings {
-        println!("  {} through {} ({:.2} mm)", c.muscle, c.vertebra, c.depth_mm);
+        println!(
+            "  {} through {} ({:.2} mm)",
+            c.muscle, c.vertebra, c.depth_mm
+        );
     }
     for c in selfc {
         println!("  self-check: {c}");
     }
     let edits = rep["path_edits"].as_array().unwrap();
     for e in edits {
-        println!("  edit: {} {} ({})", e["muscle"], e["action"], e["vertebra"]);
+        println!(
+            "  edit: {} {} ({})",
+            e["muscle"], e["action"], e["vertebra"]
+        );
     }
     assert!(crossings.is_empty(), "OpenSim's paths cross vertebrae");
     assert!(selfc.is_empty(), "the self-check lists crossings");
-    assert!(dlen < 1e-9, "tool and OpenSim path lengths differ by {dlen} m");
+    assert!(
+        dlen < 1e-9,
+        "tool and OpenSim path lengths differ by {dlen} m"
+    );
     common::check_generated_in_opensim(&py, &model);
 }

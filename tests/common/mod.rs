@@ -214,7 +214,11 @@ pub fn opensim_path_crossings(
 /// wrap checks hold in a scoliotic test pose (LB 10 deg, AR 5 deg).
 /// Returns (muscles with PathWraps, crossing and wrapping).
 pub fn check_generated_in_opensim(python: &Path, model: &Path) -> (usize, usize) {
-    let r = run_py(python, "base_check.py", &[model.to_str().unwrap(), "10", "5"]);
+    let r = run_py(
+        python,
+        "base_check.py",
+        &[model.to_str().unwrap(), "10", "5"],
+    );
     assert_eq!(r["bushings"], 17);
     let bmax = r["bushing_max_record_at_default"].as_f64().unwrap();
     assert!(

@@ -333,7 +333,11 @@ pub fn wrapped_path(
         for &(k, sphere, range) in &wraps {
             path.retain(|e| !matches!(e, Entry::Tangent(j, _) if *j == k));
             arcs.remove(&k);
-            let lo = if range[0] < 1 { 0 } else { range[0] as usize - 1 };
+            let lo = if range[0] < 1 {
+                0
+            } else {
+                range[0] as usize - 1
+            };
             let hi = if range[1] < 1 {
                 n_points.saturating_sub(1)
             } else {
@@ -611,7 +615,11 @@ mod tests {
         assert!((length - 2.0 * half).abs() < 1e-12, "{length}");
         // Misses and inside points.
         assert_eq!(
-            wrap_segment(&Point3::new(-2.0, 1.5, 0.0), &Point3::new(2.0, 1.5, 0.0), &s),
+            wrap_segment(
+                &Point3::new(-2.0, 1.5, 0.0),
+                &Point3::new(2.0, 1.5, 0.0),
+                &s
+            ),
             SphereWrap::NoWrap
         );
         assert_eq!(

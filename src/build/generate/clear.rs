@@ -108,7 +108,9 @@ pub fn clear_paths(
             let mut best_seg: Option<(f64, usize)> = None; // (depth, index in own)
             for (k, w) in own.windows(2).enumerate() {
                 let (a, b) = (inv * w[0].1.ground, inv * w[1].1.ground);
-                if w.iter().any(|v| v.1.body.as_deref() == Some(c.vertebra.as_str())) {
+                if w.iter()
+                    .any(|v| v.1.body.as_deref() == Some(c.vertebra.as_str()))
+                {
                     continue;
                 }
                 // Depth of the polyline between these own points.
@@ -127,14 +129,25 @@ pub fn clear_paths(
             let (a, b) = (pa.1.ground, pb.1.ground);
             // Other vertebrae the new segments must miss (not the ones the
             // end points are on).
-            let Some(via) = place_via(&a, &b, &c.vertebra, vertebrae, &poses, |p| {
-                m.wraps.iter().all(|w| {
-                    spheres
-                        .get(&w.wrap_object)
-                        .map(|s| (p - Point3::from(s.frame.translation.vector)).norm() > s.radius + 0.0005)
-                        .unwrap_or(true)
-                })
-            }, &[pa.1.body.clone(), pb.1.body.clone()]) else {
+            let Some(via) = place_via(
+                &a,
+                &b,
+                &c.vertebra,
+                vertebrae,
+                &poses,
+                |p| {
+                    m.wraps.iter().all(|w| {
+                        spheres
+                            .get(&w.wrap_object)
+                            .map(|s| {
+                                (p - Point3::from(s.frame.translation.vector)).norm()
+                                    > s.radius + 0.0005
+                            })
+                            .unwrap_or(true)
+                    })
+                },
+                &[pa.1.body.clone(), pb.1.body.clone()],
+            ) else {
                 continue;
             };
             // Insert after the PathPointSet entry of the first own point.
@@ -143,7 +156,9 @@ pub fn clear_paths(
                 .filter(|v| v.body.is_some())
                 .count();
             let active = crate::build::base::kin::muscle_path(&model, m, &poses, &q)?;
-            let Some(prev_name) = active.get(prev_idx.saturating_sub(1)).map(|p| p.name.clone())
+            let Some(prev_name) = active
+                .get(prev_idx.saturating_sub(1))
+                .map(|p| p.name.clone())
             else {
                 continue;
             };
@@ -203,9 +218,19 @@ fn place_via(
             let p = mid + d * t;
             if mq.signed_distance(&p) > CLEARANCE {
                 let g = x * p;
-                if clear_of(a, &g, vertebrae, poses, end_bodies.first().cloned().flatten())
-                    && clear_of(&g, b, vertebrae, poses, end_bodies.get(1).cloned().flatten())
-                    && outside_wraps(&g)
+                if clear_of(
+                    a,
+                    &g,
+                    vertebrae,
+                    poses,
+                    end_bodies.first().cloned().flatten(),
+                ) && clear_of(
+                    &g,
+                    b,
+                    vertebrae,
+                    poses,
+                    end_bodies.get(1).cloned().flatten(),
+                ) && outside_wraps(&g)
                 {
                     let detour = (g - a).norm() + (b - g).norm();
                     if best.map(|(bd, _)| detour < bd).unwrap_or(true) {

@@ -614,7 +614,9 @@ pub fn generate(
                 muscles_refused: s.muscles_refused.clone(),
             })
             .collect();
-        Some(crate::build::base::check::run_wrapped(&out_model, &refs, &rows)?)
+        Some(crate::build::base::check::run_wrapped(
+            &out_model, &refs, &rows,
+        )?)
     } else {
         None
     };
