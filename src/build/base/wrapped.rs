@@ -351,7 +351,7 @@ pub fn wrapped_path(
                 if want_first {
                     it.next()
                 } else {
-                    it.last()
+                    it.next_back()
                 }
             };
             let (Some(start), Some(end)) = (own_pos(true), own_pos(false)) else {
