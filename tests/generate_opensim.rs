@@ -419,7 +419,8 @@ fn noise_free_shapes_are_reproduced_and_load_in_opensim() {
 }
 
 /// OpenSim loads the model, reports zero bushing force at the default pose,
-/// and the base issue's wrap checks hold in a scoliotic test pose.
+/// the base issue's wrap checks hold in a scoliotic test pose, and
+/// OpenSim's wrapped muscle paths pass through no vertebra.
 fn check_in_opensim(py: &Path, model: &Path) {
     let r = common::run_py(py, "base_check.py", &[model.to_str().unwrap(), "10", "5"]);
     assert_eq!(r["bushings"], 17);
@@ -434,6 +435,15 @@ fn check_in_opensim(py: &Path, model: &Path) {
         "  OpenSim: bushing records at default <= {bmax:.1e}; {} muscles with PathWraps, {crossing} crossing and wrapping",
         rows.len()
     );
+    // OpenSim's wrapped paths at the default pose cross no vertebra, and
+    // the tool's wrapped path lengths are OpenSim's.
+    let (crossings, dlen) = common::opensim_path_crossings(py, model);
+    println!(
+        "  OpenSim: wrapped paths through vertebrae {}; tool vs OpenSim length {dlen:.1e} m",
+        crossings.len()
+    );
+    assert!(crossings.is_empty(), "{crossings:?}");
+    assert!(dlen < 1e-9, "path lengths differ by {dlen} m");
 }
 
 /// Levels without landmarks keep the base model's shape and alignment:

@@ -130,3 +130,106 @@ pub fn assert_wrap_rows(rows: &[serde_json::Value]) -> usize {
     }
     crossing
 }
+
+/// OpenSim 4.6's wrapped muscle paths of `model` at its default pose
+/// (`tests/py/wrapped_paths.py`) tested against the model's vertebra
+/// meshes: the crossings (muscle, vertebra, depth in mm) of OpenSim's own
+/// path (own points, wrap tangent points and arcs; the via points
+/// `generate` adds to clear a vertebra are not exempt from that vertebra's
+/// test, unlike attachments), and the largest
+/// difference between the tool's wrapped path length
+/// ([`osim_spine::build::base::wrapped::wrapped_path`]) and OpenSim's (m).
+pub fn opensim_path_crossings(
+    python: &Path,
+    model: &Path,
+) -> (Vec<osim_spine::build::base::wrapped::Crossing>, f64) {
+    use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion};
+    use osim_spine::build::base::wrapped::{self, PathVertex};
+    use osim_spine::build::base::DirMeshSource;
+    let r = run_py(python, "wrapped_paths.py", &[model.to_str().unwrap()]);
+    let p3 = |v: &serde_json::Value| {
+        Point3::new(
+            v[0].as_f64().unwrap(),
+            v[1].as_f64().unwrap(),
+            v[2].as_f64().unwrap(),
+        )
+    };
+    let mut poses: std::collections::BTreeMap<String, Isometry3<f64>> = r["bodies"]
+        .as_object()
+        .unwrap()
+        .iter()
+        .map(|(k, v)| {
+            let m = Matrix3::from_fn(|i, j| v["R"][i][j].as_f64().unwrap());
+            let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m));
+            (
+                k.clone(),
+                Isometry3::from_parts(Translation3::from(p3(&v["p"]).coords), q),
+            )
+        })
+        .collect();
+    poses.insert("ground".into(), Isometry3::identity());
+    let doc = osim_spine::osim::Document::read(model).unwrap();
+    let m = doc.model().unwrap();
+    let src = DirMeshSource {
+        model_path: model.to_path_buf(),
+        extra: vec![],
+    };
+    let owned = wrapped::vertebra_meshes(&m, &src).unwrap();
+    assert_eq!(owned.len(), 17, "vertebra meshes found");
+    let verts: Vec<(String, &osim_spine::mesh::MeshQuery)> =
+        owned.iter().map(|(n, q)| (n.clone(), q)).collect();
+    // The tool's own wrapped paths at the default pose, for the length check.
+    let kin = osim_spine::build::base::kin::Kinematics::new(&m).unwrap();
+    let q = kin.default_values();
+    let own_poses = kin.body_poses(&q).unwrap();
+    let spheres = wrapped::spheres_at(&m, &own_poses);
+    let mut crossings = Vec::new();
+    let mut worst = 0.0f64;
+    for mu in m.muscles() {
+        let row = &r["muscles"][&mu.name];
+        let poly: Vec<PathVertex> = row["polyline"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| PathVertex {
+                ground: p3(&v["ground"]),
+                // Via points added by `generate` to clear a vertebra are
+                // tested against that vertebra too (not exempt as
+                // attachments are).
+                body: v["body"]
+                    .as_str()
+                    .filter(|_| !v["name"].as_str().unwrap_or("").contains("-clear-"))
+                    .map(String::from),
+            })
+            .collect();
+        crossings.extend(wrapped::through_vertebrae(&mu.name, &poly, &verts, &poses));
+        let mine = wrapped::wrapped_path(&m, mu, &own_poses, &q, &spheres).unwrap();
+        worst = worst.max((mine.length - row["length"].as_f64().unwrap()).abs());
+    }
+    (crossings, worst)
+}
+
+/// A generated model in OpenSim 4.6 (`tests/py/base_check.py`): it loads,
+/// its 17 bushings carry no force at the default pose, and the base issue's
+/// wrap checks hold in a scoliotic test pose (LB 10 deg, AR 5 deg).
+/// Returns (muscles with PathWraps, crossing and wrapping).
+pub fn check_generated_in_opensim(python: &Path, model: &Path) -> (usize, usize) {
+    let r = run_py(
+        python,
+        "base_check.py",
+        &[model.to_str().unwrap(), "10", "5"],
+    );
+    assert_eq!(r["bushings"], 17);
+    let bmax = r["bushing_max_record_at_default"].as_f64().unwrap();
+    assert!(
+        bmax < 1e-6,
+        "bushing force/torque at the default pose {bmax}"
+    );
+    let rows = r["scoliotic"].as_array().unwrap();
+    let crossing = assert_wrap_rows(rows);
+    println!(
+        "  OpenSim: bushing records at default <= {bmax:.1e}; {} muscles with PathWraps, {crossing} crossing and wrapping",
+        rows.len()
+    );
+    (rows.len(), crossing)
+}

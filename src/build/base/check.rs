@@ -4,7 +4,9 @@
 //! * no muscle path segment passes through a vertebra at the default pose
 //!   (segments are tested against the closed vertebra meshes with parry;
 //!   a vertebra is skipped for a segment attached to it; depth > 0.5 mm
-//!   counts);
+//!   counts); [`run`] tests the straight segments between path points (the
+//!   base model), [`run_wrapped`] the path OpenSim computes, wrap arcs
+//!   included (generated models);
 //! * every WrapSphere is reachable by its muscles (at least one muscle
 //!   wraps over it; by the crossing rule each of them passes within the
 //!   radius + 5 mm in a test pose); spheres without muscles are listed;
@@ -106,11 +108,32 @@ pub fn equilibrium(model: &Model) -> Result<Equilibrium> {
 }
 
 /// Run the self-check on the base model; `vertebrae` are (body, mesh
-/// query in the body frame).
+/// query in the body frame). Muscle paths are the straight segments between
+/// their points (the base model's own test).
 pub fn run(
     model: &Model,
     vertebrae: &[(String, &MeshQuery)],
     spheres: &[SphereRow],
+) -> Result<SelfCheck> {
+    run_with(model, vertebrae, spheres, false)
+}
+
+/// The self-check with muscle paths as OpenSim computes them, sphere
+/// wraps and their arcs included ([`super::wrapped`]); the crossing depth
+/// is the path's total length inside each vertebra (used by `generate`).
+pub fn run_wrapped(
+    model: &Model,
+    vertebrae: &[(String, &MeshQuery)],
+    spheres: &[SphereRow],
+) -> Result<SelfCheck> {
+    run_with(model, vertebrae, spheres, true)
+}
+
+fn run_with(
+    model: &Model,
+    vertebrae: &[(String, &MeshQuery)],
+    spheres: &[SphereRow],
+    wrapped: bool,
 ) -> Result<SelfCheck> {
     let kin = Kinematics::new(model)?;
     let q = kin.default_values();
@@ -136,7 +159,19 @@ pub fn run(
             None => (nalgebra::Point3::origin(), 0.0),
         })
         .collect();
+    let placed = super::wrapped::spheres_at(model, &poses);
     for m in model.muscles() {
+        if wrapped {
+            let p = super::wrapped::wrapped_path(model, m, &poses, &q, &placed)?;
+            for c in super::wrapped::through_vertebrae(&m.name, &p.polyline, vertebrae, &poses) {
+                through.push(ThroughBone {
+                    muscle: c.muscle,
+                    vertebra: c.vertebra,
+                    depth_mm: c.depth_mm,
+                });
+            }
+            continue;
+        }
         let path = muscle_path(model, m, &poses, &q)?;
         for w in path.windows(2) {
             for ((body, mq), (c, r)) in vertebrae.iter().zip(&bounds) {

@@ -33,6 +33,7 @@ pub mod sanity;
 pub mod template;
 pub mod views;
 pub mod wrap;
+pub mod wrapped;
 
 use crate::error::{Error, Result};
 use crate::landmarks::{Code, Level};

@@ -41,6 +41,7 @@
 //! [`crate::build::base`]); only the poses change.
 
 pub mod chain;
+pub mod clear;
 pub mod example;
 pub mod pose;
 pub mod scale;
@@ -179,6 +180,8 @@ pub struct GenerateReport {
     pub joints_rewritten: Vec<String>,
     pub scaling: BTreeMap<String, scale::ScaleCount>,
     pub spheres: Vec<wraps::SphereOut>,
+    /// Edits that cleared muscle paths from the vertebrae ([`clear`]).
+    pub path_edits: Vec<clear::PathEdit>,
     /// Vertebral centres ([`crate::evaluate::CentreDef::Endplates`]) in
     /// ground at the default pose (m).
     pub centres: BTreeMap<String, [f64; 3]>,
@@ -549,6 +552,18 @@ pub fn generate(
         .collect();
     let spheres = wraps::refit_spheres(&mut doc, &scales, &base_radii, &prefixes)?;
 
+    // ---- 5b. muscle paths clear of the vertebrae ([`clear`])
+    let path_edits = match meshes {
+        Some(src) => {
+            let m = doc.model()?;
+            let owned = crate::build::base::wrapped::vertebra_meshes(&m, src)?;
+            let refs: Vec<(String, &MeshQuery)> =
+                owned.iter().map(|(n, q)| (n.clone(), q)).collect();
+            clear::clear_paths(&mut doc, &refs)?
+        }
+        None => Vec::new(),
+    };
+
     // ---- 6. report, views, self-check
     let out_model = doc.model()?;
     let kin2 = Kinematics::new(&out_model)?;
@@ -630,7 +645,9 @@ pub fn generate(
                 muscles_refused: s.muscles_refused.clone(),
             })
             .collect();
-        Some(crate::build::base::check::run(&out_model, &refs, &rows)?)
+        Some(crate::build::base::check::run_wrapped(
+            &out_model, &refs, &rows,
+        )?)
     } else {
         None
     };
@@ -666,6 +683,7 @@ pub fn generate(
         joints_rewritten: rewritten,
         scaling,
         spheres,
+        path_edits,
         centres: centres
             .iter()
             .map(|(l, p)| (l.to_string(), [p.x, p.y, p.z]))

@@ -1,0 +1,349 @@
+//! Muscle paths clear of the vertebrae in the generated pose.
+//!
+//! The scoliotic curve moves vertebrae into the paths of muscles that span
+//! them (psoas fascicles beside the lumbar bodies on the concave side,
+//! multifidus and longissimus fascicles over rotated laminae). The path
+//! tested is the one OpenSim computes ([`crate::build::base::wrapped`]:
+//! own points, sphere wraps and their arcs) at the default pose, against
+//! the vertebra meshes.
+//!
+//! The construct is a via point (a fixed `PathPoint`) on the crossed
+//! vertebra, as lumbar spine models route the psoas and erector fascicles
+//! (via points on the vertebrae they pass), not a PathWrap over the
+//! vertebral-body sphere: that sphere is fitted to the anterior wall only
+//! and is shrunk below the body's size by the no-overlap and inside-point
+//! rules ([`super::wraps`]), so an arc over it runs inside the bone, and it
+//! cannot route a path around the posterior elements at all. The via point
+//! goes on the side the path already passes: among directions
+//! perpendicular to the segment, the smallest detour from the middle of the
+//! chord inside the bone that leaves both new segments outside every
+//! vertebra they are not attached to, the point itself [`CLEARANCE`]
+//! outside the bone and outside the muscle's wrap spheres. When the bone
+//! crossing is the arc of the muscle's own PathWrap over that vertebra's
+//! sphere, that PathWrap is removed first (the arc is in the bone).
+//! Rounds repeat until no crossing is left or [`MAX_ROUNDS`] is reached;
+//! what is left is reported by the self-check.
+
+use crate::build::base::kin::Kinematics;
+use crate::build::base::wrapped::{self, PathVertex, DEPTH_TOLERANCE};
+use crate::error::Result;
+use crate::mesh::MeshQuery;
+use crate::osim::xml::{Element, Node};
+use crate::osim::Document;
+use nalgebra::{Point3, Vector3};
+use std::collections::BTreeMap;
+
+/// Distance kept between a via point and the bone surface (m).
+pub const CLEARANCE: f64 = 0.002;
+/// Largest detour searched (m).
+pub const MAX_OFFSET: f64 = 0.05;
+/// Rounds of the crossing fix.
+pub const MAX_ROUNDS: usize = 12;
+
+/// One edit made to clear a path.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PathEdit {
+    pub muscle: String,
+    pub vertebra: String,
+    /// "via point <name>" or "removed PathWrap over <sphere>".
+    pub action: String,
+    /// Depth of the crossing it removed (mm).
+    pub depth_mm: f64,
+}
+
+/// Clear the muscle paths of `doc` from the vertebrae `vertebrae` (body,
+/// mesh query in the body frame) at the default pose. Edits `doc`.
+pub fn clear_paths(
+    doc: &mut Document,
+    vertebrae: &[(String, &MeshQuery)],
+) -> Result<Vec<PathEdit>> {
+    let mut edits = Vec::new();
+    for _ in 0..MAX_ROUNDS {
+        let model = doc.model()?;
+        let kin = Kinematics::new(&model)?;
+        let q = kin.default_values();
+        let poses = kin.body_poses(&q)?;
+        let spheres = wrapped::spheres_at(&model, &poses);
+        let mut changed = false;
+        for m in model.muscles() {
+            let path = wrapped::wrapped_path(&model, m, &poses, &q, &spheres)?;
+            let mut cs = wrapped::through_vertebrae(&m.name, &path.polyline, vertebrae, &poses);
+            cs.sort_by(|a, b| b.depth_mm.total_cmp(&a.depth_mm));
+            let Some(c) = cs.first() else { continue };
+            // A PathWrap over the crossed vertebra's sphere: its arc is in
+            // the bone; remove it.
+            let own_wrap = m.wraps.iter().find(|w| {
+                spheres
+                    .get(&w.wrap_object)
+                    .map(|s| s.body == c.vertebra)
+                    .unwrap_or(false)
+            });
+            if let Some(w) = own_wrap {
+                if path.wrapped_over.contains(&w.wrap_object) {
+                    remove_path_wrap(doc, &m.name, &w.wrap_object);
+                    edits.push(PathEdit {
+                        muscle: m.name.clone(),
+                        vertebra: c.vertebra.clone(),
+                        action: format!("removed PathWrap over {}", w.wrap_object),
+                        depth_mm: c.depth_mm,
+                    });
+                    changed = true;
+                    continue;
+                }
+            }
+            let (Some(x), Some((_, mq))) = (
+                poses.get(&c.vertebra),
+                vertebrae.iter().find(|(b, _)| *b == c.vertebra),
+            ) else {
+                continue;
+            };
+            // The own points around the deepest crossing segment.
+            let own: Vec<(usize, &PathVertex)> = path
+                .polyline
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| v.body.is_some())
+                .collect();
+            let inv = x.inverse();
+            let mut best_seg: Option<(f64, usize)> = None; // (depth, index in own)
+            for (k, w) in own.windows(2).enumerate() {
+                let (a, b) = (inv * w[0].1.ground, inv * w[1].1.ground);
+                if w.iter()
+                    .any(|v| v.1.body.as_deref() == Some(c.vertebra.as_str()))
+                {
+                    continue;
+                }
+                // Depth of the polyline between these own points.
+                let mut d = mq.segment_length_inside(&a, &b);
+                for s in path.polyline[w[0].0..=w[1].0].windows(2) {
+                    d = d.max(mq.segment_length_inside(&(inv * s[0].ground), &(inv * s[1].ground)));
+                }
+                if d > DEPTH_TOLERANCE && best_seg.map(|(bd, _)| d > bd).unwrap_or(true) {
+                    best_seg = Some((d, k));
+                }
+            }
+            let Some((_, k)) = best_seg else { continue };
+            let (Some(pa), Some(pb)) = (own.get(k), own.get(k + 1)) else {
+                continue;
+            };
+            let (a, b) = (pa.1.ground, pb.1.ground);
+            // Other vertebrae the new segments must miss (not the ones the
+            // end points are on).
+            let Some(via) = place_via(
+                &a,
+                &b,
+                &c.vertebra,
+                vertebrae,
+                &poses,
+                |p| {
+                    m.wraps.iter().all(|w| {
+                        spheres
+                            .get(&w.wrap_object)
+                            .map(|s| {
+                                (p - Point3::from(s.frame.translation.vector)).norm()
+                                    > s.radius + 0.0005
+                            })
+                            .unwrap_or(true)
+                    })
+                },
+                &[pa.1.body.clone(), pb.1.body.clone()],
+            ) else {
+                continue;
+            };
+            // Insert after the PathPointSet entry of the first own point.
+            let prev_idx = path.polyline[..=pa.0]
+                .iter()
+                .filter(|v| v.body.is_some())
+                .count();
+            let active = crate::build::base::kin::muscle_path(&model, m, &poses, &q)?;
+            let Some(prev_name) = active
+                .get(prev_idx.saturating_sub(1))
+                .map(|p| p.name.clone())
+            else {
+                continue;
+            };
+            let name = format!("{}-clear-{}", m.name, c.vertebra);
+            let local = inv * via;
+            insert_via(doc, &m.name, &prev_name, &name, &c.vertebra, &local.coords);
+            edits.push(PathEdit {
+                muscle: m.name.clone(),
+                vertebra: c.vertebra.clone(),
+                action: format!("via point {name}"),
+                depth_mm: c.depth_mm,
+            });
+            changed = true;
+        }
+        if !changed {
+            break;
+        }
+    }
+    Ok(edits)
+}
+
+/// The via point (ground) on `vertebra` for the segment `a`-`b`.
+fn place_via(
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    vertebra: &str,
+    vertebrae: &[(String, &MeshQuery)],
+    poses: &BTreeMap<String, nalgebra::Isometry3<f64>>,
+    outside_wraps: impl Fn(&Point3<f64>) -> bool,
+    end_bodies: &[Option<String>],
+) -> Option<Point3<f64>> {
+    let x = poses.get(vertebra)?;
+    let (_, mq) = vertebrae.iter().find(|(n, _)| n == vertebra)?;
+    let inv = x.inverse();
+    let (la, lb) = (inv * a, inv * b);
+    // Middle of the chord inside the bone (vertebra frame).
+    let hits = mq.segment_hits(&la, &lb);
+    let mid = if hits.len() >= 2 {
+        let first = hits.first()?.point;
+        let last = hits.last()?.point;
+        nalgebra::center(&first, &last)
+    } else {
+        nalgebra::center(&la, &lb)
+    };
+    let axis = (lb - la).try_normalize(1e-12)?;
+    let u = axis
+        .cross(&Vector3::x())
+        .try_normalize(1e-6)
+        .unwrap_or_else(|| axis.cross(&Vector3::y()).normalize());
+    let v = axis.cross(&u);
+    let mut best: Option<(f64, Point3<f64>)> = None;
+    for i in 0..36 {
+        let th = (i as f64) * std::f64::consts::TAU / 36.0;
+        let d = u * th.cos() + v * th.sin();
+        let mut t = 0.001;
+        while t <= MAX_OFFSET {
+            let p = mid + d * t;
+            if mq.signed_distance(&p) > CLEARANCE {
+                let g = x * p;
+                if clear_of(
+                    a,
+                    &g,
+                    vertebrae,
+                    poses,
+                    end_bodies.first().cloned().flatten(),
+                ) && clear_of(
+                    &g,
+                    b,
+                    vertebrae,
+                    poses,
+                    end_bodies.get(1).cloned().flatten(),
+                ) && outside_wraps(&g)
+                {
+                    let detour = (g - a).norm() + (b - g).norm();
+                    if best.map(|(bd, _)| detour < bd).unwrap_or(true) {
+                        best = Some((detour, g));
+                    }
+                    break;
+                }
+            }
+            t += 0.001;
+        }
+    }
+    best.map(|(_, p)| p)
+}
+
+/// Whether the segment `a`-`b` (ground) stays outside every vertebra but
+/// `skip`.
+fn clear_of(
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    vertebrae: &[(String, &MeshQuery)],
+    poses: &BTreeMap<String, nalgebra::Isometry3<f64>>,
+    skip: Option<String>,
+) -> bool {
+    vertebrae.iter().all(|(n, mq)| {
+        if skip.as_deref() == Some(n.as_str()) {
+            return true;
+        }
+        let Some(x) = poses.get(n) else { return true };
+        let inv = x.inverse();
+        mq.segment_length_inside(&(inv * a), &(inv * b)) <= 0.0
+    })
+}
+
+fn path_points<'a>(doc: &'a mut Document, muscle: &str) -> Option<&'a mut Element> {
+    doc.component_mut("ForceSet", muscle)?
+        .elements_mut()
+        .find(|e| e.name == "GeometryPath")?
+        .child_mut("PathPointSet")?
+        .child_mut("objects")
+}
+
+/// Insert a fixed PathPoint `name` on `body` after the point `after`;
+/// explicit PathWrap ranges past it are shifted.
+fn insert_via(
+    doc: &mut Document,
+    muscle: &str,
+    after: &str,
+    name: &str,
+    body: &str,
+    loc: &Vector3<f64>,
+) {
+    let el = Element::new("PathPoint")
+        .with_attr("name", name)
+        .with_prop("socket_parent_frame", format!("/bodyset/{body}"))
+        .with_prop(
+            "location",
+            format!(
+                "{} {} {}",
+                crate::util::fmt_f64(loc.x),
+                crate::util::fmt_f64(loc.y),
+                crate::util::fmt_f64(loc.z)
+            ),
+        );
+    let mut pos_1based = None;
+    if let Some(objs) = path_points(doc, muscle) {
+        let mut k = 0;
+        let mut at = None;
+        for (i, n) in objs.children.iter().enumerate() {
+            if let Node::Element(e) = n {
+                k += 1;
+                if e.name_attr() == after {
+                    at = Some((i, k));
+                }
+            }
+        }
+        if let Some((i, k)) = at {
+            objs.children.insert(i + 1, Node::Element(el));
+            pos_1based = Some(k as i64 + 1);
+        }
+    }
+    let Some(p) = pos_1based else { return };
+    if let Some(ws) = doc
+        .component_mut("ForceSet", muscle)
+        .and_then(|e| e.elements_mut().find(|e| e.name == "GeometryPath"))
+        .and_then(|g| g.child_mut("PathWrapSet"))
+        .and_then(|w| w.child_mut("objects"))
+    {
+        for w in ws.elements_mut() {
+            let Some(r) = w.child_text("range") else {
+                continue;
+            };
+            let v: Vec<i64> = r
+                .split_whitespace()
+                .filter_map(|s| s.parse().ok())
+                .collect();
+            if let [lo, hi] = v[..] {
+                let sh = |x: i64| if x >= p { x + 1 } else { x };
+                w.set_child_text("range", format!("{} {}", sh(lo), sh(hi)));
+            }
+        }
+    }
+}
+
+fn remove_path_wrap(doc: &mut Document, muscle: &str, sphere: &str) {
+    if let Some(ws) = doc
+        .component_mut("ForceSet", muscle)
+        .and_then(|e| e.elements_mut().find(|e| e.name == "GeometryPath"))
+        .and_then(|g| g.child_mut("PathWrapSet"))
+        .and_then(|w| w.child_mut("objects"))
+    {
+        ws.children.retain(|n| match n {
+            Node::Element(e) => e.child_text("wrap_object").as_deref() != Some(sphere),
+            _ => true,
+        });
+    }
+}
