@@ -183,7 +183,7 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     let kinds = kinds(design.has_follower);
     let offsets = has_trans || design.has_follower;
     let pb = if opts.progress {
-        let pb = indicatif::ProgressBar::new(kinds.len() as u64 + 3 + offsets as u64);
+        let pb = indicatif::ProgressBar::new(kinds.len() as u64 + 4 + offsets as u64);
         pb.set_style(
             indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
@@ -253,6 +253,24 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
             }
             stage2.push(pose);
         }
+    }
+    // per-level asymmetry, started from the global bilinear fit
+    if let Some(i) = find(&fits, Kind::AsymmetricBilinear) {
+        let ab = &fits[i];
+        let mut pl = Family::new(Kind::AsymmetricPerLevel, &sim, g);
+        for k in 0..3 {
+            if let (Some(v), Some(r)) = (pl.x0.get_mut(k), ab.x.get(k)) {
+                *v = *r;
+            }
+        }
+        for li in 0..nl {
+            for k in 0..3 {
+                if let (Some(v), Some(r)) = (pl.x0.get_mut(3 + 3 * li + k), ab.x.get(3 + k)) {
+                    *v = *r;
+                }
+            }
+        }
+        stage2.push(pl);
     }
     if let Some(i) = find(&fits, Kind::CoupledPerLevel) {
         let cp = &fits[i];
