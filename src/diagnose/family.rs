@@ -16,7 +16,7 @@
 //! | `nonlinear_stiffness` / `sinh` | per DoF `lambda_d = exp(s_d)`: `M = k sinh(lambda th) / lambda` | FunctionBased/ExpressionBased |
 //! | `nonlinear_stiffness` / `cubic` | per DoF `c_d = k_d exp(s_d)`: `M = k th + c th^3` | FunctionBasedBushingForce (PolynomialFunction) |
 //! | `asymmetric_stiffness` / `bilinear` | per DoF `k+ = k- exp(a_d)` | FunctionBasedBushingForce (PiecewiseLinearFunction) |
-//! | `asymmetric_stiffness` / `per_level` | per level and DoF `k+ = k- exp(a_ld)` (levels of the mask; others symmetric) | idem |
+//! | `asymmetric_stiffness` / `per_level` | per level and DoF one-sided stiffening `exp(|a_ld|)` of the positive (`a > 0`) or negative (`a < 0`) side (levels of the mask; others symmetric) | idem |
 //! | `coupled_stiffness` / `uniform` | 3 correlations `rho_ij`, `K_ij = rho_ij sqrt(k_i k_j)` | ExpressionBasedBushingForce (linear) |
 //! | `coupled_stiffness` / `per_level` | 3 correlations per level | idem |
 //! | `joint_pose_error` / `rotation` | per level a rotation vector (rad) of both joint frames | linear, joint frames moved |
@@ -387,11 +387,24 @@ impl Family {
                 | Kind::AsymmetricBilinear
                 | Kind::AsymmetricPerLevel => {
                     let rot: [Curve; 3] = std::array::from_fn(|d| {
-                        let s = match (self.kind, block[li]) {
-                            (Kind::AsymmetricPerLevel, Some(b)) => get(3 + 3 * b + d),
-                            (Kind::AsymmetricPerLevel, None) => 0.0,
-                            _ => get(3 + d),
-                        };
+                        if self.kind == Kind::AsymmetricPerLevel {
+                            // one-sided stiffening: a > 0 stiffens the positive
+                            // side, a < 0 the negative side, by exp(|a|)
+                            let a = block[li].map(|b| get(3 + 3 * b + d)).unwrap_or(0.0);
+                            let f = a.abs().exp();
+                            return if a >= 0.0 {
+                                Curve::Bilinear {
+                                    k_neg: k[d],
+                                    k_pos: k[d] * f,
+                                }
+                            } else {
+                                Curve::Bilinear {
+                                    k_neg: k[d] * f,
+                                    k_pos: k[d],
+                                }
+                            };
+                        }
+                        let s = get(3 + d);
                         match self.kind {
                             Kind::NonlinearSinh => Curve::Sinh {
                                 k: k[d],

@@ -254,13 +254,14 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
             stage2.push(pose);
         }
     }
-    // per-level asymmetry, started from the global bilinear fit
+    // per-level one-sided stiffening, started from the global bilinear fit
     if let Some(i) = find(&fits, Kind::AsymmetricBilinear) {
         let ab = &fits[i];
         let mut pl = Family::new(Kind::AsymmetricPerLevel, &sim, g);
+        // the same laws: a stiffer negative side (a < 0) lowers the global factor
         for k in 0..3 {
-            if let (Some(v), Some(r)) = (pl.x0.get_mut(k), ab.x.get(k)) {
-                *v = *r;
+            if let (Some(v), Some(r), Some(a)) = (pl.x0.get_mut(k), ab.x.get(k), ab.x.get(3 + k)) {
+                *v = *r + a.min(0.0);
             }
         }
         for li in 0..nl {
