@@ -782,3 +782,60 @@ impl Outcome {
         out
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::win_probability;
+
+    #[test]
+    fn win_probability_is_the_normal_cdf_of_the_margin_over_its_noise_se() {
+        // model a fits every cell, b is off by one noise unit everywhere:
+        // the chi-square difference n has noise SD 2 sqrt(n) (t = 1), and
+        // the pointwise spread is zero, so P = Phi(delta / (2 sqrt(n)))
+        let n = 16;
+        let a = vec![0.0; n];
+        let b = vec![1.0; n];
+        let se = 2.0 * (n as f64).sqrt();
+        // Phi(1) = 0.841345, Phi(0) = 0.5, Phi(-2) = 0.022750
+        assert!((win_probability(se, &a, &b, 1.0) - 0.841345).abs() < 1e-5);
+        assert!((win_probability(0.0, &a, &b, 1.0) - 0.5).abs() < 1e-12);
+        assert!((win_probability(-2.0 * se, &a, &b, 1.0) - 0.022750).abs() < 1e-5);
+        // misfit t = 4 doubles the SE
+        assert!((win_probability(2.0 * se, &a, &b, 4.0) - 0.841345).abs() < 1e-5);
+        // identical predictions: the sign of the margin decides
+        assert_eq!(win_probability(3.0, &a, &a, 1.0), 1.0);
+        assert_eq!(win_probability(-3.0, &a, &a, 1.0), 0.0);
+    }
+
+    #[test]
+    fn a_thin_margin_between_different_predictions_is_not_confident() {
+        // 90 cells; the two models disagree by 0.5 noise units per cell and
+        // their held-out chi-squares differ by 26 (dev-24's margin)
+        let a: Vec<f64> = (0..90)
+            .map(|i| if i % 2 == 0 { 0.3 } else { -0.3 })
+            .collect();
+        let b: Vec<f64> = a.iter().map(|x| x + 0.5).collect();
+        let p = win_probability(26.0, &a, &b, 1.0);
+        // se = 2 sqrt(90 * 0.25) = 9.49: z = 2.74
+        assert!(p > 0.99 && p < 0.999, "{p}");
+        // the same margin with five times the disagreement: z = 0.55
+        let c: Vec<f64> = a.iter().map(|x| x + 2.5).collect();
+        let q = win_probability(26.0, &a, &c, 1.0);
+        assert!(q < 0.75, "{q}");
+        // heterogeneous per-cell differences widen the SE (Vuong)
+        let d: Vec<f64> = (0..90).map(|i| if i < 3 { 6.0 } else { 0.0 }).collect();
+        let z = vec![0.0; 90];
+        let p_het = win_probability(26.0, &z, &d, 1.0);
+        let se_point = {
+            let v: Vec<f64> = d.iter().map(|x| x * x).collect();
+            let m = v.iter().sum::<f64>() / 90.0;
+            (90.0 * v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / 89.0).sqrt()
+        };
+        assert!(se_point > 2.0 * (108.0f64).sqrt());
+        let want = statrs::distribution::ContinuousCDF::cdf(
+            &statrs::distribution::Normal::new(0.0, 1.0).unwrap(),
+            26.0 / se_point,
+        );
+        assert!((p_het - want).abs() < 1e-12);
+    }
+}
