@@ -73,7 +73,7 @@ fn main() {
             if want == o.verdict { "OK " } else { "BAD" },
             o.verdict, o.confidence, if e1 { "*" } else { "" }, if e2 { "*" } else { "" },
             specimens[*si].0, spec.loaded_body, spec.noise_deg, spec.noise_mm, spec.translations as u8,
-            spec.follower as u8, spec.perturb_specimen as u8, truth.notes, t.elapsed().as_secs_f64(),
+            (spec.follower || spec.effect == osim_spine::diagnose::family::Effect::PreloadStiffening) as u8, spec.perturb_specimen as u8, truth.notes, t.elapsed().as_secs_f64(),
             o.reasons.join("; ")
         );
         rows.push((want.to_string(), o.verdict.clone(), shrink, o.confidence));

@@ -317,7 +317,7 @@ fn truth_system(sim: &Sim, spec: &SynthSpec, rng: &mut ChaCha8Rng) -> Result<(Sy
                         format!("-{kc:?}*max(0,-{v}-{th0:?})")
                     };
                     let ex: [String; 6] = std::array::from_fn(|i| match i {
-                        0 | 1 | 2 if i == d => format!("{:?}*{v}{contact}", k[i]),
+                        0..=2 if i == d => format!("{:?}*{v}{contact}", k[i]),
                         0 => format!("{:?}*theta_x", k[0]),
                         1 => format!("{:?}*theta_y", k[1]),
                         2 => format!("{:?}*theta_z", k[2]),
