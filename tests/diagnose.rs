@@ -140,31 +140,41 @@ fn single_magnitude_makes_nonlinear_truth_unidentifiable_and_names_the_cases() {
 
 #[test]
 fn improved_model_reproduces_the_fitted_predictions() {
-    // joint pose error: the written model has moved joint frames
-    let Some(dir) = dev("dev-13") else { return };
-    let exp = Experiment::read(&dir).unwrap();
-    let o = diagnose(&exp, &quiet()).unwrap();
-    assert_eq!(o.verdict, "joint_pose_error");
-    let files = osim_spine::diagnose::outputs(&exp, &o).unwrap();
-    let tmp = tempfile::tempdir().unwrap();
-    let copy = tmp.path().join("improved");
-    reduced(&dir, &copy, |_| true);
-    let model = files.iter().find(|(n, _)| n == "improved.osim").unwrap();
-    std::fs::write(copy.join("specimen.osim"), &model.1).unwrap();
-    let exp2 = Experiment::read(&copy).unwrap();
-    let sys2 = osim_spine::solver::System::new(&exp2.spec).unwrap();
-    let sim = Sim::new(&exp).unwrap();
-    let all: Vec<usize> = (0..exp.cases.len()).collect();
-    let pred = sim.predict(&sys2, &all, &mut sim.warm()).unwrap();
-    let fitted = &o.augmented().pred;
-    let mut worst: f64 = 0.0;
-    for (p, q) in pred.iter().zip(fitted) {
-        for d in 0..6 {
-            worst = worst.max((p[d] - q[d]).abs());
+    // joint pose error (moved joint frames) and a per-level asymmetry
+    // (per-level FunctionBased bushings): the written model predicts what
+    // the fitted family predicted
+    for (name, want) in [
+        ("dev-13", "joint_pose_error"),
+        ("dev-22", "asymmetric_stiffness"),
+    ] {
+        let Some(dir) = dev(name) else { return };
+        let exp = Experiment::read(&dir).unwrap();
+        let o = diagnose(&exp, &quiet()).unwrap();
+        assert_eq!(o.verdict, want);
+        let files = osim_spine::diagnose::outputs(&exp, &o).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let copy = tmp.path().join("improved");
+        reduced(&dir, &copy, |_| true);
+        let model = files.iter().find(|(n, _)| n == "improved.osim").unwrap();
+        std::fs::write(copy.join("specimen.osim"), &model.1).unwrap();
+        let exp2 = Experiment::read(&copy).unwrap();
+        let sys2 = osim_spine::solver::System::new(&exp2.spec).unwrap();
+        let sim = Sim::new(&exp).unwrap();
+        let all: Vec<usize> = (0..exp.cases.len()).collect();
+        let pred = sim.predict(&sys2, &all, &mut sim.warm()).unwrap();
+        let fitted = &o.augmented().pred;
+        let mut worst: f64 = 0.0;
+        for (p, q) in pred.iter().zip(fitted) {
+            for d in 0..6 {
+                worst = worst.max((p[d] - q[d]).abs());
+            }
         }
+        println!(
+            "{name} ({}): largest difference written vs fitted: {worst:.2e} (deg or mm)",
+            o.augmented().family.kind.label()
+        );
+        assert!(worst < 1e-6, "{name}: {worst}");
     }
-    println!("largest difference written vs fitted: {worst:.2e} (deg or mm)");
-    assert!(worst < 1e-6, "{worst}");
 }
 
 #[test]
