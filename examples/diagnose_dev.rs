@@ -54,7 +54,8 @@ fn main() {
                 )
             })
             .collect();
-        println!("{name} truth={truth} verdict={} conf={:.2} shrink={shrink:.2} [{}] sigma=({:.3},{:.3}) {:.1}s {}", o.verdict, o.confidence, top.join(" "), 1.0/o.noise.rot, 1.0/o.noise.trans, t.elapsed().as_secs_f64(), o.reasons.join("; "));
+        let sc = |k: usize| o.ranked.get(k).map(|&j| o.stats[j].score).unwrap_or(0.0);
+        println!("{name} truth={truth} verdict={} conf={:.3} best={:.0} second={:.0} shrink={shrink:.2} [{}] sigma=({:.3},{:.3}) {:.1}s {}", o.verdict, o.confidence, sc(0), sc(1), top.join(" "), 1.0/o.noise.rot, 1.0/o.noise.trans, t.elapsed().as_secs_f64(), o.reasons.join("; "));
         rows.push((truth, o.verdict.clone(), shrink));
     }
     let names = [

@@ -16,6 +16,7 @@
 //! | `nonlinear_stiffness` / `sinh` | per DoF `lambda_d = exp(s_d)`: `M = k sinh(lambda th) / lambda` | FunctionBased/ExpressionBased |
 //! | `nonlinear_stiffness` / `cubic` | per DoF `c_d = k_d exp(s_d)`: `M = k th + c th^3` | FunctionBasedBushingForce (PolynomialFunction) |
 //! | `asymmetric_stiffness` / `bilinear` | per DoF `k+ = k- exp(a_d)` | FunctionBasedBushingForce (PiecewiseLinearFunction) |
+//! | `asymmetric_stiffness` / `per_level` | per level and DoF one-sided stiffening `exp(|a_ld|)` of the positive (`a > 0`) or negative (`a < 0`) side (levels of the mask; others symmetric) | idem |
 //! | `coupled_stiffness` / `uniform` | 3 correlations `rho_ij`, `K_ij = rho_ij sqrt(k_i k_j)` | ExpressionBasedBushingForce (linear) |
 //! | `coupled_stiffness` / `per_level` | 3 correlations per level | idem |
 //! | `joint_pose_error` / `rotation` | per level a rotation vector (rad) of both joint frames | linear, joint frames moved |
@@ -75,6 +76,9 @@ pub enum Kind {
     NonlinearSinh,
     NonlinearCubic,
     AsymmetricBilinear,
+    /// Bilinear asymmetry with its own ratios at each level of the mask
+    /// (an asymmetry at some levels only).
+    AsymmetricPerLevel,
     CoupledUniform,
     CoupledPerLevel,
     /// Coupling at the levels of the family's mask only (a local effect).
@@ -93,7 +97,7 @@ impl Kind {
             Kind::Baseline => Effect::None,
             Kind::LevelScalar | Kind::LevelPerDof => Effect::LevelDependentStiffness,
             Kind::NonlinearSinh | Kind::NonlinearCubic => Effect::NonlinearStiffness,
-            Kind::AsymmetricBilinear => Effect::AsymmetricStiffness,
+            Kind::AsymmetricBilinear | Kind::AsymmetricPerLevel => Effect::AsymmetricStiffness,
             Kind::CoupledUniform | Kind::CoupledPerLevel | Kind::CoupledLocal => {
                 Effect::CoupledStiffness
             }
@@ -110,6 +114,7 @@ impl Kind {
             Kind::NonlinearSinh => "nonlinear_sinh",
             Kind::NonlinearCubic => "nonlinear_cubic",
             Kind::AsymmetricBilinear => "asymmetric_bilinear",
+            Kind::AsymmetricPerLevel => "asymmetric_per_level",
             Kind::CoupledUniform => "coupled_uniform",
             Kind::CoupledPerLevel => "coupled_per_level",
             Kind::CoupledLocal => "coupled_local",
@@ -254,6 +259,19 @@ impl Family {
                     );
                 }
             }
+            Kind::AsymmetricPerLevel => {
+                for l in sim.levels.iter().zip(&mask).filter(|p| *p.1).map(|p| p.0) {
+                    for d in DOF3 {
+                        push(
+                            &mut f,
+                            format!("{}.log_kpos_over_kneg_{d}", l.name),
+                            0.0,
+                            -3.0,
+                            3.0,
+                        );
+                    }
+                }
+            }
             Kind::CoupledUniform => {
                 for n in ["xy", "xz", "yz"] {
                     push(&mut f, format!("rho_{n}"), 0.0, -0.8, 0.8);
@@ -364,8 +382,28 @@ impl Family {
             };
             let law = match self.kind {
                 Kind::Baseline | Kind::LevelScalar | Kind::LevelPerDof => linear(k),
-                Kind::NonlinearSinh | Kind::NonlinearCubic | Kind::AsymmetricBilinear => {
+                Kind::NonlinearSinh
+                | Kind::NonlinearCubic
+                | Kind::AsymmetricBilinear
+                | Kind::AsymmetricPerLevel => {
                     let rot: [Curve; 3] = std::array::from_fn(|d| {
+                        if self.kind == Kind::AsymmetricPerLevel {
+                            // one-sided stiffening: a > 0 stiffens the positive
+                            // side, a < 0 the negative side, by exp(|a|)
+                            let a = block[li].map(|b| get(3 + 3 * b + d)).unwrap_or(0.0);
+                            let f = a.abs().exp();
+                            return if a >= 0.0 {
+                                Curve::Bilinear {
+                                    k_neg: k[d],
+                                    k_pos: k[d] * f,
+                                }
+                            } else {
+                                Curve::Bilinear {
+                                    k_neg: k[d] * f,
+                                    k_pos: k[d],
+                                }
+                            };
+                        }
                         let s = get(3 + d);
                         match self.kind {
                             Kind::NonlinearSinh => Curve::Sinh {

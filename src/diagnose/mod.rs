@@ -10,6 +10,7 @@
 //! | `fit` | weighted least squares of a family on the training cells (LM, finite-difference Jacobian) |
 //! | `design` | [`design::Design`]: case structure, held-out split, effects the design cannot test |
 //! | `select` | [`select::diagnose`]: the procedure, noise estimate, criterion, verdict, gap decomposition |
+//! | `synth` | synthetic labelled experiments (truth = nominal + one random effect, solved by the crate's solver, plus noise) for testing generality |
 //! | `report` | `diagnosis.json`, Markdown, SVG figures, the improved `.osim` |
 
 pub mod design;
@@ -18,6 +19,7 @@ pub mod fit;
 pub mod report;
 pub mod select;
 pub mod sim;
+pub mod synth;
 
 use crate::calibrate::experiment::Experiment;
 use crate::error::Result;

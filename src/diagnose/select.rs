@@ -14,9 +14,14 @@
 //! < alpha` with `alpha = 1e-4`, and (b) it predicts the held-out cases
 //! better, `dchi2_heldout > 3.84`. Its score is `dchi2_heldout + dBIC_train`
 //! (both twice a log-likelihood ratio over the baseline); `none` scores 0.
-//! The confidence is the tempered Akaike weight of the winner over the
-//! earning effects and `none`, the temperature being the winner's held-out
-//! reduced chi-square (>= 1: misfit on unseen cases discounts the evidence).
+//! The confidence is calibrated on the held-out cases: for the winner
+//! against each other effect (and `none`), the probability that its score
+//! margin stays positive on new held-out data (standard error: the larger
+//! of the noise-based one, inflated by the winner's held-out reduced
+//! chi-square, and Vuong's pointwise one; see [`win_probability`]); the
+//! confidence is the product of these. A margin
+//! that is thin compared with how differently two effects predict the
+//! unseen cases gives a value well below 1.
 //!
 //! **Unidentifiable.** (a) design: an effect the design cannot test
 //! (single magnitude, single direction; not the absence of follower loads,
@@ -178,7 +183,7 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     let kinds = kinds(design.has_follower);
     let offsets = has_trans || design.has_follower;
     let pb = if opts.progress {
-        let pb = indicatif::ProgressBar::new(kinds.len() as u64 + 3 + offsets as u64);
+        let pb = indicatif::ProgressBar::new(kinds.len() as u64 + 4 + offsets as u64);
         pb.set_style(
             indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
@@ -248,6 +253,25 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
             }
             stage2.push(pose);
         }
+    }
+    // per-level one-sided stiffening, started from the global bilinear fit
+    if let Some(i) = find(&fits, Kind::AsymmetricBilinear) {
+        let ab = &fits[i];
+        let mut pl = Family::new(Kind::AsymmetricPerLevel, &sim, g);
+        // the same laws: a stiffer negative side (a < 0) lowers the global factor
+        for k in 0..3 {
+            if let (Some(v), Some(r), Some(a)) = (pl.x0.get_mut(k), ab.x.get(k), ab.x.get(3 + k)) {
+                *v = *r + a.min(0.0);
+            }
+        }
+        for li in 0..nl {
+            for k in 0..3 {
+                if let (Some(v), Some(r)) = (pl.x0.get_mut(3 + 3 * li + k), ab.x.get(3 + k)) {
+                    *v = *r;
+                }
+            }
+        }
+        stage2.push(pl);
     }
     if let Some(i) = find(&fits, Kind::CoupledPerLevel) {
         let cp = &fits[i];
@@ -385,14 +409,21 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         .iter()
         .filter(|(e, _)| e != "preload_stiffening")
         .collect();
+    // held-out residuals of every fit (noise units): the confidence
+    // compares them pairwise
+    let ho_pred = |f: &Fitted| -> Vec<f64> {
+        ho_cells
+            .iter()
+            .map(|&c| f.residual(&sim, c) * noise.of(sim.cells[c].dof))
+            .collect()
+    };
+    let pred_base = ho_pred(&baseline);
+    let pred_fit: Vec<Vec<f64>> = fits.iter().map(ho_pred).collect();
+    let reduced = |chi2: f64| (chi2 / ho_cells.len().max(1) as f64).max(1.0);
     if let Some(&top) = earning.first() {
         let t = (stats[top].chi2_heldout / ho_cells.len().max(1) as f64).max(1.0);
         let top_score = stats[top].score;
-        let mut z = (-(top_score) / (2.0 * t)).exp(); // none
-        for &i in &earning {
-            z += ((stats[i].score - top_score) / (2.0 * t)).exp();
-        }
-        confidence = 1.0 / z;
+        confidence = calibrated_confidence(&stats, &ranked, top, &pred_fit, &pred_base, t);
         chosen = Some(top);
         if let Some(&second) = earning.get(1) {
             if top_score - stats[second].score < INDISTINGUISHABLE * t {
@@ -438,12 +469,7 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         chosen = ranked.first().copied().filter(|_| !design_gaps.is_empty());
         if design_gaps.is_empty() {
             verdict = "none".to_string();
-            // none's tempered weight against every candidate
-            let z: f64 = ranked
-                .iter()
-                .map(|&i| (stats[i].score / 2.0).min(50.0).exp())
-                .sum();
-            confidence = 1.0 / (1.0 + z);
+            confidence = none_confidence(&stats, &ranked, &pred_fit, &pred_base, reduced(chi_b_ho));
         } else {
             verdict = "unidentifiable".to_string();
             confidence = 0.0;
@@ -465,6 +491,92 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         chosen,
         reasons,
     })
+}
+
+/// Probability that the criterion difference `delta` (twice a log-likelihood
+/// ratio, favouring the first of two models) would stay positive on new
+/// held-out data, from the two models' held-out residuals `ra` and `rb`
+/// (noise units). Two standard errors of the held-out chi-square
+/// difference are computed and the larger one is used:
+/// - noise: with `dp = ra - rb` the prediction differences, the variance
+///   of the difference under the noise is `4 t sum(dp^2)`, `t >= 1` being
+///   the held-out reduced chi-square of the first model (misfit on unseen
+///   cases inflates the noise);
+/// - pointwise (Vuong's test for non-nested models, as in cross-validated
+///   model comparison): `sqrt(n) sd(rb^2 - ra^2)` over the `n` held-out
+///   cells, which also counts the case-to-case variability of which model
+///   fits better.
+///
+/// The probability is `Phi(delta / se)`.
+pub fn win_probability(delta: f64, ra: &[f64], rb: &[f64], t: f64) -> f64 {
+    use statrs::distribution::Normal;
+    let n = ra.len().min(rb.len());
+    let ss: f64 = ra.iter().zip(rb).map(|(a, b)| (a - b).powi(2)).sum();
+    let se_noise = 2.0 * (t.max(1.0) * ss).sqrt();
+    let se_point = if n >= 2 {
+        let d: Vec<f64> = ra.iter().zip(rb).map(|(a, b)| b * b - a * a).collect();
+        let m = d.iter().sum::<f64>() / n as f64;
+        let var = d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n as f64 - 1.0);
+        (n as f64 * var).sqrt()
+    } else {
+        0.0
+    };
+    let se = se_noise.max(se_point);
+    if se.is_nan() || se <= 1e-12 {
+        return if delta > 0.0 {
+            1.0
+        } else if delta < 0.0 {
+            0.0
+        } else {
+            0.5
+        };
+    }
+    Normal::new(0.0, 1.0)
+        .map(|n| n.cdf(delta / se))
+        .unwrap_or(0.5)
+}
+
+/// The confidence of the winner `top`: the probability that it beats each
+/// other effect's best variant and `none` on unseen cases, the comparisons
+/// taken as independent (the product of [`win_probability`]). A margin
+/// thin compared with how differently two effects predict the held-out
+/// cases gives a value well below 1.
+fn calibrated_confidence(
+    stats: &[CandidateStats],
+    ranked: &[usize],
+    top: usize,
+    pred_fit: &[Vec<f64>],
+    pred_base: &[f64],
+    t: f64,
+) -> f64 {
+    let empty = Vec::new();
+    let pt = pred_fit.get(top).unwrap_or(&empty);
+    let mut p = win_probability(stats[top].score, pt, pred_base, t);
+    for &i in ranked.iter().filter(|&&i| i != top) {
+        let pi = pred_fit.get(i).unwrap_or(&empty);
+        p *= win_probability(stats[top].score - stats[i].score, pt, pi, t);
+    }
+    p
+}
+
+/// The confidence of `none`: the probability that no candidate beats the
+/// baseline on unseen cases (product of [`win_probability`]), `t` being
+/// the baseline's held-out reduced chi-square.
+fn none_confidence(
+    stats: &[CandidateStats],
+    ranked: &[usize],
+    pred_fit: &[Vec<f64>],
+    pred_base: &[f64],
+    t: f64,
+) -> f64 {
+    let empty = Vec::new();
+    ranked
+        .iter()
+        .map(|&i| {
+            let pi = pred_fit.get(i).unwrap_or(&empty);
+            win_probability(-stats[i].score, pred_base, pi, t)
+        })
+        .product()
 }
 
 impl Outcome {
@@ -668,5 +780,62 @@ impl Outcome {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::win_probability;
+
+    #[test]
+    fn win_probability_is_the_normal_cdf_of_the_margin_over_its_noise_se() {
+        // model a fits every cell, b is off by one noise unit everywhere:
+        // the chi-square difference n has noise SD 2 sqrt(n) (t = 1), and
+        // the pointwise spread is zero, so P = Phi(delta / (2 sqrt(n)))
+        let n = 16;
+        let a = vec![0.0; n];
+        let b = vec![1.0; n];
+        let se = 2.0 * (n as f64).sqrt();
+        // Phi(1) = 0.841345, Phi(0) = 0.5, Phi(-2) = 0.022750
+        assert!((win_probability(se, &a, &b, 1.0) - 0.841345).abs() < 1e-5);
+        assert!((win_probability(0.0, &a, &b, 1.0) - 0.5).abs() < 1e-12);
+        assert!((win_probability(-2.0 * se, &a, &b, 1.0) - 0.022750).abs() < 1e-5);
+        // misfit t = 4 doubles the SE
+        assert!((win_probability(2.0 * se, &a, &b, 4.0) - 0.841345).abs() < 1e-5);
+        // identical predictions: the sign of the margin decides
+        assert_eq!(win_probability(3.0, &a, &a, 1.0), 1.0);
+        assert_eq!(win_probability(-3.0, &a, &a, 1.0), 0.0);
+    }
+
+    #[test]
+    fn a_thin_margin_between_different_predictions_is_not_confident() {
+        // 90 cells; the two models disagree by 0.5 noise units per cell and
+        // their held-out chi-squares differ by 26 (dev-24's margin)
+        let a: Vec<f64> = (0..90)
+            .map(|i| if i % 2 == 0 { 0.3 } else { -0.3 })
+            .collect();
+        let b: Vec<f64> = a.iter().map(|x| x + 0.5).collect();
+        let p = win_probability(26.0, &a, &b, 1.0);
+        // se = 2 sqrt(90 * 0.25) = 9.49: z = 2.74
+        assert!(p > 0.99 && p < 0.999, "{p}");
+        // the same margin with five times the disagreement: z = 0.55
+        let c: Vec<f64> = a.iter().map(|x| x + 2.5).collect();
+        let q = win_probability(26.0, &a, &c, 1.0);
+        assert!(q < 0.75, "{q}");
+        // heterogeneous per-cell differences widen the SE (Vuong)
+        let d: Vec<f64> = (0..90).map(|i| if i < 3 { 6.0 } else { 0.0 }).collect();
+        let z = vec![0.0; 90];
+        let p_het = win_probability(26.0, &z, &d, 1.0);
+        let se_point = {
+            let v: Vec<f64> = d.iter().map(|x| x * x).collect();
+            let m = v.iter().sum::<f64>() / 90.0;
+            (90.0 * v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / 89.0).sqrt()
+        };
+        assert!(se_point > 2.0 * (108.0f64).sqrt());
+        let want = statrs::distribution::ContinuousCDF::cdf(
+            &statrs::distribution::Normal::new(0.0, 1.0).unwrap(),
+            26.0 / se_point,
+        );
+        assert!((p_het - want).abs() < 1e-12);
     }
 }
