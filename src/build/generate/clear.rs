@@ -25,7 +25,7 @@
 //! what is left is reported by the self-check.
 
 use crate::build::base::kin::Kinematics;
-use crate::build::base::wrapped::{self, PathVertex, DEPTH_TOLERANCE};
+use crate::build::base::wrapped::{self, PathVertex};
 use crate::error::Result;
 use crate::mesh::MeshQuery;
 use crate::osim::xml::{Element, Node};
@@ -39,6 +39,10 @@ pub const CLEARANCE: f64 = 0.002;
 pub const MAX_OFFSET: f64 = 0.05;
 /// Rounds of the crossing fix.
 pub const MAX_ROUNDS: usize = 12;
+/// Length (m) a new segment may run inside another vertebra's mesh (a
+/// graze of the coarse mesh's surface), well under the self-check's
+/// [`wrapped::DEPTH_TOLERANCE`].
+pub const GRAZE: f64 = 0.0001;
 
 /// One edit made to clear a path.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -107,18 +111,19 @@ pub fn clear_paths(
             let inv = x.inverse();
             let mut best_seg: Option<(f64, usize)> = None; // (depth, index in own)
             for (k, w) in own.windows(2).enumerate() {
-                let (a, b) = (inv * w[0].1.ground, inv * w[1].1.ground);
                 if w.iter()
                     .any(|v| v.1.body.as_deref() == Some(c.vertebra.as_str()))
                 {
                     continue;
                 }
-                // Depth of the polyline between these own points.
-                let mut d = mq.segment_length_inside(&a, &b);
-                for s in path.polyline[w[0].0..=w[1].0].windows(2) {
-                    d = d.max(mq.segment_length_inside(&(inv * s[0].ground), &(inv * s[1].ground)));
-                }
-                if d > DEPTH_TOLERANCE && best_seg.map(|(bd, _)| d > bd).unwrap_or(true) {
+                // Length of the polyline between these own points inside
+                // the bone (summed like `through_vertebrae` sums it: a
+                // crossing split over two arc samples is still one).
+                let d: f64 = path.polyline[w[0].0..=w[1].0]
+                    .windows(2)
+                    .map(|s| mq.segment_length_inside(&(inv * s[0].ground), &(inv * s[1].ground)))
+                    .sum();
+                if d > 0.0 && best_seg.map(|(bd, _)| d > bd).unwrap_or(true) {
                     best_seg = Some((d, k));
                 }
             }
@@ -210,6 +215,9 @@ fn place_via(
         .unwrap_or_else(|| axis.cross(&Vector3::y()).normalize());
     let v = axis.cross(&u);
     let mut best: Option<(f64, Point3<f64>)> = None;
+    // When no point clears every vertebra: the one whose two segments run
+    // least inside the others (under half the self-check's tolerance).
+    let mut fallback: Option<(f64, f64, Point3<f64>)> = None;
     for i in 0..36 {
         let th = (i as f64) * std::f64::consts::TAU / 36.0;
         let d = u * th.cos() + v * th.sin();
@@ -238,11 +246,53 @@ fn place_via(
                     }
                     break;
                 }
+                if outside_wraps(&g) {
+                    let inside = inside_length(
+                        a,
+                        &g,
+                        vertebrae,
+                        poses,
+                        end_bodies.first().cloned().flatten(),
+                    ) + inside_length(
+                        &g,
+                        b,
+                        vertebrae,
+                        poses,
+                        end_bodies.get(1).cloned().flatten(),
+                    );
+                    let detour = (g - a).norm() + (b - g).norm();
+                    if inside < 0.5 * wrapped::DEPTH_TOLERANCE
+                        && fallback
+                            .map(|(fi, fd, _)| (inside, detour) < (fi, fd))
+                            .unwrap_or(true)
+                    {
+                        fallback = Some((inside, detour, g));
+                    }
+                }
             }
             t += 0.001;
         }
     }
-    best.map(|(_, p)| p)
+    best.map(|(_, p)| p).or(fallback.map(|(_, _, p)| p))
+}
+
+/// Total length (m) of the segment `a`-`b` (ground) inside the vertebrae
+/// but `skip`.
+fn inside_length(
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    vertebrae: &[(String, &MeshQuery)],
+    poses: &BTreeMap<String, nalgebra::Isometry3<f64>>,
+    skip: Option<String>,
+) -> f64 {
+    vertebrae
+        .iter()
+        .filter(|(n, _)| skip.as_deref() != Some(n.as_str()))
+        .filter_map(|(n, mq)| {
+            let inv = poses.get(n)?.inverse();
+            Some(mq.segment_length_inside(&(inv * a), &(inv * b)))
+        })
+        .sum()
 }
 
 /// Whether the segment `a`-`b` (ground) stays outside every vertebra but
@@ -260,7 +310,7 @@ fn clear_of(
         }
         let Some(x) = poses.get(n) else { return true };
         let inv = x.inverse();
-        mq.segment_length_inside(&(inv * a), &(inv * b)) <= 0.0
+        mq.segment_length_inside(&(inv * a), &(inv * b)) <= GRAZE
     })
 }
 
