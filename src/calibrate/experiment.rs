@@ -371,7 +371,7 @@ impl Experiment {
     pub fn read(dir: impl AsRef<Path>) -> Result<Experiment> {
         let dir = dir.as_ref().to_path_buf();
         let toml_path = dir.join("experiment.toml");
-        let text = read_text(&toml_path)?;
+        let text = crate::util::read_text_capped(&toml_path, MAX_FILE_BYTES, "experiment files")?;
         let raw = parse_experiment_toml(&text, &toml_path)?;
         let units = raw.units;
         let model_path = dir.join(&raw.model);
@@ -431,7 +431,8 @@ impl Experiment {
             })
             .collect();
         let csv_path = dir.join("kinematics.csv");
-        let csv_text = read_text(&csv_path)?;
+        let csv_text =
+            crate::util::read_text_capped(&csv_path, MAX_FILE_BYTES, "experiment files")?;
         let rows = parse_kinematics(&csv_text, &csv_path, &raw.cases, &units, &|u, l| {
             if !known(u) {
                 return Err(format!(
@@ -539,24 +540,6 @@ pub type PairCheck<'a> = dyn Fn(&str, &str) -> std::result::Result<(), String> +
 
 /// Largest experiment file accepted (a study with thousands of rows is < 1 MB).
 pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
-
-/// Read a text file, refusing huge files before reading and non-UTF-8 text.
-fn read_text(path: &Path) -> Result<String> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if meta.len() > MAX_FILE_BYTES {
-        return Err(Error::parse(
-            path,
-            "file",
-            format!(
-                "file is {} bytes; experiment files are limited to {MAX_FILE_BYTES} bytes",
-                meta.len()
-            ),
-        ));
-    }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    String::from_utf8(bytes)
-        .map_err(|e| Error::parse(path, "file", format!("not UTF-8 text ({e})")))
-}
 
 /// Parse the text of a `kinematics.csv` (`path` names it in messages).
 ///

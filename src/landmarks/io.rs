@@ -82,25 +82,6 @@ pub struct Palpation {
     pub raw: RawLandmarks,
 }
 
-/// Read the file's bytes, refusing huge files before reading them.
-fn read_text(path: &Path) -> Result<String> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if meta.len() > MAX_FILE_BYTES {
-        return Err(Error::parse(
-            path,
-            "file",
-            format!(
-                "file is {} bytes; landmark files are limited to {} bytes",
-                meta.len(),
-                MAX_FILE_BYTES
-            ),
-        ));
-    }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    String::from_utf8(bytes)
-        .map_err(|e| Error::parse(path, "file", format!("not UTF-8 text ({e})")))
-}
-
 fn format_of(path: &Path) -> Result<FileFormat> {
     let ext = path
         .extension()
@@ -140,7 +121,7 @@ pub fn read_path(path: &Path) -> Result<RawLandmarks> {
 /// repetition information give operator `"1"`, repetition `1`.
 pub fn read_palpations(path: &Path) -> Result<Vec<Palpation>> {
     let fmt = format_of(path)?;
-    let text = read_text(path)?;
+    let text = crate::util::read_text_capped(path, MAX_FILE_BYTES, "landmark files")?;
     match fmt {
         FileFormat::Csv => parse_csv(&text, path),
         FileFormat::Trc => Ok(vec![Palpation {

@@ -35,6 +35,7 @@
 //! flatten a curve: a spine posed by rotations about its joints has zero
 //! mismatch whatever its curvature, so the estimate is unbiased for it.
 
+use super::smooth::maximise;
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
 
@@ -169,44 +170,6 @@ fn linear_mode(
         objective,
         logdet,
     })
-}
-
-/// Maximise `f` over `[lo, hi]`: grid of `steps + 1` points, then golden
-/// section around the best one (to 1e-3).
-fn maximise(mut f: impl FnMut(f64) -> Result<f64>, lo: f64, hi: f64, steps: usize) -> Result<f64> {
-    let at = |k: usize| lo + (hi - lo) * k as f64 / steps as f64;
-    let mut best: Option<(usize, f64)> = None;
-    for k in 0..=steps {
-        let l = f(at(k))?;
-        if l.is_finite() && best.is_none_or(|(_, b)| l > b) {
-            best = Some((k, l));
-        }
-    }
-    let (kb, _) =
-        best.ok_or_else(|| Error::numerical("chain smoothing", "no finite marginal likelihood"))?;
-    let (mut a, mut b) = (at(kb.saturating_sub(1)), at((kb + 1).min(steps)));
-    let gr = (5f64.sqrt() - 1.0) / 2.0;
-    let (mut c, mut d) = (b - gr * (b - a), a + gr * (b - a));
-    let (mut fc, mut fd) = (f(c)?, f(d)?);
-    for _ in 0..40 {
-        if (b - a).abs() < 1e-3 {
-            break;
-        }
-        if fc > fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - gr * (b - a);
-            fc = f(c)?;
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + gr * (b - a);
-            fd = f(d)?;
-        }
-    }
-    Ok(0.5 * (a + b))
 }
 
 /// Smooth the chain `v` (any order) joined by `joints`, with per-axis

@@ -774,18 +774,16 @@ fn smooth_fits(
         let mbar = Point3::from(pts.iter().fold(Vector3::zeros(), |a, (_, p)| a + p.coords) / n);
         let c = f.pose * mbar;
         let t = c.coords - q * mbar.coords;
-        let before = f.pose.rotation;
-        f.pose = Isometry3::from_parts(t.into(), *q);
-        f.residuals = pts
-            .iter()
-            .filter_map(|(code, p)| Some((*code, (pl.get(code)? - f.pose * p).norm())))
-            .collect();
-        rep.levels.push(SmoothingLevel {
-            level: l.to_string(),
-            fit_sd_deg: s.raw_sd[k].map(f64::to_degrees),
-            posterior_sd_deg: s.posterior_sd[k].map(f64::to_degrees),
-            correction_deg: before.angle_to(q).to_degrees(),
-        });
+        let pose = Isometry3::from_parts(t.into(), *q);
+        rep.levels.push(apply_posterior(
+            *l,
+            f,
+            pose,
+            pts,
+            pl,
+            s.raw_sd[k],
+            s.posterior_sd[k],
+        ));
     }
     rep.applied = true;
     rep.tau_deg = Some(std::array::from_fn(|a| s.tau[a].to_degrees()));
@@ -799,6 +797,32 @@ fn smooth_fits(
         3 * chain.len()
     );
     Ok(rep)
+}
+
+/// Replace a fit's pose by its posterior `pose`, recompute the residuals of
+/// its used landmarks `pts` (scaled markers, body frame) against the
+/// patient's `landmarks`, and give the report row (SDs in rad).
+fn apply_posterior(
+    level: Level,
+    f: &mut pose::VertebraFit,
+    pose: Isometry3<f64>,
+    pts: &[(Code, Point3<f64>)],
+    landmarks: &Points,
+    raw_sd: [f64; 3],
+    posterior_sd: [f64; 3],
+) -> SmoothingLevel {
+    let before = f.pose.rotation;
+    f.pose = pose;
+    f.residuals = pts
+        .iter()
+        .filter_map(|(code, p)| Some((*code, (landmarks.get(code)? - pose * p).norm())))
+        .collect();
+    SmoothingLevel {
+        level: level.to_string(),
+        fit_sd_deg: raw_sd.map(f64::to_degrees),
+        posterior_sd_deg: posterior_sd.map(f64::to_degrees),
+        correction_deg: before.angle_to(&pose.rotation).to_degrees(),
+    }
 }
 
 /// [`chain::smooth_chain`] on the lsq fits: neighbours meet at the base
@@ -856,18 +880,15 @@ fn chain_fits(
         else {
             continue;
         };
-        let before = f.pose.rotation;
-        f.pose = *x;
-        f.residuals = pts
-            .iter()
-            .filter_map(|(code, p)| Some((*code, (pl.get(code)? - f.pose * p).norm())))
-            .collect();
-        rep.levels.push(SmoothingLevel {
-            level: l.to_string(),
-            fit_sd_deg: s.raw_sd[k].map(f64::to_degrees),
-            posterior_sd_deg: s.posterior_sd[k].map(f64::to_degrees),
-            correction_deg: before.angle_to(&x.rotation).to_degrees(),
-        });
+        rep.levels.push(apply_posterior(
+            *l,
+            f,
+            *x,
+            pts,
+            pl,
+            s.raw_sd[k],
+            s.posterior_sd[k],
+        ));
     }
     rep.applied = true;
     rep.effective_dof = Some(s.effective_dof);

@@ -264,7 +264,12 @@ fn log_marginal(
 
 /// Maximise `f` over `[lo, hi]`: grid of `steps + 1` points, then golden
 /// section in the best grid point's neighbourhood (to 1e-3).
-fn maximise(mut f: impl FnMut(f64) -> Result<f64>, lo: f64, hi: f64, steps: usize) -> Result<f64> {
+pub(super) fn maximise(
+    mut f: impl FnMut(f64) -> Result<f64>,
+    lo: f64,
+    hi: f64,
+    steps: usize,
+) -> Result<f64> {
     let at = |k: usize| lo + (hi - lo) * k as f64 / steps as f64;
     let mut best: Option<(usize, f64)> = None;
     for k in 0..=steps {
@@ -274,7 +279,7 @@ fn maximise(mut f: impl FnMut(f64) -> Result<f64>, lo: f64, hi: f64, steps: usiz
         }
     }
     let (kb, _) = best.ok_or_else(|| {
-        Error::numerical("orientation smoothing", "no finite marginal likelihood")
+        Error::numerical("smoothing (REML search)", "no finite marginal likelihood")
     })?;
     let (mut a, mut b) = (at(kb.saturating_sub(1)), at((kb + 1).min(steps)));
     let gr = (5f64.sqrt() - 1.0) / 2.0;
