@@ -56,9 +56,11 @@
 //!   table-height disc along the axis are opposite (cosine < -0.5) and their
 //!   half-difference exceeds 10 mm. Listhesis (LM044): disc shear > 8 mm.
 //!   Angulation (LM045): > 35 deg between adjacent vertebral axes.
-//! - Outliers (LM050): per vertebra, an affine map of the anatomical
-//!   template ([`super::synth::local_position`]) is fitted to its landmarks
-//!   (>= 10 needed); a landmark whose leave-one-out residual exceeds 6 mm
+//! - Outliers (LM050): per vertebra, an affine map of an anatomical
+//!   template is fitted to its landmarks (>= 10 needed): the analytic
+//!   layout ([`super::synth::local_position`]) or the default base model's
+//!   palpated markers ([`base_layout`], `templates/landmark_layout.csv`),
+//!   whichever fits the vertebra better; a landmark whose leave-one-out residual exceeds 6 mm
 //!   and whose standardised residual exceeds 5 robust SDs (median absolute
 //!   residual of the whole set / 0.6745, floored at 0.3 mm) is an outlier.
 //!   The affine map absorbs size, wedging and rotation. Not applied to S1.
@@ -741,44 +743,102 @@ fn check_neighbours(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
     }
 }
 
+/// The default base model's landmark layout per vertebra (body frame, m):
+/// `templates/landmark_layout.csv`, the markers of `base_model/base.osim`.
+const LAYOUT_CSV: &str = include_str!("../../templates/landmark_layout.csv");
+
+/// [`LAYOUT_CSV`] parsed once (rows that do not parse are skipped: the
+/// file is the project's own and tested).
+pub fn base_layout() -> &'static BTreeMap<Level, BTreeMap<Code, Vector3<f64>>> {
+    static LAYOUT: std::sync::OnceLock<BTreeMap<Level, BTreeMap<Code, Vector3<f64>>>> =
+        std::sync::OnceLock::new();
+    LAYOUT.get_or_init(|| {
+        let mut out: BTreeMap<Level, BTreeMap<Code, Vector3<f64>>> = BTreeMap::new();
+        for line in LAYOUT_CSV.lines().filter(|l| !l.starts_with('#')).skip(1) {
+            let f: Vec<&str> = line.split(',').collect();
+            let [lev, code, x, y, z] = f.as_slice() else {
+                continue;
+            };
+            let Some((id, _)) = LandmarkId::parse_name(&format!("{lev}_{code}")) else {
+                continue;
+            };
+            let (Ok(x), Ok(y), Ok(z)) = (x.parse(), y.parse(), z.parse()) else {
+                continue;
+            };
+            out.entry(id.level)
+                .or_default()
+                .insert(id.code, Vector3::new(x, y, z));
+        }
+        out
+    })
+}
+
 fn check_outliers(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
     struct Fit {
         ids: Vec<LandmarkId>,
         resid: Vec<Vector3<f64>>,
         lev: Vec<f64>,
     }
+    // Two anatomical templates: the analytic layout from the dimension
+    // table and the default base model's palpated markers. Each vertebra
+    // is judged against the one that fits it better (sum of squared
+    // leave-one-out residuals without the largest, so that the outlier
+    // being looked for does not choose), since real vertebrae differ from
+    // either by more than palpation noise (pedicles up to ~15 mm).
     let mut fits = Vec::new();
     for &l in levels.iter().filter(|l| !l.is_sacrum()) {
         let d = table.level(l);
-        let mut ids = Vec::new();
-        let mut xs = Vec::new();
-        let mut ys = Vec::new();
-        for c in Code::ALL {
-            if let (Some(p), Some(t)) = (cx.set.get(l, c), local_position(d, c)) {
-                ids.push(id(l, c));
-                xs.push(t);
-                ys.push(p.coords);
+        let layout = base_layout().get(&l);
+        let mut best: Option<(f64, Fit)> = None;
+        for use_layout in [false, true] {
+            let mut ids = Vec::new();
+            let mut xs = Vec::new();
+            let mut ys = Vec::new();
+            for c in Code::ALL {
+                let t = if use_layout {
+                    layout.and_then(|m| m.get(&c).copied())
+                } else {
+                    local_position(d, c)
+                };
+                if let (Some(p), Some(t)) = (cx.set.get(l, c), t) {
+                    ids.push(id(l, c));
+                    xs.push(t);
+                    ys.push(p.coords);
+                }
+            }
+            let n = ids.len();
+            if n < 10 {
+                continue;
+            }
+            let x = DMatrix::from_fn(n, 4, |i, j| if j < 3 { xs[i][j] } else { 1.0 });
+            let y = DMatrix::from_fn(n, 3, |i, j| ys[i][j]);
+            let xtx = x.transpose() * &x;
+            let Some(inv) = xtx.try_inverse() else {
+                continue;
+            };
+            let h = &x * inv * x.transpose();
+            let e = &y - &h * &y;
+            let fit = Fit {
+                resid: (0..n)
+                    .map(|i| Vector3::new(e[(i, 0)], e[(i, 1)], e[(i, 2)]))
+                    .collect(),
+                lev: (0..n).map(|i| h[(i, i)]).collect(),
+                ids,
+            };
+            let loo: Vec<f64> = fit
+                .resid
+                .iter()
+                .zip(&fit.lev)
+                .map(|(r, h)| r.norm_squared() / (1.0 - h).max(1e-6))
+                .collect();
+            let score = loo.iter().sum::<f64>() - loo.iter().fold(0.0f64, |a, b| a.max(*b));
+            if best.as_ref().is_none_or(|(b, _)| score < *b) {
+                best = Some((score, fit));
             }
         }
-        let n = ids.len();
-        if n < 10 {
-            continue;
+        if let Some((_, f)) = best {
+            fits.push(f);
         }
-        let x = DMatrix::from_fn(n, 4, |i, j| if j < 3 { xs[i][j] } else { 1.0 });
-        let y = DMatrix::from_fn(n, 3, |i, j| ys[i][j]);
-        let xtx = x.transpose() * &x;
-        let Some(inv) = xtx.try_inverse() else {
-            continue;
-        };
-        let h = &x * inv * x.transpose();
-        let e = &y - &h * &y;
-        fits.push(Fit {
-            resid: (0..n)
-                .map(|i| Vector3::new(e[(i, 0)], e[(i, 1)], e[(i, 2)]))
-                .collect(),
-            lev: (0..n).map(|i| h[(i, i)]).collect(),
-            ids,
-        });
     }
     let mut comps: Vec<f64> = fits
         .iter()
