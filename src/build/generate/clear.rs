@@ -31,7 +31,7 @@ use crate::mesh::MeshQuery;
 use crate::osim::xml::{Element, Node};
 use crate::osim::Document;
 use nalgebra::{Point3, Vector3};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 /// Distance kept between a via point and the bone surface (m).
 pub const CLEARANCE: f64 = 0.002;
@@ -62,14 +62,22 @@ pub fn clear_paths(
     vertebrae: &[(String, &MeshQuery)],
 ) -> Result<Vec<PathEdit>> {
     let mut edits = Vec::new();
+    // Edits only touch path points and PathWraps: the pose and the wrap
+    // spheres are the same in every round, and a muscle needs looking at
+    // again only after it was edited.
+    let model = doc.model()?;
+    let kin = Kinematics::new(&model)?;
+    let q = kin.default_values();
+    let poses = kin.body_poses(&q)?;
+    let spheres = wrapped::spheres_at(&model, &poses);
+    let mut pending: Option<BTreeSet<String>> = None;
     for _ in 0..MAX_ROUNDS {
         let model = doc.model()?;
-        let kin = Kinematics::new(&model)?;
-        let q = kin.default_values();
-        let poses = kin.body_poses(&q)?;
-        let spheres = wrapped::spheres_at(&model, &poses);
-        let mut changed = false;
-        for m in model.muscles() {
+        let mut edited = BTreeSet::new();
+        for m in model
+            .muscles()
+            .filter(|m| pending.as_ref().is_none_or(|p| p.contains(&m.name)))
+        {
             let path = wrapped::wrapped_path(&model, m, &poses, &q, &spheres)?;
             let mut cs = wrapped::through_vertebrae(&m.name, &path.polyline, vertebrae, &poses);
             cs.sort_by(|a, b| b.depth_mm.total_cmp(&a.depth_mm));
@@ -91,7 +99,7 @@ pub fn clear_paths(
                         action: format!("removed PathWrap over {}", w.wrap_object),
                         depth_mm: c.depth_mm,
                     });
-                    changed = true;
+                    edited.insert(m.name.clone());
                     continue;
                 }
             }
@@ -176,11 +184,12 @@ pub fn clear_paths(
                 action: format!("via point {name}"),
                 depth_mm: c.depth_mm,
             });
-            changed = true;
+            edited.insert(m.name.clone());
         }
-        if !changed {
+        if edited.is_empty() {
             break;
         }
+        pending = Some(edited);
     }
     Ok(edits)
 }
