@@ -315,29 +315,23 @@ fn strip_bom(text: &str) -> &str {
 pub fn parse_experiment_toml(text: &str, file: &Path) -> Result<ExperimentFile> {
     let text = strip_bom(text);
     let raw: ExperimentToml = toml::from_str(text).map_err(|e| toml_error(text, file, e))?;
+    // One of two unit names, matched without regard to case.
+    let unit = |value: &str, key: &str, names: [&'static str; 2]| -> Result<&'static str> {
+        let v = value.trim().to_ascii_lowercase();
+        names.into_iter().find(|n| *n == v).ok_or_else(|| {
+            Error::parse(
+                file,
+                format!("[units] {key}"),
+                format!(
+                    "expected \"{}\" or \"{}\", got \"{value}\"",
+                    names[0], names[1]
+                ),
+            )
+        })
+    };
     let units = Units {
-        angle: match raw.units.angle.trim().to_ascii_lowercase().as_str() {
-            "deg" => "deg",
-            "rad" => "rad",
-            _ => {
-                return Err(Error::parse(
-                    file,
-                    "[units] angle",
-                    format!("expected \"deg\" or \"rad\", got \"{}\"", raw.units.angle),
-                ))
-            }
-        },
-        length: match raw.units.length.trim().to_ascii_lowercase().as_str() {
-            "mm" => "mm",
-            "m" => "m",
-            _ => {
-                return Err(Error::parse(
-                    file,
-                    "[units] length",
-                    format!("expected \"mm\" or \"m\", got \"{}\"", raw.units.length),
-                ))
-            }
-        },
+        angle: unit(&raw.units.angle, "angle", ["deg", "rad"])?,
+        length: unit(&raw.units.length, "length", ["mm", "m"])?,
     };
     if raw.case.is_empty() {
         return Err(Error::parse(

@@ -281,33 +281,10 @@ pub fn smooth_chain(
 
 #[cfg(test)]
 mod tests {
+    use super::super::smooth::tests::lumbar_template;
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
-
-    /// 14 landmark-like points of a lumbar-sized vertebra (body frame, m,
-    /// X anterior, Y cranial, Z right), origin at the body centre.
-    fn template() -> Vec<Point3<f64>> {
-        [
-            [0.0, 0.012, 0.0],
-            [0.0, -0.012, 0.0],
-            [-0.02, 0.008, 0.012],
-            [-0.02, -0.004, 0.012],
-            [-0.02, 0.008, -0.012],
-            [-0.02, -0.004, -0.012],
-            [0.017, 0.012, 0.0],
-            [-0.017, 0.012, 0.0],
-            [0.0, 0.012, 0.021],
-            [0.0, 0.012, -0.021],
-            [0.017, -0.012, 0.0],
-            [-0.017, -0.012, 0.0],
-            [0.0, -0.012, 0.021],
-            [0.0, -0.012, -0.021],
-        ]
-        .iter()
-        .map(|p| Point3::new(p[0], p[1], p[2]))
-        .collect()
-    }
 
     /// Joint centre 16 mm below a body's origin (disc midpoint) and 16 mm
     /// above the next one's: a chain of `n` vertebrae posed by rotations
@@ -349,7 +326,7 @@ mod tests {
         sigma: f64,
         rng: &mut rand_chacha::ChaCha8Rng,
     ) -> Vec<ChainVertebra> {
-        let tpl = template();
+        let tpl = lumbar_template();
         let z = Normal::new(0.0, sigma).unwrap();
         truth
             .iter()

@@ -400,14 +400,15 @@ pub fn smooth_orientations(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
 
-    /// Information of a 14-point vertebra of about the lumbar size.
-    fn vertebra_info() -> Matrix3<f64> {
-        let pts: Vec<Point3<f64>> = [
+    /// 14 landmark-like points of a lumbar-sized vertebra (body frame, m,
+    /// X anterior, Y cranial, Z right), origin at the body centre.
+    pub(in crate::build::generate) fn lumbar_template() -> Vec<Point3<f64>> {
+        [
             [0.0, 0.012, 0.0],
             [0.0, -0.012, 0.0],
             [-0.02, 0.008, 0.012],
@@ -425,8 +426,12 @@ mod tests {
         ]
         .iter()
         .map(|p| Point3::new(p[0], p[1], p[2]))
-        .collect();
-        rotation_information(&pts)
+        .collect()
+    }
+
+    /// Information of a 14-point vertebra of about the lumbar size.
+    fn vertebra_info() -> Matrix3<f64> {
+        rotation_information(&lumbar_template())
     }
 
     /// A curved sequence of `n` rotations whose relative rotation
