@@ -56,47 +56,11 @@ fn main() {
             .collect();
         let sc = |k: usize| o.ranked.get(k).map(|&j| o.stats[j].score).unwrap_or(0.0);
         println!("{name} truth={truth} verdict={} conf={:.3} best={:.0} second={:.0} shrink={shrink:.2} [{}] sigma=({:.3},{:.3}) {:.1}s {}", o.verdict, o.confidence, sc(0), sc(1), top.join(" "), 1.0/o.noise.rot, 1.0/o.noise.trans, t.elapsed().as_secs_f64(), o.reasons.join("; "));
-        rows.push((truth, o.verdict.clone(), shrink));
+        rows.push(osim_spine::diagnose::synth::Scored {
+            truth: truth.to_string(),
+            verdict: o.verdict.clone(),
+            shrink,
+        });
     }
-    let names = [
-        "none",
-        "level_dependent_stiffness",
-        "nonlinear_stiffness",
-        "asymmetric_stiffness",
-        "coupled_stiffness",
-        "joint_pose_error",
-        "preload_stiffening",
-        "unidentifiable",
-    ];
-    println!("\nconfusion (rows truth, columns verdict):");
-    print!("{:<28}", "");
-    for n in &names {
-        print!("{:>6}", &n[..4]);
-    }
-    println!();
-    for t in &names[..7] {
-        print!("{:<28}", t);
-        for v in &names {
-            print!(
-                "{:>6}",
-                rows.iter().filter(|r| r.0 == *t && r.1 == *v).count()
-            );
-        }
-        println!();
-    }
-    let correct = rows.iter().filter(|r| r.0 == r.1).count();
-    let false_claims = rows
-        .iter()
-        .filter(|r| r.0 == "none" && r.1 != "none")
-        .count();
-    let mut sh: Vec<f64> = rows.iter().filter(|r| r.0 != "none").map(|r| r.2).collect();
-    sh.sort_by(|a, b| a.total_cmp(b));
-    let med = if sh.is_empty() {
-        f64::NAN
-    } else if sh.len() % 2 == 1 {
-        sh[sh.len() / 2]
-    } else {
-        0.5 * (sh[sh.len() / 2 - 1] + sh[sh.len() / 2])
-    };
-    println!("top-1 accuracy {}/{} = {:.3}; false claims on none: {}; median shrink (effect cases) {:.3}", correct, rows.len(), correct as f64 / rows.len().max(1) as f64, false_claims, med);
+    print!("\n{}", osim_spine::diagnose::synth::score_summary(&rows));
 }

@@ -78,48 +78,15 @@ fn main() {
         );
         rows.push((want.to_string(), o.verdict.clone(), shrink, o.confidence));
     }
-    let names = [
-        "none",
-        "level_dependent_stiffness",
-        "nonlinear_stiffness",
-        "asymmetric_stiffness",
-        "coupled_stiffness",
-        "joint_pose_error",
-        "preload_stiffening",
-        "unidentifiable",
-    ];
-    println!("\nconfusion (rows truth, columns verdict):");
-    print!("{:<28}", "");
-    for n in &names {
-        print!("{:>6}", &n[..4]);
-    }
-    println!();
-    for t in &names[..7] {
-        print!("{:<28}", t);
-        for v in &names {
-            print!(
-                "{:>6}",
-                rows.iter().filter(|r| r.0 == *t && r.1 == *v).count()
-            );
-        }
-        println!();
-    }
-    let correct = rows.iter().filter(|r| r.0 == r.1).count();
-    let false_claims = rows
+    let scored: Vec<osim_spine::diagnose::synth::Scored> = rows
         .iter()
-        .filter(|r| r.0 == "none" && r.1 != "none")
-        .count();
-    let mut sh: Vec<f64> = rows.iter().filter(|r| r.0 != "none").map(|r| r.2).collect();
-    sh.sort_by(|a, b| a.total_cmp(b));
-    let med = if sh.is_empty() {
-        f64::NAN
-    } else {
-        sh[sh.len() / 2]
-    };
-    println!(
-        "top-1 accuracy {}/{} = {:.3}; false claims on none: {}; median shrink (effect cases) {:.3}",
-        correct, rows.len(), correct as f64 / rows.len().max(1) as f64, false_claims, med
-    );
+        .map(|r| osim_spine::diagnose::synth::Scored {
+            truth: r.0.to_string(),
+            verdict: r.1.clone(),
+            shrink: r.2,
+        })
+        .collect();
+    print!("\n{}", osim_spine::diagnose::synth::score_summary(&scored));
     // calibration: mean confidence vs hit rate per confidence bin
     println!("confidence bin: n, mean confidence, hit rate");
     for (lo, hi) in [(0.0, 0.5), (0.5, 0.8), (0.8, 0.95), (0.95, 1.01)] {

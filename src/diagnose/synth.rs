@@ -576,3 +576,61 @@ pub fn standard_set(
         })
         .collect()
 }
+
+/// One scored experiment: truth label, verdict, held-out shrink.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scored {
+    pub truth: String,
+    pub verdict: String,
+    pub shrink: f64,
+}
+
+/// The scoring summary of labelled experiments (the acceptance figures of
+/// the diagnose issue): the confusion matrix (rows truth, columns verdict,
+/// the format's vocabulary plus `unidentifiable`), then top-1 accuracy,
+/// effects claimed on `none` cases and the median held-out shrink of the
+/// effect cases.
+pub fn score_summary(rows: &[Scored]) -> String {
+    use std::fmt::Write;
+    let mut names: Vec<&str> = std::iter::once(Effect::None)
+        .chain(Effect::CANDIDATES)
+        .map(|e| e.name())
+        .collect();
+    let truths = names.len();
+    names.push("unidentifiable");
+    let mut out = String::from("confusion (rows truth, columns verdict):\n");
+    let _ = write!(out, "{:<28}", "");
+    for n in &names {
+        let _ = write!(out, "{:>6}", &n[..4]);
+    }
+    out.push('\n');
+    for t in &names[..truths] {
+        let _ = write!(out, "{t:<28}");
+        for v in &names {
+            let n = rows
+                .iter()
+                .filter(|r| r.truth == *t && r.verdict == *v)
+                .count();
+            let _ = write!(out, "{n:>6}");
+        }
+        out.push('\n');
+    }
+    let correct = rows.iter().filter(|r| r.truth == r.verdict).count();
+    let false_claims = rows
+        .iter()
+        .filter(|r| r.truth == "none" && r.verdict != "none")
+        .count();
+    let shrinks: Vec<f64> = rows
+        .iter()
+        .filter(|r| r.truth != "none")
+        .map(|r| r.shrink)
+        .collect();
+    let med = crate::landmarks::stats::median(&shrinks).unwrap_or(f64::NAN);
+    let _ = writeln!(
+        out,
+        "top-1 accuracy {correct}/{} = {:.3}; false claims on none: {false_claims}; median shrink (effect cases) {med:.3}",
+        rows.len(),
+        correct as f64 / rows.len().max(1) as f64
+    );
+    out
+}
