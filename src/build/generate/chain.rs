@@ -92,20 +92,23 @@ fn moved(v: &ChainVertebra, x: &[f64]) -> Isometry3<f64> {
     Isometry3::from_parts(t.into(), q * v.pose.rotation)
 }
 
-/// The stacked joint mismatches at parameters `x` (`6 n` increments, then
-/// `mu`).
-fn mismatch(v: &[ChainVertebra], joints: &[ChainJoint], x: &DVector<f64>) -> DVector<f64> {
+/// The mismatch of joint `j` at parameters `x` (`6 n` increments, then
+/// `mu`): the joint point placed by the upper body minus the one placed by
+/// the lower body, in the lower body's axes, minus `mu`.
+fn joint_mismatch(v: &[ChainVertebra], j: &ChainJoint, x: &[f64]) -> Vector3<f64> {
     let n = v.len();
-    let poses: Vec<Isometry3<f64>> = (0..n)
-        .map(|i| moved(&v[i], &x.as_slice()[6 * i..6 * i + 6]))
-        .collect();
+    let xu = moved(&v[j.upper], &x[6 * j.upper..6 * j.upper + 6]);
+    let xl = moved(&v[j.lower], &x[6 * j.lower..6 * j.lower + 6]);
     let mu = Vector3::new(x[6 * n], x[6 * n + 1], x[6 * n + 2]);
+    xl.rotation.inverse() * (xu * j.in_upper - xl * j.in_lower) - mu
+}
+
+/// The stacked joint mismatches at parameters `x`.
+fn mismatch(v: &[ChainVertebra], joints: &[ChainJoint], x: &DVector<f64>) -> DVector<f64> {
     let mut e = DVector::zeros(3 * joints.len());
     for (k, j) in joints.iter().enumerate() {
-        let pu = poses[j.upper] * j.in_upper;
-        let pl = poses[j.lower] * j.in_lower;
-        let d = poses[j.lower].rotation.inverse() * (pu - pl) - mu;
-        e.fixed_rows_mut::<3>(3 * k).copy_from(&d);
+        e.fixed_rows_mut::<3>(3 * k)
+            .copy_from(&joint_mismatch(v, j, x.as_slice()));
     }
     e
 }
@@ -116,24 +119,20 @@ fn jacobian(v: &[ChainVertebra], joints: &[ChainJoint], x: &DVector<f64>) -> DMa
     const H: f64 = 1e-7;
     let n = v.len();
     let mut jac = DMatrix::zeros(3 * joints.len(), 6 * n + 3);
+    let mut xx = x.as_slice().to_vec();
     for (k, j) in joints.iter().enumerate() {
-        let one = |xx: &DVector<f64>| -> Vector3<f64> {
-            let pu = moved(&v[j.upper], &xx.as_slice()[6 * j.upper..6 * j.upper + 6]) * j.in_upper;
-            let xl = moved(&v[j.lower], &xx.as_slice()[6 * j.lower..6 * j.lower + 6]);
-            let pl = xl * j.in_lower;
-            let mu = Vector3::new(xx[6 * n], xx[6 * n + 1], xx[6 * n + 2]);
-            xl.rotation.inverse() * (pu - pl) - mu
-        };
         let cols = (6 * j.upper..6 * j.upper + 6)
             .chain(6 * j.lower..6 * j.lower + 6)
             .chain(6 * n..6 * n + 3);
         for c in cols {
-            let mut xp = x.clone();
-            let mut xm = x.clone();
-            xp[c] += H;
-            xm[c] -= H;
-            let col = (one(&xp) - one(&xm)) / (2.0 * H);
-            jac.fixed_view_mut::<3, 1>(3 * k, c).copy_from(&col);
+            let x0 = xx[c];
+            xx[c] = x0 + H;
+            let up = joint_mismatch(v, j, &xx);
+            xx[c] = x0 - H;
+            let dn = joint_mismatch(v, j, &xx);
+            xx[c] = x0;
+            jac.fixed_view_mut::<3, 1>(3 * k, c)
+                .copy_from(&((up - dn) / (2.0 * H)));
         }
     }
     jac
@@ -143,8 +142,8 @@ fn not_pd() -> Error {
     Error::numerical("chain smoothing", "posterior precision not positive")
 }
 
-/// Linear-Gaussian pieces at one `s`: mode `x`, objective `F`, Cholesky of
-/// `H`.
+/// Linear-Gaussian pieces at one `s`: mode `x`, objective `F` and
+/// `ln det H`.
 struct LinearMode {
     x: DVector<f64>,
     objective: f64,
