@@ -151,12 +151,15 @@ fn bench_chains(c: &mut Criterion) {
     for n in SIZES {
         let (sys, loads) = setup(n, -7.5);
         let mut ws = Workspace::new(&sys);
-        ws.set_tangent_method(TangentMethod::Dense);
+        let dense = StaticOptions {
+            tangent: TangentMethod::Dense,
+            ..opts
+        };
         let q0 = sys.default_q();
         g.bench_function(BenchmarkId::from_parameter(format!("{n}_joints")), |b| {
             b.iter(|| {
                 black_box(
-                    sys.solve_static(&loads, q0.as_slice(), &mut ws, &opts)
+                    sys.solve_static(&loads, q0.as_slice(), &mut ws, &dense)
                         .expect("solve"),
                 )
             })

@@ -33,10 +33,12 @@ fn main() -> anyhow::Result<()> {
             frame: LoadFrame::Ground,
         }])?;
         let q0 = sys.default_q();
-        let opts = StaticOptions::default();
         for &method in methods {
             let mut ws = Workspace::new(&sys);
-            ws.set_tangent_method(method);
+            let opts = StaticOptions {
+                tangent: method,
+                ..StaticOptions::default()
+            };
             let reps = if method == TangentMethod::Dense {
                 reps.div_ceil(20)
             } else {

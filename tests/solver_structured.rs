@@ -61,14 +61,12 @@ fn loads_for(n: usize) -> Vec<Load> {
 fn solve(sys: &System, loads: &[Load], method: TangentMethod) -> (StaticSolution, Workspace) {
     let loads = sys.prepare_loads(loads).expect("loads");
     let mut ws = Workspace::new(sys);
-    ws.set_tangent_method(method);
+    let opts = StaticOptions {
+        tangent: method,
+        ..StaticOptions::default()
+    };
     let sol = sys
-        .solve_static(
-            &loads,
-            sys.default_q().as_slice(),
-            &mut ws,
-            &StaticOptions::default(),
-        )
+        .solve_static(&loads, sys.default_q().as_slice(), &mut ws, &opts)
         .expect("solve");
     (sol, ws)
 }

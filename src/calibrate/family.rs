@@ -127,17 +127,19 @@ pub trait ModelFamily: Send + Sync {
     fn label(&self) -> String;
     /// The parameters, in vector order.
     fn params(&self) -> &[ParamInfo];
-    /// Put parameter values `p` (natural units) into `sys`. Must be cheap
-    /// (called at every residual evaluation) and must not depend on
-    /// anything `apply` changed before (the same `p` gives the same system).
-    fn apply(&self, p: &[f64], sys: &mut System) -> Result<()>;
-    /// `d tau / d p` at `q` (`n_dofs x n_params`), `sys` having `p` applied.
-    /// The default is central finite differences through `apply` (exact
-    /// families override it); `sys` is restored before returning.
+    /// The system of parameter values `p` (natural units): a variant of
+    /// `sys` (a system of this family, any parameters) with the family's
+    /// force laws replaced. Must be cheap (called at every residual
+    /// evaluation) and must not depend on the parameters `sys` had before
+    /// (the same `p` gives the same system).
+    fn system(&self, p: &[f64], sys: &System) -> Result<System>;
+    /// `d tau / d p` at `q` (`n_dofs x n_params`), `sys` being the system of
+    /// `p`. The default is central finite differences through
+    /// [`ModelFamily::system`] (exact families override it).
     fn dtau_dp(
         &self,
         p: &[f64],
-        sys: &mut System,
+        sys: &System,
         q: &[f64],
         loads: &crate::solver::LoadSet,
         ws: &mut Workspace,
@@ -151,17 +153,19 @@ pub trait ModelFamily: Send + Sync {
                 _ => 1e-6 * p[j].abs().max(1e-12),
             };
             pp[j] = p[j] + h;
-            self.apply(&pp, sys)?;
-            let plus = sys.static_residual(q, loads, ws)?.to_vec();
+            let plus = self
+                .system(&pp, sys)?
+                .static_residual(q, loads, ws)?
+                .to_vec();
             pp[j] = p[j] - h;
-            self.apply(&pp, sys)?;
-            let minus = sys.static_residual(q, loads, ws)?;
+            let minus_sys = self.system(&pp, sys)?;
+            let minus = minus_sys.static_residual(q, loads, ws)?;
             for (i, (a, b)) in plus.iter().zip(minus).enumerate() {
                 out[(i, j)] = (a - b) / (2.0 * h);
             }
             pp[j] = p[j];
         }
-        self.apply(p, sys)
+        Ok(())
     }
 }
 
@@ -778,7 +782,7 @@ impl StiffnessFamily {
     fn dtau_dp_forms(
         &self,
         p: &[f64],
-        sys: &mut System,
+        sys: &System,
         q: &[f64],
         ws: &mut Workspace,
         out: &mut DMatrix<f64>,
@@ -840,7 +844,7 @@ impl ModelFamily for StiffnessFamily {
     fn params(&self) -> &[ParamInfo] {
         &self.params
     }
-    fn apply(&self, p: &[f64], sys: &mut System) -> Result<()> {
+    fn system(&self, p: &[f64], sys: &System) -> Result<System> {
         if p.len() != self.params.len() {
             return Err(Error::invalid(
                 "calibration",
@@ -848,21 +852,18 @@ impl ModelFamily for StiffnessFamily {
             ));
         }
         if !self.is_linear() {
-            for (b, model) in self.level_models(p) {
-                sys.set_bushing_model(b, model)?;
-            }
-            return Ok(());
+            return sys.with_bushing_models(self.level_models(p));
         }
         let k = self.bushing_stiffness(p);
         let mut touched: Vec<usize> = self.map.iter().flatten().map(|e| e.0).collect();
         touched.sort_unstable();
         touched.dedup();
-        for b in touched {
-            if let Some(kb) = k.get(b) {
-                sys.set_bushing_stiffness(b, *kb)?;
-            }
-        }
-        Ok(())
+        let models = touched
+            .into_iter()
+            .filter_map(|b| k.get(b).map(|kb| (b, *kb)))
+            .map(|(b, kb)| Ok((b, sys.linear_with_stiffness(b, kb)?)))
+            .collect::<Result<Vec<_>>>()?;
+        sys.with_bushing_models(models)
     }
     /// Exact: the residual is linear in every stiffness (through the
     /// deflection), so `d tau / d p_j = sum factor * d tau / d k`; for the
@@ -872,7 +873,7 @@ impl ModelFamily for StiffnessFamily {
     fn dtau_dp(
         &self,
         p: &[f64],
-        sys: &mut System,
+        sys: &System,
         q: &[f64],
         _loads: &crate::solver::LoadSet,
         ws: &mut Workspace,
@@ -1043,27 +1044,25 @@ mod tests {
             return;
         }
         let exp = crate::calibrate::experiment::Experiment::read(p).unwrap();
-        let mut sys = System::new(&exp.spec).unwrap();
+        let sys = System::new(&exp.spec).unwrap();
         let fixed = sys.body_index("sacrum").unwrap();
         let top = sys.body_index("thoracic12").unwrap();
         let levels = find_levels(&sys, fixed, &[top]);
         let fam =
             StiffnessFamily::new(&sys, levels, &[0, 1, 2], &Parameterisation::PerLevel).unwrap();
         let pv = fam.params_nominal();
-        fam.apply(&pv, &mut sys).unwrap();
+        let sys = fam.system(&pv, &sys).unwrap();
         let mut ws = Workspace::new(&sys);
         let mut q: Vec<f64> = (0..sys.n_dofs())
             .map(|i| 0.01 * (i as f64 % 5.0 - 2.0))
             .collect();
         let loads = crate::solver::LoadSet::empty();
         let mut a = DMatrix::zeros(sys.n_dofs(), pv.len());
-        fam.dtau_dp(&pv, &mut sys, &q, &loads, &mut ws, &mut a)
-            .unwrap();
+        fam.dtau_dp(&pv, &sys, &q, &loads, &mut ws, &mut a).unwrap();
         let rz = sys.dof_of("L3_L4_rz").unwrap();
         q[rz] += 2.0 * std::f64::consts::PI;
         let mut b = DMatrix::zeros(sys.n_dofs(), pv.len());
-        fam.dtau_dp(&pv, &mut sys, &q, &loads, &mut ws, &mut b)
-            .unwrap();
+        fam.dtau_dp(&pv, &sys, &q, &loads, &mut ws, &mut b).unwrap();
         assert!((&a - &b).amax() < 1e-12, "{}", (&a - &b).amax());
     }
 

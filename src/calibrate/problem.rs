@@ -386,7 +386,7 @@ impl Evaluator {
         let n = self.sys.n_dofs();
         let np = p.len();
         pb.family
-            .dtau_dp(p, &mut self.sys, q, loads, &mut self.ws, &mut self.dtau)?;
+            .dtau_dp(p, &self.sys, q, loads, &mut self.ws, &mut self.dtau)?;
         let mut d = DMatrix::zeros(n, np);
         let mut col = vec![0.0; n];
         for j in 0..np {
@@ -457,7 +457,7 @@ impl Evaluator {
         jac: bool,
     ) -> Result<(Predictions, Option<DMatrix<f64>>)> {
         self.evaluations += 1;
-        pb.family.apply(p, &mut self.sys)?;
+        self.sys = pb.family.system(p, &self.sys)?;
         let np = p.len();
         let empty = LoadSet::empty();
         let mut q0_warm = self.predict_start(None, p);

@@ -496,14 +496,16 @@ impl Family {
 
 /// Put a variant into a copy of the nominal system.
 pub fn apply_variant(sim: &Sim, v: &Variant) -> Result<System> {
-    let mut sys = sim.base.clone();
+    let laws = sim
+        .levels
+        .iter()
+        .zip(&v.laws)
+        .map(|(l, law)| (l.bushing, law.clone()));
+    let mut sys = sim.base.with_bushing_models(laws)?;
     for (li, l) in sim.levels.iter().enumerate() {
-        if let Some(law) = v.laws.get(li) {
-            sys.set_bushing_model(l.bushing, law.clone())?;
-        }
         if let Some(Some(t)) = v.frames.get(li) {
             let (x1, x2) = sim.frames[li];
-            sys.set_bushing_joint_frames(l.bushing, &(x1 * t), &(x2 * t))?;
+            sys = sys.with_bushing_joint_frames(l.bushing, &(x1 * t), &(x2 * t))?;
         }
     }
     Ok(sys)

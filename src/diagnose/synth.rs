@@ -376,7 +376,7 @@ fn truth_system(sim: &Sim, spec: &SynthSpec, rng: &mut ChaCha8Rng) -> Result<(Sy
                         UnitQuaternion::from_scaled_axis(w),
                     );
                     let (x1, x2) = sim.frames[li];
-                    sys.set_bushing_joint_frames(bushing, &(x1 * tr), &(x2 * tr))?;
+                    sys = sys.with_bushing_joint_frames(bushing, &(x1 * tr), &(x2 * tr))?;
                 }
                 linear(k)
             }
@@ -389,7 +389,7 @@ fn truth_system(sim: &Sim, spec: &SynthSpec, rng: &mut ChaCha8Rng) -> Result<(Sy
                 }
             }
         };
-        sys.set_bushing_model(bushing, law)?;
+        sys = sys.with_bushing_model(bushing, law)?;
     }
     let _ = write!(notes, "; size {s:.2}");
     match effect {

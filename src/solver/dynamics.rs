@@ -105,7 +105,7 @@ impl System {
         loads: &LoadSet,
         ws: &mut Workspace,
     ) -> Result<()> {
-        self.check_q(q)?;
+        self.check_inputs(q, loads, ws)?;
         if u.len() != q.len() || u.iter().any(|v| !v.is_finite()) {
             return Err(Error::invalid(
                 "solver",
@@ -267,6 +267,7 @@ impl System {
     /// The mass matrix at q in the generalised speeds (kinetic energy
     /// `1/2 u^T M u`; a copy, for tests and inspection).
     pub fn mass_matrix(&self, q: &[f64], ws: &mut Workspace) -> Result<nalgebra::DMatrix<f64>> {
+        self.check_workspace(ws)?;
         self.check_q(q)?;
         ws.k64.q.copy_from_slice(q);
         kinematics::forward_speeds(self, &mut ws.k64);
@@ -309,7 +310,7 @@ impl System {
         loads: &LoadSet,
         ws: &mut Workspace,
     ) -> Result<f64> {
-        self.check_q(q)?;
+        self.check_inputs(q, loads, ws)?;
         if u.len() != q.len() {
             return Err(Error::invalid(
                 "solver",
@@ -383,6 +384,8 @@ pub struct Integrator {
     n: usize,
     lu: DenseLu,
     have_jac: bool,
+    /// The system the cached Jacobian belongs to (refreshed when it changes).
+    jac_for: super::system::SystemId,
     a0: Vec<f64>,
     a1: Vec<f64>,
     yq: Vec<f64>,
@@ -412,6 +415,7 @@ impl Integrator {
             n,
             lu: DenseLu::new(n),
             have_jac: false,
+            jac_for: sys.id(),
             a0: vec![0.0; n],
             a1: vec![0.0; n],
             yq: vec![0.0; n],
@@ -510,6 +514,17 @@ impl Integrator {
     ) -> Result<()> {
         let n = self.n;
         let h2 = 0.5 * self.dt;
+        // a Jacobian of another parameter set is stale; another structure is refused
+        if self.jac_for != sys.id() {
+            if self.jac_for.structure != sys.id().structure {
+                return Err(Error::invalid(
+                    "dynamics",
+                    "the integrator was made for another system (make one with Integrator::new for this system)",
+                ));
+            }
+            self.have_jac = false;
+            self.jac_for = sys.id();
+        }
         // initial guess: explicit half step (the call checks q and u)
         sys.accelerations(q, u, loads, ws, &mut self.a0)?;
         self.q0.copy_from_slice(q);

@@ -64,16 +64,36 @@ pub(crate) enum Resolved {
     },
 }
 
-/// Loads resolved against a system (body names checked, follower guide points placed).
+/// Loads resolved against a system (body names checked, follower guide
+/// points placed in body coordinates). Valid for every system that shares
+/// that system's structure (see [`super::SystemId`]): a variant with moved
+/// joint frames keeps the guide points where they were placed on the
+/// bodies, as the physical guides of a rig stay on the vertebrae. The empty
+/// set fits every system.
 #[derive(Debug, Clone, Default)]
 pub struct LoadSet {
     pub(crate) items: Vec<Resolved>,
+    /// Structure id of the system the loads were resolved for.
+    pub(crate) resolved_for: Option<u64>,
 }
 
 impl LoadSet {
     /// No load.
     pub fn empty() -> Self {
         LoadSet::default()
+    }
+}
+
+impl System {
+    /// Refuse loads resolved for a system of another structure.
+    pub(crate) fn check_loads(&self, loads: &LoadSet) -> Result<()> {
+        match loads.resolved_for {
+            Some(structure) if structure != self.id.structure => Err(Error::invalid(
+                "solver",
+                "the loads were prepared for another system (prepare them with this system's prepare_loads)",
+            )),
+            _ => Ok(()),
+        }
     }
 }
 
@@ -142,7 +162,10 @@ impl System {
                 }
             }
         }
-        Ok(LoadSet { items })
+        Ok(LoadSet {
+            items,
+            resolved_for: Some(self.id.structure),
+        })
     }
 
     /// Guide-point pairs of every joint on the tree path between a and b,

@@ -36,7 +36,7 @@ pub use spec::{
     JointKind, JointSpec, Load, LoadFrame, SystemSpec, TransformAxis,
 };
 pub use statics::{StaticOptions, StaticSolution};
-pub use system::{Pose, System, Workspace};
+pub use system::{Pose, System, SystemId, Workspace};
 pub use tree::TangentMethod;
 
 #[cfg(test)]

@@ -49,6 +49,7 @@ fn rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
 impl System {
     /// Body poses at q (by body name, sorted).
     pub fn body_poses(&self, q: &[f64], ws: &mut Workspace) -> Result<BTreeMap<String, BodyPose>> {
+        self.check_workspace(ws)?;
         self.check_q(q)?;
         ws.k64.q.copy_from_slice(q);
         kinematics::forward(self, &mut ws.k64);
@@ -78,6 +79,7 @@ impl System {
         u: Option<&[f64]>,
         ws: &mut Workspace,
     ) -> Result<BTreeMap<String, BushingRecord>> {
+        self.check_workspace(ws)?;
         self.check_q(q)?;
         // deflection rates from the coordinate rates of the speeds
         let mut qdot = vec![0.0; q.len()];

@@ -71,6 +71,9 @@ pub struct StaticOptions {
     pub step_tol: f64,
     /// Largest change of a rotational coordinate in one step (rad).
     pub max_rotation_step: f64,
+    /// How the Newton step factorises the tangent ([`TangentMethod::Auto`]:
+    /// structured where possible; `Dense` is the reference it is tested against).
+    pub tangent: TangentMethod,
 }
 
 impl Default for StaticOptions {
@@ -80,6 +83,7 @@ impl Default for StaticOptions {
             residual_tol: 1e-9,
             step_tol: 1e-10,
             max_rotation_step: 0.5,
+            tangent: TangentMethod::Auto,
         }
     }
 }
@@ -189,7 +193,10 @@ fn scaled_loads(loads: &LoadSet, s: f64) -> LoadSet {
             },
         })
         .collect();
-    LoadSet { items }
+    LoadSet {
+        items,
+        resolved_for: loads.resolved_for,
+    }
 }
 
 /// Stability from a dense tangent `T`: None when `T` is not symmetric to
@@ -226,7 +233,7 @@ impl System {
         loads: &LoadSet,
         ws: &'w mut Workspace,
     ) -> Result<&'w [f64]> {
-        self.check_q(q)?;
+        self.check_inputs(q, loads, ws)?;
         ws.k64.q.copy_from_slice(q);
         eval_tau(self, loads, &mut ws.k64).map_err(|g| g.to_error(self))?;
         Ok(&ws.k64.tau)
@@ -289,9 +296,11 @@ impl System {
         q: &[f64],
         loads: &LoadSet,
         ws: &mut Workspace,
+        method: TangentMethod,
     ) -> Result<(), GimbalLock> {
         ws.factored = Factored::None;
-        if ws.method == TangentMethod::Auto && ws.tree.usable {
+        ws.factored_for = Some(self.id);
+        if method == TangentMethod::Auto && ws.tree.usable {
             ws.tree.assemble(self, loads, &ws.k64, &mut ws.kd6)?;
             if ws.tree.factor(self) {
                 ws.tree.solve(self, &mut ws.dq);
@@ -307,6 +316,14 @@ impl System {
         Ok(())
     }
 
+    /// Refuse a workspace or loads made for another system (see
+    /// [`super::SystemId`]), and a non-finite or wrongly sized `q`.
+    pub(crate) fn check_inputs(&self, q: &[f64], loads: &LoadSet, ws: &Workspace) -> Result<()> {
+        self.check_workspace(ws)?;
+        self.check_loads(loads)?;
+        self.check_q(q)
+    }
+
     /// The tangent `d tau / d q` at `q` as a new matrix (for inspection and tests).
     pub fn static_tangent(
         &self,
@@ -314,7 +331,7 @@ impl System {
         loads: &LoadSet,
         ws: &mut Workspace,
     ) -> Result<DMatrix<f64>> {
-        self.check_q(q)?;
+        self.check_inputs(q, loads, ws)?;
         self.eval_tangent(q, loads, ws)
             .map_err(|g| g.to_error(self))?;
         ws.factored = Factored::None;
@@ -337,7 +354,7 @@ impl System {
         ws: &mut Workspace,
         opts: &StaticOptions,
     ) -> Result<StaticSolution> {
-        self.check_q(q0)?;
+        self.check_inputs(q0, loads, ws)?;
         let n = self.n_dofs();
         ws.factored = Factored::None;
         let mut q: Vec<f64> = q0.to_vec();
@@ -386,7 +403,7 @@ impl System {
         ws: &mut Workspace,
         opts: &StaticOptions,
     ) -> Result<StaticSolution> {
-        self.check_q(q0)?;
+        self.check_inputs(q0, loads, ws)?;
         ws.factored = Factored::None;
         if self.n_dofs() == 0 {
             return Ok(StaticSolution {
@@ -441,7 +458,7 @@ impl System {
             for i in 0..n {
                 ws.dq[i] = -ws.r[i];
             }
-            self.factor_and_solve(q, loads, ws)
+            self.factor_and_solve(q, loads, ws, opts.tangent)
                 .map_err(|g| g.to_error(self))?;
             if ws.factored == Factored::None {
                 return Ok(Newton::Failed {
@@ -630,7 +647,7 @@ impl System {
             eval_tau(&sys_s, &loads_s, &mut ws.k64).map_err(|e| e.to_error(self))?;
             ws.dq.copy_from_slice(&v);
             sys_s
-                .factor_and_solve(&q, &loads_s, ws)
+                .factor_and_solve(&q, &loads_s, ws, opts.tangent)
                 .map_err(|e| e.to_error(self))?;
             let singular = ws.factored == Factored::None || ws.dq.iter().any(|x| !x.is_finite());
             if !singular {
@@ -783,6 +800,13 @@ impl System {
     /// of the last Newton iteration of [`System::solve_static`] (for
     /// sensitivities `dq/dp = -T^{-1} d tau / d p`).
     pub fn tangent_solve(&self, ws: &Workspace, rhs: &mut [f64]) -> Result<()> {
+        self.check_workspace(ws)?;
+        if ws.factored != Factored::None && ws.factored_for != Some(self.id) {
+            return Err(Error::invalid(
+                "solver",
+                "the factorised tangent in the workspace belongs to another parameter set of this system: run solve_static with this system first",
+            ));
+        }
         if rhs.len() != self.n_dofs() {
             return Err(Error::invalid(
                 "solver",
@@ -826,6 +850,7 @@ impl System {
         ws: &mut Workspace,
         out: &mut DMatrix<f64>,
     ) -> Result<()> {
+        self.check_workspace(ws)?;
         self.check_q(q)?;
         let n = self.n_dofs();
         if out.nrows() != n || out.ncols() != self.n_stiffness_params() {
@@ -969,14 +994,12 @@ mod continuation_tests {
             let loads = LoadSet::empty();
             for method in [TangentMethod::Auto, TangentMethod::Dense] {
                 let mut ws = Workspace::new(&sys);
-                ws.set_tangent_method(method);
+                let opts = StaticOptions {
+                    tangent: method,
+                    ..StaticOptions::default()
+                };
                 let sol = sys
-                    .solve_static(
-                        &loads,
-                        sys.default_q().as_slice(),
-                        &mut ws,
-                        &StaticOptions::default(),
-                    )
+                    .solve_static(&loads, sys.default_q().as_slice(), &mut ws, &opts)
                     .unwrap();
                 let (min_eig, _) = min_stiffness_eig(&sys, &loads, sol.q.as_slice());
                 assert!(min_eig.abs() > 1e-3, "{n}: too close to singular to judge");

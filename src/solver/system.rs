@@ -13,6 +13,7 @@ use crate::error::{Error, Result};
 use nalgebra::storage::{Storage, StorageMut};
 use nalgebra::{DMatrix, DVector, Dim, Isometry3, Matrix, Matrix3, Vector3};
 use num_dual::Dual64;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// A rigid transform as rotation matrix + translation, generic scalar.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -143,9 +144,44 @@ pub(crate) struct Bushing {
     pub fast: Option<usize>,
 }
 
-/// The immutable multibody system.
+/// Identity of a built [`System`]: its structure (bodies, joints, degrees
+/// of freedom: what a [`Workspace`] is sized for and a
+/// [`LoadSet`](super::LoadSet) is resolved against), its joint and bushing
+/// frames, and its force laws. A factorised tangent is valid only for the
+/// identity it was computed with; ids are process-unique, never written out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SystemId {
+    pub(crate) structure: u64,
+    pub(crate) frames: u64,
+    pub(crate) laws: u64,
+}
+
+static NEXT_ID: AtomicU64 = AtomicU64::new(1);
+
+/// A process-unique id (equality checks only).
+fn fresh_id() -> u64 {
+    NEXT_ID.fetch_add(1, Ordering::Relaxed)
+}
+
+impl SystemId {
+    fn new() -> Self {
+        let id = fresh_id();
+        SystemId {
+            structure: id,
+            frames: id,
+            laws: id,
+        }
+    }
+}
+
+/// The immutable multibody system: never changed once built. Parameter
+/// variants (bushing laws, joint frames) are new systems made by
+/// [`System::with_bushing_model`], [`System::with_bushing_stiffness`] and
+/// [`System::with_bushing_joint_frames`]; they share the structure, so
+/// workspaces and loads can be reused across them.
 #[derive(Debug, Clone)]
 pub struct System {
+    pub(crate) id: SystemId,
     pub(crate) bodies: Vec<Body>,
     /// spec body index -> system body index
     pub(crate) body_map: Vec<usize>,
@@ -502,6 +538,7 @@ impl System {
         }
         let any_euler_speeds = bodies.iter().any(|b| b.joint.euler_speeds);
         Ok(System {
+            id: SystemId::new(),
             any_euler_speeds,
             bodies,
             body_map,
@@ -517,11 +554,29 @@ impl System {
 
     /// The same system with every bushing on the general formula (no fast
     /// path); for validation.
-    pub fn without_fast_paths(mut self) -> Self {
-        for b in self.bushings.iter_mut() {
+    pub fn without_fast_paths(&self) -> Self {
+        let mut out = self.clone();
+        for b in out.bushings.iter_mut() {
             b.fast = None;
         }
-        self
+        out.id.laws = fresh_id();
+        out
+    }
+
+    /// This system's identity (see [`SystemId`]).
+    pub fn id(&self) -> SystemId {
+        self.id
+    }
+
+    /// Refuse a workspace made for a system of another structure.
+    pub(crate) fn check_workspace(&self, ws: &Workspace) -> Result<()> {
+        if ws.structure != self.id.structure {
+            return Err(Error::invalid(
+                "solver",
+                "the workspace was made for another system (make one with Workspace::new for this system)",
+            ));
+        }
+        Ok(())
     }
 
     /// Number of free degrees of freedom (generalised coordinates solved for).
@@ -823,10 +878,13 @@ pub struct Workspace {
     pub(crate) lu: DenseLu,
     /// Structured (tree) statics tangent and its factors.
     pub(crate) tree: super::tree::TreeTangent,
-    /// Which factorisation of the tangent the statics use.
-    pub(crate) method: super::tree::TangentMethod,
+    /// Structure id of the system this workspace was made for.
+    pub(crate) structure: u64,
     /// Which factorisation (if any) holds the tangent of the last Newton step.
     pub(crate) factored: Factored,
+    /// Identity of the system whose tangent `factored` holds (stale when
+    /// the system solved with differs).
+    pub(crate) factored_for: Option<SystemId>,
     pub(crate) r: Vec<f64>,
     pub(crate) dq: Vec<f64>,
     pub(crate) q_trial: Vec<f64>,
@@ -851,8 +909,9 @@ impl Workspace {
             kd1: KinBuf::new(sys),
             lu: DenseLu::new(n),
             tree: super::tree::TreeTangent::new(sys),
-            method: super::tree::TangentMethod::Auto,
+            structure: sys.id.structure,
             factored: Factored::None,
+            factored_for: None,
             r: vec![0.0; n],
             dq: vec![0.0; n],
             q_trial: vec![0.0; n],
@@ -866,14 +925,6 @@ impl Workspace {
         }
     }
 
-    /// Choose how the statics factorise the tangent (default
-    /// [`TangentMethod::Auto`](super::TangentMethod::Auto)); the dense
-    /// method is the reference the structured one is tested against.
-    pub fn set_tangent_method(&mut self, method: super::tree::TangentMethod) {
-        self.method = method;
-        self.factored = Factored::None;
-    }
-
     /// The factorisation used by the last Newton step of
     /// [`System::solve_static`]: true when it was the structured (tree) one.
     pub fn used_structured_tangent(&self) -> bool {
@@ -882,10 +933,20 @@ impl Workspace {
 }
 
 impl System {
-    /// Replace the force law of bushing `i` without rebuilding the system
-    /// (calibration changes stiffness parameters thousands of times). The
-    /// law is validated; frames and the fast path are unchanged.
-    pub fn set_bushing_model(&mut self, i: usize, model: BushingModel) -> Result<()> {
+    /// The same system with the force law of bushing `i` replaced
+    /// (calibration makes thousands of such variants; the structure is
+    /// shared, so workspaces and loads stay valid). The law is validated;
+    /// frames and the fast path are unchanged.
+    pub fn with_bushing_model(&self, i: usize, model: BushingModel) -> Result<System> {
+        let mut out = self.clone();
+        out.set_bushing_model(i, model)?;
+        out.id.laws = fresh_id();
+        Ok(out)
+    }
+
+    /// Replace a bushing law in place (only on a system under construction
+    /// by one of the `with_*` methods).
+    fn set_bushing_model(&mut self, i: usize, model: BushingModel) -> Result<()> {
         let n = self.bushings.len();
         let Some(b) = self.bushings.get_mut(i) else {
             return Err(Error::invalid(
@@ -902,9 +963,30 @@ impl System {
         Ok(())
     }
 
-    /// Replace the diagonal stiffness `(rx, ry, rz, tx, ty, tz)` of a linear
-    /// bushing (an error for other laws), keeping its damping.
-    pub fn set_bushing_stiffness(&mut self, i: usize, k: [f64; 6]) -> Result<()> {
+    /// The same system with the diagonal stiffness `(rx, ry, rz, tx, ty,
+    /// tz)` of linear bushing `i` replaced (an error for other laws),
+    /// keeping its damping.
+    pub fn with_bushing_stiffness(&self, i: usize, k: [f64; 6]) -> Result<System> {
+        let model = self.linear_with_stiffness(i, k)?;
+        self.with_bushing_model(i, model)
+    }
+
+    /// The same system with several bushing laws replaced at once (one
+    /// copy for all of them).
+    pub fn with_bushing_models(
+        &self,
+        models: impl IntoIterator<Item = (usize, BushingModel)>,
+    ) -> Result<System> {
+        let mut out = self.clone();
+        for (i, model) in models {
+            out.set_bushing_model(i, model)?;
+        }
+        out.id.laws = fresh_id();
+        Ok(out)
+    }
+
+    /// The linear law of bushing `i` with its stiffness replaced by `k`.
+    pub fn linear_with_stiffness(&self, i: usize, k: [f64; 6]) -> Result<BushingModel> {
         let Some(b) = self.bushings.get(i) else {
             return Err(Error::invalid(
                 "solver",
@@ -928,7 +1010,7 @@ impl System {
             rot_damping: *rot_damping,
             trans_damping: *trans_damping,
         };
-        self.set_bushing_model(i, model)
+        Ok(model)
     }
 
     /// Poses `(X_B1F, X_B2M)` of bushing `i`'s two frames in their bodies.
@@ -944,12 +1026,27 @@ impl System {
         self.bushings.get(i).is_some_and(|b| b.fast.is_some())
     }
 
-    /// Move bushing `i`'s two frames to `x1` (in body 1) and `x2` (in body
-    /// 2), together with the joint frames they sit on (the joint of body 2),
-    /// so that the joint centre and axes move with the bushing. Only for
-    /// bushings on their joint's frames ([`System::bushing_on_joint_frames`]).
-    /// Loads prepared before (follower-load guide points) must be prepared again.
-    pub fn set_bushing_joint_frames(
+    /// The same system with bushing `i`'s two frames moved to `x1` (in body
+    /// 1) and `x2` (in body 2), together with the joint frames they sit on
+    /// (the joint of body 2), so that the joint centre and axes move with
+    /// the bushing. Only for bushings on their joint's frames
+    /// ([`System::bushing_on_joint_frames`]). Loads prepared before keep
+    /// their points on the bodies (see [`super::LoadSet`]).
+    pub fn with_bushing_joint_frames(
+        &self,
+        i: usize,
+        x1: &Isometry3<f64>,
+        x2: &Isometry3<f64>,
+    ) -> Result<System> {
+        let mut out = self.clone();
+        out.set_bushing_joint_frames(i, x1, x2)?;
+        out.id.frames = fresh_id();
+        out.id.laws = fresh_id();
+        Ok(out)
+    }
+
+    /// Move bushing and joint frames in place (construction only).
+    fn set_bushing_joint_frames(
         &mut self,
         i: usize,
         x1: &Isometry3<f64>,
