@@ -148,7 +148,8 @@ pub(crate) struct Bushing {
 /// of freedom: what a [`Workspace`] is sized for and a
 /// [`LoadSet`](super::LoadSet) is resolved against), its joint and bushing
 /// frames, and its force laws. A factorised tangent is valid only for the
-/// identity it was computed with; ids are process-unique, never written out.
+/// identity it was computed with. Frame and law ids are process-unique and
+/// never written out.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SystemId {
     pub(crate) structure: u64,
@@ -164,10 +165,19 @@ fn fresh_id() -> u64 {
 }
 
 impl SystemId {
-    fn new() -> Self {
+    /// A new identity: the structure is a fingerprint of the bodies, their
+    /// tree and degrees of freedom (systems built separately from the same
+    /// structure may share workspaces and loads); frames and laws are new.
+    fn new(bodies: &[Body], n_dofs: usize, n_bushings: usize) -> Self {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        (n_dofs, n_bushings, bodies.len()).hash(&mut h);
+        for b in bodies {
+            (&b.name, b.parent, b.joint.dof_start, b.joint.dof_count).hash(&mut h);
+        }
         let id = fresh_id();
         SystemId {
-            structure: id,
+            structure: h.finish(),
             frames: id,
             laws: id,
         }
@@ -538,7 +548,7 @@ impl System {
         }
         let any_euler_speeds = bodies.iter().any(|b| b.joint.euler_speeds);
         Ok(System {
-            id: SystemId::new(),
+            id: SystemId::new(&bodies, dof_coord.len(), bushings.len()),
             any_euler_speeds,
             bodies,
             body_map,
