@@ -225,3 +225,64 @@ fn foreign_workspace_and_loads_are_errors_not_panics() {
     twin.tangent_solve(&ws_big, &mut rhs)
         .expect_err("a twin's factorisation is not its own");
 }
+
+/// Reference body order: repeated sweeps over the bodies in spec order,
+/// each placing the bodies whose parent is placed (the order outputs have
+/// always used).
+fn sweep_order(spec: &SystemSpec) -> Vec<String> {
+    let nb = spec.bodies.len();
+    let parent = |b: usize| {
+        spec.joints
+            .iter()
+            .find(|j| j.child == b)
+            .and_then(|j| j.parent)
+    };
+    let mut placed = vec![false; nb];
+    let mut order = Vec::new();
+    while order.len() < nb {
+        for b in 0..nb {
+            if !placed[b] && parent(b).is_none_or(|p| placed[p]) {
+                placed[b] = true;
+                order.push(spec.bodies[b].name.clone());
+            }
+        }
+    }
+    order
+}
+
+/// Random trees in shuffled spec order keep the sweep order.
+#[test]
+fn body_order_is_the_sweep_order_on_shuffled_trees() {
+    use rand::seq::SliceRandom;
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    for n in [1usize, 2, 5, 17, 40] {
+        let mut spec = spine_chain(n);
+        // rewire to a random tree: each body's parent is an earlier body (or ground)
+        for b in 1..spec.bodies.len() {
+            let p = rng.random_range(0..b);
+            let j = spec
+                .joints
+                .iter_mut()
+                .find(|j| j.child == b)
+                .expect("joint");
+            j.parent = Some(p);
+            spec.bushings.retain(|bs| bs.frame2.body != Some(b));
+        }
+        // shuffle the spec's body indices
+        let mut perm: Vec<usize> = (0..spec.bodies.len()).collect();
+        perm.shuffle(&mut rng);
+        let mut bodies = spec.bodies.clone();
+        for (old, &new) in perm.iter().enumerate() {
+            bodies[new] = spec.bodies[old].clone();
+        }
+        spec.bodies = bodies;
+        for j in spec.joints.iter_mut() {
+            j.child = perm[j.child];
+            j.parent = j.parent.map(|p| perm[p]);
+        }
+        let sys = System::new(&spec).expect("system");
+        let names: Vec<String> = sys.body_names().map(String::from).collect();
+        assert_eq!(names, sweep_order(&spec), "n = {n}");
+    }
+}

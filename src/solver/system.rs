@@ -7,7 +7,8 @@
 use super::law::Law;
 use super::scalar::{Scalar, D6};
 use super::spec::{
-    BushingModel, CoordinateSpec, FrameSpec, Function, JointKind, SystemSpec, TransformAxis,
+    BushingModel, CoordinateSpec, FrameSpec, Function, JointKind, JointSpec, SystemSpec,
+    TransformAxis,
 };
 use crate::error::{Error, Result};
 use nalgebra::storage::{Storage, StorageMut};
@@ -281,275 +282,391 @@ fn check_finite_pose(x: &Isometry3<f64>) -> bool {
         && x.rotation.coords.iter().all(|v| v.is_finite())
 }
 
+/// Context of the errors of [`System::new`].
+const CTX: &str = "system";
+
+/// The joint of each spec body (the one whose child it is), checking the
+/// joints' body indices, closed loops and finite frames.
+fn joint_of_bodies(spec: &SystemSpec) -> Result<Vec<Option<usize>>> {
+    let nb = spec.bodies.len();
+    let mut joint_of = vec![None; nb];
+    for (ji, j) in spec.joints.iter().enumerate() {
+        if j.child >= nb {
+            return Err(Error::invalid(
+                CTX,
+                format!(
+                    "joint '{}': child body index {} out of range",
+                    j.name, j.child
+                ),
+            ));
+        }
+        if let Some(p) = j.parent.filter(|&p| p >= nb) {
+            return Err(Error::invalid(
+                CTX,
+                format!("joint '{}': parent body index {p} out of range", j.name),
+            ));
+        }
+        if joint_of[j.child].is_some() {
+            return Err(Error::invalid(
+                CTX,
+                format!("body '{}' is the child of more than one joint (closed loops are not supported)", spec.bodies[j.child].name),
+            ));
+        }
+        if !check_finite_pose(&j.x_pf) || !check_finite_pose(&j.x_bm) {
+            return Err(Error::invalid(
+                CTX,
+                format!("joint '{}': frame transform is not finite", j.name),
+            ));
+        }
+        joint_of[j.child] = Some(ji);
+    }
+    Ok(joint_of)
+}
+
+/// Every body has a joint and finite mass properties (mass >= 0).
+fn check_bodies(spec: &SystemSpec, joint_of: &[Option<usize>]) -> Result<()> {
+    for (bi, b) in spec.bodies.iter().enumerate() {
+        if joint_of[bi].is_none() {
+            return Err(Error::invalid(
+                CTX,
+                format!(
+                    "body '{}' has no joint to its parent (every body needs one)",
+                    b.name
+                ),
+            ));
+        }
+        if !(b.mass.is_finite() && b.mass >= 0.0)
+            || !b.com.iter().all(|v| v.is_finite())
+            || !b.inertia.iter().all(|v| v.is_finite())
+        {
+            return Err(Error::invalid(
+                CTX,
+                format!(
+                    "body '{}': mass, centre of mass and inertia must be finite (mass >= 0)",
+                    b.name
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Spec body indices with every parent before its children. The order is
+/// that of repeated sweeps over the bodies in spec order, each placing the
+/// bodies whose parent is placed (so a spec already in parent-first order
+/// keeps its order): a body is placed in its parent's sweep when it comes
+/// after its parent in the spec, else in the next one. Computed from the
+/// tree in O(n log n); bodies never reached hang on a cycle.
+fn topological_order(spec: &SystemSpec, joint_of: &[Option<usize>]) -> Result<Vec<usize>> {
+    let nb = spec.bodies.len();
+    // children of ground (index nb) and of every body
+    let mut children: Vec<Vec<usize>> = vec![Vec::new(); nb + 1];
+    for (bi, j) in joint_of.iter().enumerate() {
+        let parent = j.and_then(|ji| spec.joints[ji].parent).unwrap_or(nb);
+        children[parent].push(bi);
+    }
+    // sweep number of every body reachable from ground
+    let mut sweep: Vec<Option<usize>> = vec![None; nb];
+    let mut stack: Vec<(usize, usize)> = children[nb].iter().map(|&c| (c, 1)).collect();
+    while let Some((b, s)) = stack.pop() {
+        sweep[b] = Some(s);
+        for &c in &children[b] {
+            stack.push((c, s + usize::from(b > c)));
+        }
+    }
+    let mut order: Vec<usize> = (0..nb).filter(|&b| sweep[b].is_some()).collect();
+    order.sort_by_key(|&b| (sweep[b], b));
+    if order.len() < nb {
+        let stuck: Vec<&str> = (0..nb)
+            .filter(|&i| sweep[i].is_none())
+            .map(|i| spec.bodies[i].name.as_str())
+            .collect();
+        return Err(Error::invalid(
+            CTX,
+            format!(
+                "bodies not connected to ground (cycle in the joint tree): {}",
+                stuck.join(", ")
+            ),
+        ));
+    }
+    Ok(order)
+}
+
+/// Every coordinate default is finite.
+fn check_coordinate_defaults(spec: &SystemSpec) -> Result<()> {
+    for (ci, c) in spec.coordinates.iter().enumerate() {
+        if !c.default.is_finite() {
+            return Err(Error::invalid(
+                CTX,
+                format!("coordinate '{}' (#{ci}): default value not finite", c.name),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Bodies in system order with their lowered joints, and the numbering of
+/// the free dofs.
+struct Lowered {
+    bodies: Vec<Body>,
+    coord_dof: Vec<Option<usize>>,
+    dof_coord: Vec<usize>,
+    dof_body: Vec<usize>,
+    dof_rotational: Vec<bool>,
+}
+
+impl Lowered {
+    /// The axis source of a transform axis driven by coordinate `c` of the
+    /// joint of system body `si` (`local`: the spec coordinates of this
+    /// joint's dofs so far), numbering a new dof when `c` is new and free.
+    fn axis_source(
+        &mut self,
+        spec: &SystemSpec,
+        js: &JointSpec,
+        ai: usize,
+        ta: &TransformAxis,
+        owner: &mut [Option<usize>],
+        si: usize,
+        local: &mut Vec<usize>,
+    ) -> Result<AxisSource> {
+        let Some(c) = ta.coord else {
+            return Ok(AxisSource::Fixed(ta.function.eval(0.0f64).0));
+        };
+        let Some(cs) = spec.coordinates.get(c) else {
+            return Err(Error::invalid(
+                CTX,
+                format!(
+                    "joint '{}': transform axis {} refers to coordinate #{c} which does not exist",
+                    js.name,
+                    ai + 1
+                ),
+            ));
+        };
+        match owner[c] {
+            Some(o) if o != si => {
+                return Err(Error::invalid(
+                    CTX,
+                    format!("coordinate '{}' is used by more than one joint", cs.name),
+                ));
+            }
+            _ => owner[c] = Some(si),
+        }
+        if cs.locked {
+            return Ok(AxisSource::Fixed(ta.function.eval(cs.default).0));
+        }
+        let dof_start = self.dof_coord.len() - local.len();
+        let k = match local.iter().position(|&x| x == c) {
+            Some(k) => k,
+            None => {
+                local.push(c);
+                self.coord_dof[c] = Some(self.dof_coord.len());
+                self.dof_coord.push(c);
+                self.dof_body.push(si);
+                self.dof_rotational.push(false);
+                local.len() - 1
+            }
+        };
+        if ai < 3 {
+            if let Some(r) = self.dof_rotational.get_mut(dof_start + k) {
+                *r = true;
+            }
+        }
+        Ok(AxisSource::Dof(k, ta.function.clone()))
+    }
+}
+
+/// The six validated axes of a joint spec, their sources numbered into `lw`.
+fn lower_axes(
+    spec: &SystemSpec,
+    js: &JointSpec,
+    lw: &mut Lowered,
+    owner: &mut [Option<usize>],
+    si: usize,
+    local: &mut Vec<usize>,
+) -> Result<[Axis; 6]> {
+    let mut axes: Vec<Axis> = Vec::with_capacity(6);
+    for (ai, ta) in lower_joint(&js.kind).iter().enumerate() {
+        let n = ta.axis.norm();
+        if !(n.is_finite() && n > 1e-12) {
+            return Err(Error::invalid(
+                CTX,
+                format!(
+                    "joint '{}': transform axis {} has zero or non-finite direction",
+                    js.name,
+                    ai + 1
+                ),
+            ));
+        }
+        ta.function.validate().map_err(|m| {
+            Error::invalid(
+                CTX,
+                format!("joint '{}': transform axis {}: {m}", js.name, ai + 1),
+            )
+        })?;
+        let source = lw.axis_source(spec, js, ai, ta, owner, si, local)?;
+        axes.push(Axis {
+            unit: ta.axis / n,
+            source,
+        });
+    }
+    axes.try_into()
+        .map_err(|_| Error::invalid(CTX, format!("joint '{}': needs six axes", js.name)))
+}
+
+/// Compile the bodies in system order: each body's joint lowered to six
+/// axes, free dofs numbered joint by joint.
+fn lower_bodies(
+    spec: &SystemSpec,
+    joint_of: &[Option<usize>],
+    order: &[usize],
+    body_map: &[usize],
+) -> Result<Lowered> {
+    let mut lw = Lowered {
+        bodies: Vec::with_capacity(order.len()),
+        coord_dof: vec![None; spec.coordinates.len()],
+        dof_coord: Vec::new(),
+        dof_body: Vec::new(),
+        dof_rotational: Vec::new(),
+    };
+    let mut owner: Vec<Option<usize>> = vec![None; spec.coordinates.len()];
+    for (si, &bi) in order.iter().enumerate() {
+        let js = &spec.joints[joint_of[bi].unwrap_or(0)];
+        let dof_start = lw.dof_coord.len();
+        let mut local: Vec<usize> = Vec::new(); // spec coords of this joint's dofs
+        let axes = lower_axes(spec, js, &mut lw, &mut owner, si, &mut local)?;
+        let b = &spec.bodies[bi];
+        let x_bm = Pose::from_isometry(&js.x_bm);
+        let euler_speeds = has_euler_speeds(&js.kind, &axes);
+        lw.bodies.push(Body {
+            name: b.name.clone(),
+            parent: js.parent.map(|p| body_map[p]),
+            mass: b.mass,
+            com: b.com,
+            inertia: b.inertia,
+            joint: Joint {
+                name: js.name.clone(),
+                x_pf: Pose::from_isometry(&js.x_pf),
+                x_mb: x_bm.inverse(),
+                x_bm,
+                axes,
+                dof_start,
+                dof_count: local.len(),
+                euler_speeds,
+            },
+        });
+    }
+    Ok(lw)
+}
+
+/// A bushing frame: its body in system indices (None = ground) and pose.
+fn bushing_frame(
+    f: &FrameSpec,
+    name: &str,
+    which: u8,
+    body_map: &[usize],
+) -> Result<(Option<usize>, Pose<f64>)> {
+    let body = match f.body {
+        None => None,
+        Some(b) if b < body_map.len() => Some(body_map[b]),
+        Some(b) => {
+            return Err(Error::invalid(
+                CTX,
+                format!("bushing '{name}': frame{which} body index {b} out of range"),
+            ));
+        }
+    };
+    if !check_finite_pose(&f.transform) {
+        return Err(Error::invalid(
+            CTX,
+            format!("bushing '{name}': frame{which} transform not finite"),
+        ));
+    }
+    Ok((body, Pose::from_isometry(&f.transform)))
+}
+
+/// The first dof of the joint whose frames bushing frames `(body1, x_b1)`,
+/// `(body2, x_b2)` are, when that joint's six axes are X, Y, Z rotations
+/// then translations, each the identity of its own dof (see
+/// `Bushing::fast`).
+fn fast_path(
+    bodies: &[Body],
+    body1: Option<usize>,
+    x_b1: &Pose<f64>,
+    body2: Option<usize>,
+    x_b2: &Pose<f64>,
+) -> Option<usize> {
+    let b = &bodies[body2?];
+    let j = &b.joint;
+    let same = |a: &Pose<f64>, b: &Pose<f64>| a.r == b.r && a.p == b.p;
+    let unit = [Vector3::x(), Vector3::y(), Vector3::z()];
+    let axes_ok = j.dof_count == 6
+        && j.axes.iter().enumerate().all(|(ai, ax)| {
+            ax.unit == unit[ai % 3]
+                && matches!(&ax.source, AxisSource::Dof(k, Function::Linear { slope, intercept })
+                    if *k == ai && *slope == 1.0 && *intercept == 0.0)
+        });
+    (b.parent == body1 && same(x_b1, &j.x_pf) && same(x_b2, &j.x_bm) && axes_ok)
+        .then_some(j.dof_start)
+}
+
+/// Compile the bushings: frames, validated law, damping, fast path.
+fn compile_bushings(
+    spec: &SystemSpec,
+    bodies: &[Body],
+    body_map: &[usize],
+) -> Result<Vec<Bushing>> {
+    let mut bushings = Vec::with_capacity(spec.bushings.len());
+    for bs in &spec.bushings {
+        let (body1, x_b1) = bushing_frame(&bs.frame1, &bs.name, 1, body_map)?;
+        let (body2, x_b2) = bushing_frame(&bs.frame2, &bs.name, 2, body_map)?;
+        bs.model
+            .validate()
+            .map_err(|m| Error::invalid(CTX, format!("bushing '{}': {m}", bs.name)))?;
+        bushings.push(Bushing {
+            name: bs.name.clone(),
+            fast: fast_path(bodies, body1, &x_b1, body2, &x_b2),
+            body1,
+            x_b1,
+            body2,
+            x_b2,
+            c: bs.model.damping(),
+            law: Law::from_model(&bs.model),
+            model: bs.model.clone(),
+        });
+    }
+    Ok(bushings)
+}
+
 impl System {
     /// Validate and compile a spec. Errors name the offending body, joint,
     /// coordinate or bushing.
     pub fn new(spec: &SystemSpec) -> Result<System> {
-        let nb = spec.bodies.len();
-        let ctx = "system";
-        // one joint per body
-        let mut joint_of = vec![None; nb];
-        for (ji, j) in spec.joints.iter().enumerate() {
-            if j.child >= nb {
-                return Err(Error::invalid(
-                    ctx,
-                    format!(
-                        "joint '{}': child body index {} out of range",
-                        j.name, j.child
-                    ),
-                ));
-            }
-            if let Some(p) = j.parent {
-                if p >= nb {
-                    return Err(Error::invalid(
-                        ctx,
-                        format!("joint '{}': parent body index {p} out of range", j.name),
-                    ));
-                }
-            }
-            if joint_of[j.child].is_some() {
-                return Err(Error::invalid(
-                    ctx,
-                    format!("body '{}' is the child of more than one joint (closed loops are not supported)", spec.bodies[j.child].name),
-                ));
-            }
-            if !check_finite_pose(&j.x_pf) || !check_finite_pose(&j.x_bm) {
-                return Err(Error::invalid(
-                    ctx,
-                    format!("joint '{}': frame transform is not finite", j.name),
-                ));
-            }
-            joint_of[j.child] = Some(ji);
-        }
-        for (bi, b) in spec.bodies.iter().enumerate() {
-            if joint_of[bi].is_none() {
-                return Err(Error::invalid(
-                    ctx,
-                    format!(
-                        "body '{}' has no joint to its parent (every body needs one)",
-                        b.name
-                    ),
-                ));
-            }
-            if !(b.mass.is_finite() && b.mass >= 0.0)
-                || !b.com.iter().all(|v| v.is_finite())
-                || !b.inertia.iter().all(|v| v.is_finite())
-            {
-                return Err(Error::invalid(
-                    ctx,
-                    format!(
-                        "body '{}': mass, centre of mass and inertia must be finite (mass >= 0)",
-                        b.name
-                    ),
-                ));
-            }
-        }
-        // topological order: parent before child
-        let mut order: Vec<usize> = Vec::with_capacity(nb);
-        let mut placed = vec![false; nb];
-        let mut progress = true;
-        while order.len() < nb && progress {
-            progress = false;
-            for bi in 0..nb {
-                if placed[bi] {
-                    continue;
-                }
-                let j = &spec.joints[joint_of[bi].unwrap_or(0)];
-                let ready = match j.parent {
-                    None => true,
-                    Some(p) => placed[p],
-                };
-                if ready {
-                    placed[bi] = true;
-                    order.push(bi);
-                    progress = true;
-                }
-            }
-        }
-        if order.len() < nb {
-            let stuck: Vec<&str> = (0..nb)
-                .filter(|&i| !placed[i])
-                .map(|i| spec.bodies[i].name.as_str())
-                .collect();
-            return Err(Error::invalid(
-                ctx,
-                format!(
-                    "bodies not connected to ground (cycle in the joint tree): {}",
-                    stuck.join(", ")
-                ),
-            ));
-        }
-        let mut body_map = vec![0usize; nb];
+        // every body has exactly one joint to its parent
+        let joint_of = joint_of_bodies(spec)?;
+        check_bodies(spec, &joint_of)?;
+        // parent before child
+        let order = topological_order(spec, &joint_of)?;
+        let mut body_map = vec![0usize; spec.bodies.len()];
         for (si, &bi) in order.iter().enumerate() {
             body_map[bi] = si;
         }
-        for (ci, c) in spec.coordinates.iter().enumerate() {
-            if !c.default.is_finite() {
-                return Err(Error::invalid(
-                    ctx,
-                    format!("coordinate '{}' (#{ci}): default value not finite", c.name),
-                ));
-            }
-        }
-        // lower joints, number dofs
-        let mut coord_dof = vec![None; spec.coordinates.len()];
-        let mut coord_owner: Vec<Option<usize>> = vec![None; spec.coordinates.len()];
-        let mut dof_coord = Vec::new();
-        let mut dof_body = Vec::new();
-        let mut dof_rotational = Vec::new();
-        let mut bodies = Vec::with_capacity(nb);
-        for (si, &bi) in order.iter().enumerate() {
-            let js = &spec.joints[joint_of[bi].unwrap_or(0)];
-            let raw = lower_joint(&js.kind);
-            let dof_start = dof_coord.len();
-            let mut local: Vec<usize> = Vec::new(); // spec coords of this joint's dofs
-            let mut axes: Vec<Axis> = Vec::with_capacity(6);
-            for (ai, ta) in raw.iter().enumerate() {
-                let n = ta.axis.norm();
-                if !(n.is_finite() && n > 1e-12) {
-                    return Err(Error::invalid(
-                        ctx,
-                        format!(
-                            "joint '{}': transform axis {} has zero or non-finite direction",
-                            js.name,
-                            ai + 1
-                        ),
-                    ));
-                }
-                ta.function.validate().map_err(|m| {
-                    Error::invalid(
-                        ctx,
-                        format!("joint '{}': transform axis {}: {m}", js.name, ai + 1),
-                    )
-                })?;
-                let unit = ta.axis / n;
-                let source = match ta.coord {
-                    None => AxisSource::Fixed(ta.function.eval(0.0f64).0),
-                    Some(c) => {
-                        let Some(cs) = spec.coordinates.get(c) else {
-                            return Err(Error::invalid(ctx, format!("joint '{}': transform axis {} refers to coordinate #{c} which does not exist", js.name, ai + 1)));
-                        };
-                        match coord_owner[c] {
-                            Some(o) if o != si => {
-                                return Err(Error::invalid(
-                                    ctx,
-                                    format!(
-                                        "coordinate '{}' is used by more than one joint",
-                                        cs.name
-                                    ),
-                                ));
-                            }
-                            _ => coord_owner[c] = Some(si),
-                        }
-                        if cs.locked {
-                            AxisSource::Fixed(ta.function.eval(cs.default).0)
-                        } else {
-                            let k = match local.iter().position(|&x| x == c) {
-                                Some(k) => k,
-                                None => {
-                                    local.push(c);
-                                    coord_dof[c] = Some(dof_coord.len());
-                                    dof_coord.push(c);
-                                    dof_body.push(si);
-                                    dof_rotational.push(false);
-                                    local.len() - 1
-                                }
-                            };
-                            if ai < 3 {
-                                if let Some(r) = dof_rotational.get_mut(dof_start + k) {
-                                    *r = true;
-                                }
-                            }
-                            AxisSource::Dof(k, ta.function.clone())
-                        }
-                    }
-                };
-                axes.push(Axis { unit, source });
-            }
-            let axes: [Axis; 6] = axes
-                .try_into()
-                .map_err(|_| Error::invalid(ctx, format!("joint '{}': needs six axes", js.name)))?;
-            let b = &spec.bodies[bi];
-            let x_bm = Pose::from_isometry(&js.x_bm);
-            let euler_speeds = has_euler_speeds(&js.kind, &axes);
-            bodies.push(Body {
-                name: b.name.clone(),
-                parent: js.parent.map(|p| body_map[p]),
-                mass: b.mass,
-                com: b.com,
-                inertia: b.inertia,
-                joint: Joint {
-                    name: js.name.clone(),
-                    x_pf: Pose::from_isometry(&js.x_pf),
-                    x_mb: x_bm.inverse(),
-                    x_bm,
-                    axes,
-                    dof_start,
-                    dof_count: local.len(),
-                    euler_speeds,
-                },
-            });
-        }
-        let mut bushings = Vec::with_capacity(spec.bushings.len());
-        let frame = |f: &FrameSpec, name: &str, which: u8| -> Result<(Option<usize>, Pose<f64>)> {
-            let body = match f.body {
-                None => None,
-                Some(b) if b < nb => Some(body_map[b]),
-                Some(b) => {
-                    return Err(Error::invalid(
-                        ctx,
-                        format!("bushing '{name}': frame{which} body index {b} out of range"),
-                    ));
-                }
-            };
-            if !check_finite_pose(&f.transform) {
-                return Err(Error::invalid(
-                    ctx,
-                    format!("bushing '{name}': frame{which} transform not finite"),
-                ));
-            }
-            Ok((body, Pose::from_isometry(&f.transform)))
-        };
-        for bs in &spec.bushings {
-            let (body1, x_b1) = frame(&bs.frame1, &bs.name, 1)?;
-            let (body2, x_b2) = frame(&bs.frame2, &bs.name, 2)?;
-            bs.model
-                .validate()
-                .map_err(|m| Error::invalid(ctx, format!("bushing '{}': {m}", bs.name)))?;
-            let c = bs.model.damping();
-            let law = Law::from_model(&bs.model);
-            let fast = body2.and_then(|c2| {
-                let b = &bodies[c2];
-                let j = &b.joint;
-                let same = |a: &Pose<f64>, b: &Pose<f64>| a.r == b.r && a.p == b.p;
-                let unit = [Vector3::x(), Vector3::y(), Vector3::z()];
-                let axes_ok = j.dof_count == 6
-                    && j.axes.iter().enumerate().all(|(ai, ax)| {
-                        ax.unit == unit[ai % 3]
-                            && matches!(&ax.source, AxisSource::Dof(k, Function::Linear { slope, intercept })
-                                if *k == ai && *slope == 1.0 && *intercept == 0.0)
-                    });
-                (b.parent == body1 && same(&x_b1, &j.x_pf) && same(&x_b2, &j.x_bm) && axes_ok).then_some(j.dof_start)
-            });
-            bushings.push(Bushing {
-                name: bs.name.clone(),
-                body1,
-                x_b1,
-                body2,
-                x_b2,
-                model: bs.model.clone(),
-                law,
-                c,
-                fast,
-            });
-        }
+        check_coordinate_defaults(spec)?;
+        // lower joints to six axes and number the free dofs
+        let lowered = lower_bodies(spec, &joint_of, &order, &body_map)?;
+        let bushings = compile_bushings(spec, &lowered.bodies, &body_map)?;
         if !spec.gravity.iter().all(|v| v.is_finite()) {
-            return Err(Error::invalid(ctx, "gravity not finite"));
+            return Err(Error::invalid(CTX, "gravity not finite"));
         }
-        let any_euler_speeds = bodies.iter().any(|b| b.joint.euler_speeds);
+        let Lowered {
+            bodies,
+            coord_dof,
+            dof_coord,
+            dof_body,
+            dof_rotational,
+        } = lowered;
         Ok(System {
             id: SystemId::new(&bodies, dof_coord.len(), bushings.len()),
-            any_euler_speeds,
+            any_euler_speeds: bodies.iter().any(|b| b.joint.euler_speeds),
             bodies,
             body_map,
             coords: spec.coordinates.clone(),
