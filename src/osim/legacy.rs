@@ -852,6 +852,7 @@ fn muscle_path_default_color(f: &mut Element, up: &Up) {
 /// `XFunction`.. -> `x_location`..
 fn path_points_to_sockets(gp: &mut Element, up: &Up) -> Result<()> {
     gp.remove_children("VisibleObject");
+    name_unnamed_path_wraps(gp);
     let Some(objs) = gp
         .child_mut("PathPointSet")
         .and_then(|s| s.child_mut("objects"))
@@ -880,6 +881,36 @@ fn path_points_to_sockets(gp: &mut Element, up: &Up) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Unnamed PathWraps get the names OpenSim 4.6 gives them on loading
+/// (`pathwrap`, then `pathwrap_0`, `pathwrap_1`.. for the duplicates), so
+/// the converted file loads without OpenSim's duplicate-name warnings.
+fn name_unnamed_path_wraps(gp: &mut Element) {
+    let Some(objs) = gp
+        .child_mut("PathWrapSet")
+        .and_then(|s| s.child_mut("objects"))
+    else {
+        return;
+    };
+    let mut used: std::collections::BTreeSet<String> = objs
+        .elements()
+        .map(|w| w.name_attr().trim().to_string())
+        .filter(|n| !n.is_empty())
+        .collect();
+    for w in objs.elements_mut() {
+        if !w.name_attr().trim().is_empty() {
+            continue;
+        }
+        let mut name = w.name.to_lowercase();
+        let mut k = 0;
+        while used.contains(&name) {
+            name = format!("{}_{k}", w.name.to_lowercase());
+            k += 1;
+        }
+        used.insert(name.clone());
+        w.set_attr("name", name);
+    }
 }
 
 /// One side of an old BushingForce: the body itself when its offset is
