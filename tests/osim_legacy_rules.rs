@@ -199,4 +199,22 @@ fn errors_name_the_legacy_version() {
         .to_string();
     assert!(err.contains("a 30000 CustomJoint"), "{err}");
     assert!(err.contains("<parent_body>"), "{err}");
+    // A check made after the upgrade (a dangling 3.x `<body>`): `convert`
+    // says the file's version, writes nothing and fails.
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("dangling_30000.osim");
+    let out = dir.path().join("out.osim");
+    std::fs::write(
+        &bad,
+        src.replacen("<body>tibia</body>", "<body>tibiaX</body>", 1),
+    )
+    .unwrap();
+    let st = Command::new(common::bin())
+        .args(["convert", bad.to_str().unwrap(), out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&st.stderr);
+    assert!(!st.status.success() && !out.exists(), "{stderr}");
+    assert!(stderr.contains("a Version 30000 document"), "{stderr}");
+    assert!(stderr.contains("tibiaX"), "{stderr}");
 }
