@@ -178,7 +178,7 @@ pub fn render(s: &Summary) -> String {
 /// Run `info`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let doc = Document::read(&args.model)?;
-    let model = doc.model()?;
+    let model = super::convert::typed_model(&doc)?;
     let s = summarize(&doc, &model, &args.geometry)?;
     refuse_escaping_meshes(&s)?;
     if args.json {

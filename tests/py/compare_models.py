@@ -10,7 +10,10 @@ coordinates set from their CoordinateCouplerConstraint) sets the same values
 by name in both and compares, in ground: every body's transform, every
 marker's position, every muscle's path length (max_length) and every
 BushingForce's 12 record values (also in max_length). Prints JSON with the counts,
-the names that differ and the largest differences.
+the names that differ and the largest differences. Also compares every
+force's `appliesForce` and every actuator's min/max control (as OpenSim reads
+them): `force_flag_mismatch` lists the forces that differ, and
+`applies_force` / `controls` give the reference's values.
 """
 import json
 import math
@@ -93,6 +96,17 @@ def snapshot(m, s, vals):
     return bodies, markers, lengths
 
 
+def force_flags(m):
+    """Per force: appliesForce, and (actuators) [min_control, max_control]."""
+    flags, controls = {}, {}
+    for f in m.getForceSet():
+        flags[f.getName()] = bool(f.get_appliesForce())
+        act = osim.ScalarActuator.safeDownCast(f)
+        if act is not None:
+            controls[f.getName()] = [act.getMinControl(), act.getMaxControl()]
+    return flags, controls
+
+
 def maxdiff(a, b):
     worst = 0.0
     for k in a:
@@ -114,6 +128,11 @@ def main():
     mc, sc = load(cand_path)
     rng = random.Random(seed)
     res = {"states": 0, "max_body": 0.0, "max_marker": 0.0, "max_length": 0.0}
+    (fr, cr), (fc, cc) = force_flags(mr), force_flags(mc)
+    res["applies_force"], res["controls"] = fr, cr
+    res["force_flag_mismatch"] = sorted(
+        k for k in set(fr) | set(fc) if fr.get(k) != fc.get(k) or cr.get(k) != cc.get(k)
+    )
     first = True
     for k in range(n + 1):
         vals = None if k == 0 else sample(mr, rng)
