@@ -244,31 +244,9 @@ impl SystemSpec {
     /// the solver does not model still have forward kinematics).
     pub fn kinematics_from_model(model: &Model) -> Result<SystemSpec> {
         let file = model.file.display().to_string();
-        let mut body_idx: BTreeMap<&str, usize> = BTreeMap::new();
-        let mut bodies = Vec::with_capacity(model.bodies.len());
-        for (i, b) in model.bodies.iter().enumerate() {
-            let [ixx, iyy, izz, ixy, ixz, iyz] = b.inertia;
-            let inertia = Matrix3::new(ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz);
-            body_idx.insert(b.name.as_str(), i);
-            bodies.push(BodySpec {
-                name: b.name.clone(),
-                mass: b.mass,
-                com: b.mass_center,
-                inertia,
-            });
-        }
-        let mut coordinates = Vec::new();
-        let mut coord_idx: BTreeMap<String, usize> = BTreeMap::new();
-        for c in model.coordinates() {
-            coord_idx.insert(c.name.clone(), coordinates.len());
-            coordinates.push(CoordinateSpec {
-                name: c.name.clone(),
-                default: c.default_value,
-                range: c.range,
-                clamped: c.clamped,
-                locked: c.locked,
-            });
-        }
+        // bodies and coordinates keep the model's order
+        let (bodies, body_idx) = spec_bodies(model);
+        let (coordinates, coord_idx) = spec_coordinates(model);
         let frames = model.joint_frames()?;
         let mut joints = Vec::with_capacity(model.joints.len());
         for (j, fr) in model.joints.iter().zip(&frames) {
@@ -286,121 +264,13 @@ impl SystemSpec {
             let Some(child) = body(&fr.child_body)? else {
                 return Err(Error::invalid(ctx, "a joint's child frame may not be on ground (reversed joints are not supported)"));
             };
-            let own: Vec<usize> = j
-                .coordinates
-                .iter()
-                .map(|c| {
-                    coord_idx.get(&c.name).copied().ok_or_else(|| {
-                        Error::invalid(ctx.clone(), format!("coordinate '{}' not found", c.name))
-                    })
-                })
-                .collect::<Result<_>>()?;
-            let need = |n: usize| -> Result<()> {
-                if own.len() != n {
-                    return Err(Error::invalid(
-                        ctx.clone(),
-                        format!("{} needs {n} coordinates, has {}", j.class, own.len()),
-                    ));
-                }
-                Ok(())
-            };
-            let x = Vector3::x();
-            let y = Vector3::y();
-            let z = Vector3::z();
-            let kind = match (&j.kind, j.class.as_str()) {
-                (OJointKind::Weld, _) => JointKind::Weld,
-                (OJointKind::Pin, _) => {
-                    need(1)?;
-                    JointKind::Pin { coord: own[0] }
-                }
-                (OJointKind::Free, _) => {
-                    need(6)?;
-                    JointKind::Free {
-                        coords: [own[0], own[1], own[2], own[3], own[4], own[5]],
-                    }
-                }
-                (OJointKind::Custom { axes }, _) => {
-                    if axes.len() != 6 {
-                        return Err(Error::invalid(
-                            ctx,
-                            format!(
-                                "SpatialTransform needs 6 transform axes, has {}",
-                                axes.len()
-                            ),
-                        ));
-                    }
-                    let mut out = Vec::with_capacity(6);
-                    for ta in axes {
-                        let actx = format!("{ctx}: {}", ta.name);
-                        let coord = match ta.coordinates.as_slice() {
-                            [] => None,
-                            [c] => Some(*coord_idx.get(c).ok_or_else(|| {
-                                Error::invalid(actx.clone(), format!("coordinate '{c}' not found"))
-                            })?),
-                            _ => return Err(Error::invalid(
-                                actx,
-                                "transform axes driven by several coordinates are not supported",
-                            )),
-                        };
-                        let function = convert_function(&ta.function, &actx)?;
-                        out.push(TransformAxis {
-                            axis: ta.axis,
-                            coord,
-                            function,
-                        });
-                    }
-                    let arr: [TransformAxis; 6] = out
-                        .try_into()
-                        .map_err(|_| Error::invalid(ctx.clone(), "needs 6 axes"))?;
-                    JointKind::Custom {
-                        axes: Box::new(arr),
-                    }
-                }
-                (OJointKind::Other, "UniversalJoint") => {
-                    need(2)?;
-                    JointKind::Universal {
-                        coords: [own[0], own[1]],
-                    }
-                }
-                (OJointKind::Other, "SliderJoint") => {
-                    need(1)?;
-                    JointKind::Slider { coord: own[0] }
-                }
-                (OJointKind::Other, "BallJoint") => {
-                    need(3)?;
-                    JointKind::Ball {
-                        coords: [own[0], own[1], own[2]],
-                    }
-                }
-                (OJointKind::Other, "GimbalJoint") => {
-                    // body-fixed X-Y-Z like BallJoint, but Simbody's Gimbal
-                    // mobilizer has u = qdot: a plain three-axis rotation
-                    need(3)?;
-                    JointKind::Custom {
-                        axes: Box::new([
-                            TransformAxis::identity(x, own[0]),
-                            TransformAxis::identity(y, own[1]),
-                            TransformAxis::identity(z, own[2]),
-                            TransformAxis::fixed(x),
-                            TransformAxis::fixed(y),
-                            TransformAxis::fixed(z),
-                        ]),
-                    }
-                }
-                (_, class) => {
-                    return Err(Error::invalid(
-                        ctx,
-                        format!("joint class {class} is not supported by the solver"),
-                    ))
-                }
-            };
             joints.push(JointSpec {
                 name: j.name.clone(),
                 parent,
                 child,
                 x_pf: fr.parent_in_body,
                 x_bm: fr.child_in_body,
-                kind,
+                kind: joint_kind(j, &coord_idx, &ctx)?,
             });
         }
         Ok(SystemSpec {
@@ -418,4 +288,161 @@ impl SystemSpec {
         let model = doc.model()?;
         SystemSpec::from_model(&model)
     }
+}
+
+/// The model's bodies as solver bodies, and their indices by name.
+fn spec_bodies(model: &Model) -> (Vec<BodySpec>, BTreeMap<&str, usize>) {
+    let mut body_idx: BTreeMap<&str, usize> = BTreeMap::new();
+    let mut bodies = Vec::with_capacity(model.bodies.len());
+    for (i, b) in model.bodies.iter().enumerate() {
+        let [ixx, iyy, izz, ixy, ixz, iyz] = b.inertia;
+        let inertia = Matrix3::new(ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz);
+        body_idx.insert(b.name.as_str(), i);
+        bodies.push(BodySpec {
+            name: b.name.clone(),
+            mass: b.mass,
+            com: b.mass_center,
+            inertia,
+        });
+    }
+    (bodies, body_idx)
+}
+
+/// The model's coordinates as solver coordinates, and their indices by name.
+fn spec_coordinates(model: &Model) -> (Vec<CoordinateSpec>, BTreeMap<String, usize>) {
+    let mut coordinates = Vec::new();
+    let mut coord_idx: BTreeMap<String, usize> = BTreeMap::new();
+    for c in model.coordinates() {
+        coord_idx.insert(c.name.clone(), coordinates.len());
+        coordinates.push(CoordinateSpec {
+            name: c.name.clone(),
+            default: c.default_value,
+            range: c.range,
+            clamped: c.clamped,
+            locked: c.locked,
+        });
+    }
+    (coordinates, coord_idx)
+}
+
+/// The solver joint kind of a model joint (its own coordinates by index).
+fn joint_kind(
+    j: &crate::osim::model::Joint,
+    coord_idx: &BTreeMap<String, usize>,
+    ctx: &str,
+) -> Result<JointKind> {
+    let own: Vec<usize> =
+        j.coordinates
+            .iter()
+            .map(|c| {
+                coord_idx.get(&c.name).copied().ok_or_else(|| {
+                    Error::invalid(ctx, format!("coordinate '{}' not found", c.name))
+                })
+            })
+            .collect::<Result<_>>()?;
+    let need = |n: usize| -> Result<()> {
+        if own.len() != n {
+            return Err(Error::invalid(
+                ctx,
+                format!("{} needs {n} coordinates, has {}", j.class, own.len()),
+            ));
+        }
+        Ok(())
+    };
+    Ok(match (&j.kind, j.class.as_str()) {
+        (OJointKind::Weld, _) => JointKind::Weld,
+        (OJointKind::Pin, _) => {
+            need(1)?;
+            JointKind::Pin { coord: own[0] }
+        }
+        (OJointKind::Free, _) => {
+            need(6)?;
+            JointKind::Free {
+                coords: [own[0], own[1], own[2], own[3], own[4], own[5]],
+            }
+        }
+        (OJointKind::Custom { axes }, _) => custom_axes(axes, coord_idx, ctx)?,
+        (OJointKind::Other, "UniversalJoint") => {
+            need(2)?;
+            JointKind::Universal {
+                coords: [own[0], own[1]],
+            }
+        }
+        (OJointKind::Other, "SliderJoint") => {
+            need(1)?;
+            JointKind::Slider { coord: own[0] }
+        }
+        (OJointKind::Other, "BallJoint") => {
+            need(3)?;
+            JointKind::Ball {
+                coords: [own[0], own[1], own[2]],
+            }
+        }
+        (OJointKind::Other, "GimbalJoint") => {
+            // body-fixed X-Y-Z like BallJoint, but Simbody's Gimbal
+            // mobilizer has u = qdot: a plain three-axis rotation
+            need(3)?;
+            let (x, y, z) = (Vector3::x(), Vector3::y(), Vector3::z());
+            JointKind::Custom {
+                axes: Box::new([
+                    TransformAxis::identity(x, own[0]),
+                    TransformAxis::identity(y, own[1]),
+                    TransformAxis::identity(z, own[2]),
+                    TransformAxis::fixed(x),
+                    TransformAxis::fixed(y),
+                    TransformAxis::fixed(z),
+                ]),
+            }
+        }
+        (_, class) => {
+            return Err(Error::invalid(
+                ctx,
+                format!("joint class {class} is not supported by the solver"),
+            ))
+        }
+    })
+}
+
+/// A CustomJoint's six transform axes (one coordinate at most each).
+fn custom_axes(
+    axes: &[crate::osim::model::TransformAxis],
+    coord_idx: &BTreeMap<String, usize>,
+    ctx: &str,
+) -> Result<JointKind> {
+    if axes.len() != 6 {
+        return Err(Error::invalid(
+            ctx,
+            format!(
+                "SpatialTransform needs 6 transform axes, has {}",
+                axes.len()
+            ),
+        ));
+    }
+    let mut out = Vec::with_capacity(6);
+    for ta in axes {
+        let actx = format!("{ctx}: {}", ta.name);
+        let coord = match ta.coordinates.as_slice() {
+            [] => None,
+            [c] => Some(*coord_idx.get(c).ok_or_else(|| {
+                Error::invalid(actx.clone(), format!("coordinate '{c}' not found"))
+            })?),
+            _ => {
+                return Err(Error::invalid(
+                    actx,
+                    "transform axes driven by several coordinates are not supported",
+                ))
+            }
+        };
+        out.push(TransformAxis {
+            axis: ta.axis,
+            coord,
+            function: convert_function(&ta.function, &actx)?,
+        });
+    }
+    let arr: [TransformAxis; 6] = out
+        .try_into()
+        .map_err(|_| Error::invalid(ctx, "needs 6 axes"))?;
+    Ok(JointKind::Custom {
+        axes: Box::new(arr),
+    })
 }
