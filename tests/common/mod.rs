@@ -10,28 +10,42 @@ pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// True under CI (`CI=true`), where a missing prerequisite is a failure.
+pub fn under_ci() -> bool {
+    std::env::var("CI").map(|v| v == "true").unwrap_or(false)
+}
+
+/// Skip with a printed reason, or fail under CI.
+pub fn skip(reason: &str) {
+    if under_ci() {
+        panic!("CI=true but {reason}");
+    }
+    eprintln!("SKIP: {reason}");
+}
+
 /// `../shared/` beside the repository, or `None` (and a printed reason).
-/// CI always has it; a user's clone may not.
+/// CI always has it (a missing one fails there); a user's clone may not.
 pub fn shared_dir() -> Option<PathBuf> {
     let p = repo_root().join("..").join("shared");
     if p.join("data").is_dir() {
         Some(p)
     } else {
-        eprintln!(
-            "SKIP: ../shared/ not found beside the repository ({})",
+        skip(&format!(
+            "../shared/ not found beside the repository ({})",
             p.display()
-        );
+        ));
         None
     }
 }
 
-/// A path inside `../shared/`, or `None` with a printed reason.
+/// A path inside `../shared/`, or `None` with a printed reason (a failure
+/// under CI).
 pub fn shared(rel: &str) -> Option<PathBuf> {
     let p = shared_dir()?.join(rel);
     if p.exists() {
         Some(p)
     } else {
-        eprintln!("SKIP: {} not found", p.display());
+        skip(&format!("{} not found", p.display()));
         None
     }
 }
