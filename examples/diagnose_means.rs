@@ -38,7 +38,19 @@ fn main() {
             progress: false,
             ..Options::default()
         };
-        let o = diagnose(&exp, &opts).expect("diagnose");
+        let o = match diagnose(&exp, &opts) {
+            Ok(o) => o,
+            Err(e) => {
+                // a failed diagnosis counts as a miss and is shown
+                println!("means-{i:02} ERR truth={} error: {e}", truth.effect.name());
+                rows.push(synth::Scored {
+                    truth: truth.effect.name().to_string(),
+                    verdict: "error".into(),
+                    shrink: 0.0,
+                });
+                continue;
+            }
+        };
         let (b, a) = o.heldout_rmse();
         let shrink = if b > 0.0 { 1.0 - a / b } else { 0.0 };
         // the smallest per-cell noise used (class values and stated cells)
