@@ -498,10 +498,10 @@ impl HeldoutResiduals {
 
 /// Decide when some effect earns its parameters: the top one, unless the
 /// runner-up is as good or an untestable effect could carry the gap.
+/// `b_rot` is the baseline's held-out rotation RMSE.
 fn decide_effect(
-    sim: &Sim,
     split: &Split,
-    baseline: &Fitted,
+    b_rot: f64,
     stats: &[CandidateStats],
     ranked: &[usize],
     earning: &[usize],
@@ -527,7 +527,6 @@ fn decide_effect(
     }
     // an effect the design cannot test could carry the gap too: only a
     // candidate that closes most of the held-out gap excludes it
-    let b_rot = rmse(sim, baseline, &rotations(sim, &split.heldout));
     let top_shrink = if b_rot > 0.0 {
         1.0 - stats[top].heldout_rot_rmse / b_rot
     } else {
@@ -627,16 +626,8 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         let chi_b_ho = chi2_of(&sim, &baseline, &split.heldout, w);
         decide_none(&split, &stats, &ranked, &design_gaps, &hr, chi_b_ho)
     } else {
-        decide_effect(
-            &sim,
-            &split,
-            &baseline,
-            &stats,
-            &ranked,
-            &earning,
-            &design_gaps,
-            &hr,
-        )
+        let b_rot = rmse(&sim, &baseline, &rotations(&sim, &split.heldout));
+        decide_effect(&split, b_rot, &stats, &ranked, &earning, &design_gaps, &hr)
     };
     Ok(Outcome {
         sim,

@@ -663,13 +663,13 @@ fn means_csv(exp: &Experiment, cells: &[([f64; 3], [f64; 3])], spec: &MeansSpec)
             }
         };
         let _ = write!(t, "{},{},{}", c.id, r.upper, r.lower);
-        for d in 0..3 {
-            let _ = write!(t, ",{}", cell(m[d], d));
+        for (d, v) in m.iter().enumerate() {
+            let _ = write!(t, ",{}", cell(*v, d));
         }
         t.push_str(",,,");
         if spec.with_sd {
-            for d in 0..3 {
-                let _ = write!(t, ",{}", cell(sd[d].max(1e-4), d));
+            for (d, v) in sd.iter().enumerate() {
+                let _ = write!(t, ",{}", cell(v.max(1e-4), d));
             }
             t.push_str(",,,");
         }
