@@ -55,10 +55,10 @@ fn main() {
             })
             .collect();
         let sc = |k: usize| o.ranked.get(k).map(|&j| o.stats[j].score).unwrap_or(0.0);
-        println!("{name} truth={truth} verdict={} conf={:.3} best={:.0} second={:.0} shrink={shrink:.2} [{}] sigma=({:.3},{:.3}) {:.1}s {}", o.verdict, o.confidence, sc(0), sc(1), top.join(" "), 1.0/o.noise.rot, 1.0/o.noise.trans, t.elapsed().as_secs_f64(), o.reasons.join("; "));
+        println!("{name} truth={truth} verdict={} conf={:.3} best={:.0} second={:.0} shrink={shrink:.2} [{}] sigma=({}) {:.1}s {}", o.verdict, o.confidence, sc(0), sc(1), top.join(" "), [o.noise_model.rotation, o.noise_model.translation].iter().map(|c| c.map(|c| format!("{:.3}", c.sigma)).unwrap_or_else(|| "-".into())).collect::<Vec<_>>().join(","), t.elapsed().as_secs_f64(), o.reasons.join("; "));
         rows.push(osim_spine::diagnose::synth::Scored {
             truth: truth.to_string(),
-            verdict: o.verdict.clone(),
+            verdict: o.verdict.to_string(),
             shrink,
         });
     }

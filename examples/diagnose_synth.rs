@@ -70,13 +70,18 @@ fn main() {
         let want = truth.effect.name();
         println!(
             "syn-{i:02} {} truth={want} verdict={} conf={:.3} best={l1}:{s1:.0}{} second={l2}:{s2:.0}{} shrink={shrink:.2} spec={}/{} noise={:.3}/{:.3} trans={} fl={} perturbed={} [{}] {:.1}s {}",
-            if want == o.verdict { "OK " } else { "BAD" },
+            if o.verdict == want { "OK " } else { "BAD" },
             o.verdict, o.confidence, if e1 { "*" } else { "" }, if e2 { "*" } else { "" },
             specimens[*si].0, spec.loaded_body, spec.noise_deg, spec.noise_mm, spec.translations as u8,
             (spec.follower || spec.effect == osim_spine::diagnose::family::Effect::PreloadStiffening) as u8, spec.perturb_specimen as u8, truth.notes, t.elapsed().as_secs_f64(),
             o.reasons.join("; ")
         );
-        rows.push((want.to_string(), o.verdict.clone(), shrink, o.confidence));
+        rows.push((
+            want.to_string(),
+            o.verdict.to_string(),
+            shrink,
+            o.confidence,
+        ));
     }
     let scored: Vec<osim_spine::diagnose::synth::Scored> = rows
         .iter()

@@ -446,7 +446,7 @@ fn synthetic_withheld_set_scores_like_the_dev_set() {
         let (b, a) = o.heldout_rmse();
         rows.push((
             want,
-            o.verdict.clone(),
+            o.verdict.to_string(),
             1.0 - a / b.max(1e-300),
             o.confidence,
         ));
@@ -469,4 +469,115 @@ fn synthetic_withheld_set_scores_like_the_dev_set() {
     assert_eq!(false_claims, 0);
     assert!(med >= 0.7, "{med}");
     assert!(hit >= 0.95, "{hit}");
+}
+
+/// Keep only the primary rotation of each case in an experiment's
+/// kinematics.csv (rx for LB_*, ry for AR_*, rz for FE_* cases), as
+/// published tables of ranges of motion do.
+fn primary_rotations_only(dir: &Path) {
+    let k = std::fs::read_to_string(dir.join("kinematics.csv")).unwrap();
+    let mut out = String::new();
+    for (i, l) in k.lines().enumerate() {
+        let f: Vec<&str> = l.split(',').collect();
+        if i == 0 {
+            out.push_str(l);
+        } else {
+            let d = ["LB", "AR", "FE"]
+                .iter()
+                .position(|a| f[0].starts_with(a))
+                .unwrap();
+            let mut v = vec![""; 3];
+            v[d] = f[3 + d];
+            out.push_str(&format!("{},{},,,", f[..3].join(","), v.join(",")));
+        }
+        out.push('\n');
+    }
+    std::fs::write(dir.join("kinematics.csv"), out).unwrap();
+}
+
+// A published-table design (one magnitude per direction, primary rotations only,
+// no replicates, no stated SD): the noise cannot be estimated from the
+// data, so the stated floor is used and named; no noise is reported for
+// the unmeasured translations, and none is 0. With [measurement] the
+// stated SD is used; replicated cases give a pooled estimate.
+#[test]
+fn noise_is_stated_estimated_or_an_assumed_floor_never_zero() {
+    use osim_spine::diagnose::noise::{NoiseSource, FLOOR_DEG};
+    let Some(src) = dev("dev-13") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let table = tmp.path().join("table");
+    reduced(&src, &table, |id| {
+        id.ends_with("_7.5") && !id.contains("FL")
+    });
+    primary_rotations_only(&table);
+    let o = diagnose(&Experiment::read(&table).unwrap(), &quiet()).unwrap();
+    let rot = o.noise_model.rotation.unwrap();
+    assert_eq!(rot.source, NoiseSource::Floor);
+    assert_eq!(rot.sigma, FLOOR_DEG);
+    assert!(o.noise_model.translation.is_none());
+    let json =
+        osim_spine::diagnose::report::diagnosis_json(&o, &Experiment::read(&table).unwrap(), None);
+    assert!(json["noise"]["translation"].is_null(), "{}", json["noise"]);
+    assert!(json["noise"]["rotation"]["how"]
+        .as_str()
+        .unwrap()
+        .contains("ASSUMED"));
+    let line = osim_spine::diagnose::report::noise_line(&o);
+    assert!(
+        line.contains("translations not measured") && !line.contains(" mm"),
+        "{line}"
+    );
+    // the asymmetry cannot be tested by a split of one magnitude per direction
+    assert!(o.design.is_untestable("asymmetric_stiffness"));
+    // stated: [measurement] rotation_sd (a mean of 4 specimens: SE = SD / 2)
+    let t = std::fs::read_to_string(table.join("experiment.toml")).unwrap();
+    let stated = t.replace(
+        "[units]",
+        "[measurement]\nrotation_sd = 0.3\nn_specimens = 4\n\n[units]",
+    );
+    std::fs::write(table.join("experiment.toml"), stated).unwrap();
+    let o = diagnose(&Experiment::read(&table).unwrap(), &quiet()).unwrap();
+    let rot = o.noise_model.rotation.unwrap();
+    assert_eq!(rot.source, NoiseSource::Stated);
+    assert!((rot.sigma - 0.15).abs() < 1e-12, "{}", rot.sigma);
+    // replicates: the pure-moment cases of dev-13 twice, the copy measured
+    // with an offset of +-0.02 (deg or mm)
+    let rep = tmp.path().join("rep");
+    reduced(&src, &rep, |id| !id.contains("FL"));
+    let t = std::fs::read_to_string(rep.join("experiment.toml")).unwrap();
+    let mut parts = t.split("[[case]]");
+    let head = parts.next().unwrap().to_string();
+    let cases: Vec<&str> = parts.collect();
+    let mut toml = head;
+    for c in &cases {
+        toml.push_str("[[case]]");
+        toml.push_str(c);
+    }
+    for c in &cases {
+        toml.push_str("[[case]]");
+        toml.push_str(&c.replacen("id = \"", "id = \"R_", 1));
+    }
+    std::fs::write(rep.join("experiment.toml"), toml).unwrap();
+    let k = std::fs::read_to_string(rep.join("kinematics.csv")).unwrap();
+    let mut csv = k.clone();
+    for (i, l) in k.lines().skip(1).enumerate() {
+        let mut f: Vec<String> = l.split(',').map(String::from).collect();
+        f[0] = format!("R_{}", f[0]);
+        let delta = if i % 2 == 0 { 0.02 } else { -0.02 };
+        for v in f.iter_mut().skip(3) {
+            if let Ok(x) = v.parse::<f64>() {
+                *v = format!("{}", x + delta);
+            }
+        }
+        csv.push_str(&f.join(","));
+        csv.push('\n');
+    }
+    std::fs::write(rep.join("kinematics.csv"), csv).unwrap();
+    let exp = Experiment::read(&rep).unwrap();
+    let sim = Sim::new(&exp).unwrap();
+    let prior = osim_spine::diagnose::noise::prior(&sim, &exp.cases, [false; 2]);
+    // each pair (x, x + d) has within-pair variance d^2 / 2 on 1 dof
+    let r = prior[0].unwrap().unwrap();
+    assert_eq!(r.source, NoiseSource::Replicates);
+    assert!((r.sigma - 0.02 / 2f64.sqrt()).abs() < 1e-4, "{}", r.sigma);
 }

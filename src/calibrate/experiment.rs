@@ -219,6 +219,9 @@ pub struct Measurement {
     pub lower: String,
     /// rx, ry, rz (rad), tx, ty, tz (m); `None` = not measured.
     pub values: [Option<f64>; 6],
+    /// Standard deviation of each cell (`sd_rx` .. `sd_tz`, SI); `None` =
+    /// not stated.
+    pub sd: [Option<f64>; 6],
     /// Line in kinematics.csv (for messages).
     pub line: u64,
 }
@@ -249,6 +252,42 @@ pub struct Experiment {
     pub rows: Vec<Measurement>,
     /// Non-fatal findings (cases without rows, ...).
     pub warnings: Vec<String>,
+    /// The `[measurement]` table (stated uncertainty), SI.
+    pub measurement: MeasurementInfo,
+}
+
+/// The optional `[measurement]` table of `experiment.toml`: the stated
+/// uncertainty of the cells that carry no `sd_*` value (SI: rad, m), what
+/// the numbers are and over how many specimens they are means.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct MeasurementInfo {
+    /// Per-cell SD of the rotations (rad).
+    pub rotation_sd: Option<f64>,
+    /// Per-cell SD of the translations (m).
+    pub translation_sd: Option<f64>,
+    /// Free text (e.g. "mean of 10 specimens (Yamamoto et al. 1989)").
+    pub source: Option<String>,
+    /// The cells are means over this many specimens.
+    pub n_specimens: Option<u32>,
+}
+
+impl MeasurementInfo {
+    /// The stated SD of DoF `d` (SI), when given.
+    pub fn sd_of(&self, d: usize) -> Option<f64> {
+        if d < 3 {
+            self.rotation_sd
+        } else {
+            self.translation_sd
+        }
+    }
+}
+
+impl Measurement {
+    /// The stated SD of DoF `d` (SI): the cell's own `sd_*` value, else the
+    /// `[measurement]` one; `None` when neither is given.
+    pub fn stated_sd(&self, d: usize, m: &MeasurementInfo) -> Option<f64> {
+        self.sd.get(d).copied().flatten().or_else(|| m.sd_of(d))
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -268,9 +307,20 @@ struct UnitsToml {
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
+struct MeasurementToml {
+    rotation_sd: Option<f64>,
+    translation_sd: Option<f64>,
+    source: Option<String>,
+    n_specimens: Option<u32>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 struct ExperimentToml {
     specimen: SpecimenToml,
     units: UnitsToml,
+    #[serde(default)]
+    measurement: Option<MeasurementToml>,
     #[serde(default)]
     case: Vec<LoadCase>,
 }
@@ -302,6 +352,44 @@ pub struct ExperimentFile {
     pub units: Units,
     /// The `[[case]]` tables, in file order (ids unique, values checked).
     pub cases: Vec<LoadCase>,
+    /// `[measurement]` (SI; all `None` without the table).
+    pub measurement: MeasurementInfo,
+}
+
+/// Check and convert the `[measurement]` table to SI: SDs finite and > 0
+/// (a stated noise of 0 would make every likelihood infinite), at least
+/// one specimen.
+fn measurement_info(
+    raw: Option<MeasurementToml>,
+    units: &Units,
+    file: &Path,
+) -> Result<MeasurementInfo> {
+    let Some(m) = raw else {
+        return Ok(MeasurementInfo::default());
+    };
+    let sd = |v: Option<f64>, key: &str, to_si: f64| -> Result<Option<f64>> {
+        match v {
+            Some(x) if !(x.is_finite() && x > 0.0) => Err(Error::parse(
+                file,
+                format!("[measurement] {key}"),
+                format!("expected a finite standard deviation > 0, got {x}"),
+            )),
+            other => Ok(other.map(|x| x * to_si)),
+        }
+    };
+    if m.n_specimens == Some(0) {
+        return Err(Error::parse(
+            file,
+            "[measurement] n_specimens",
+            "expected at least 1 specimen, got 0",
+        ));
+    }
+    Ok(MeasurementInfo {
+        rotation_sd: sd(m.rotation_sd, "rotation_sd", units.angle_to_si())?,
+        translation_sd: sd(m.translation_sd, "translation_sd", units.length_to_si())?,
+        source: m.source,
+        n_specimens: m.n_specimens,
+    })
 }
 
 /// Strip a UTF-8 byte-order mark (spreadsheet and Windows editors write one).
@@ -351,12 +439,14 @@ pub fn parse_experiment_toml(text: &str, file: &Path) -> Result<ExperimentFile> 
             ));
         }
     }
+    let measurement = measurement_info(raw.measurement, &units, file)?;
     Ok(ExperimentFile {
         model: raw.specimen.model,
         fixed_body: raw.specimen.fixed_body,
         gravity: raw.specimen.gravity,
         units,
         cases: raw.case,
+        measurement,
     })
 }
 
@@ -476,6 +566,7 @@ impl Experiment {
             cases: raw.cases,
             rows,
             warnings,
+            measurement: raw.measurement,
         })
     }
 
@@ -539,6 +630,8 @@ pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
 ///
 /// Columns are found by name (`case,upper,lower,rx,ry,rz,tx,ty,tz`, any
 /// order, names matched without regard to case; other columns are ignored).
+/// Optional columns `sd_rx` .. `sd_tz` give each cell's standard deviation
+/// in the same units (> 0; empty = unknown).
 /// Cells are trimmed and may be quoted; an empty cell, or a cell missing at
 /// the end of a short row, is "not measured"; cells beyond the header must
 /// be empty (trailing commas). Lines starting with `#` are comments; a
@@ -598,6 +691,7 @@ pub fn parse_kinematics(
             }
         }
     }
+    let sd_col = sd_columns(&headers, path, header_line)?;
     let case_idx: BTreeMap<&str, usize> = cases
         .iter()
         .enumerate()
@@ -647,60 +741,11 @@ pub fn parse_kinematics(
         let lower = field(2).to_string();
         check_pair(&upper, &lower).map_err(|m| Error::parse(path, at.clone(), m))?;
         let mut values = [None; 6];
-        for (d, v) in values.iter_mut().enumerate() {
-            let s = field(3 + d);
-            if s.is_empty() {
-                continue;
-            }
-            let x: f64 = s.parse().map_err(|_| {
-                Error::parse(
-                    path,
-                    at.clone(),
-                    format!(
-                        "column {}: '{s}' is not a number (leave the cell empty when not measured)",
-                        DOF_NAMES[d]
-                    ),
-                )
-            })?;
-            if !x.is_finite() {
-                return Err(Error::parse(
-                    path,
-                    at.clone(),
-                    format!("column {}: value must be finite", DOF_NAMES[d]),
-                ));
-            }
-            let si = if d < 3 {
-                x * units.angle_to_si()
-            } else {
-                x * units.length_to_si()
-            };
-            let (limit, unit, other) = if d < 3 {
-                (
-                    MAX_ANGLE_RAD,
-                    units.angle,
-                    if units.angle == "rad" { "deg" } else { "?" },
-                )
-            } else {
-                (
-                    MAX_TRANSLATION_M,
-                    units.length,
-                    if units.length == "m" { "mm" } else { "?" },
-                )
-            };
-            if si.abs() > limit {
-                return Err(Error::parse(
-                    path,
-                    at.clone(),
-                    format!(
-                        "column {}: {x} {unit} is implausibly large for an increment between adjacent vertebrae \
-                         (more than {limit} {}): inconsistent units? ([units] says {unit}{})",
-                        DOF_NAMES[d],
-                        if d < 3 { "rad" } else { "m" },
-                        if other != "?" { format!("; the values look like {other}") } else { String::new() }
-                    ),
-                ));
-            }
-            *v = Some(si);
+        let mut sd = [None; 6];
+        for d in 0..6 {
+            values[d] = parse_value(field(3 + d), d, units, path, &at)?;
+            let s = sd_col[d].and_then(|k| rec.get(k)).unwrap_or("");
+            sd[d] = parse_sd(s, d, units, path, &at)?;
         }
         if let Some(prev) = seen.insert((ci, upper.clone(), lower.clone()), line) {
             return Err(Error::parse(
@@ -716,6 +761,7 @@ pub fn parse_kinematics(
             upper,
             lower,
             values,
+            sd,
             line,
         });
     }
@@ -723,6 +769,115 @@ pub fn parse_kinematics(
         return Err(Error::parse(path, "file", "no data rows"));
     }
     Ok(out)
+}
+
+/// The optional uncertainty columns `sd_rx` .. `sd_tz` (by name, any case).
+fn sd_columns(
+    headers: &csv::StringRecord,
+    path: &Path,
+    header_line: u64,
+) -> Result<[Option<usize>; 6]> {
+    let mut out = [None; 6];
+    for (d, slot) in out.iter_mut().enumerate() {
+        let name = format!("sd_{}", DOF_NAMES[d]);
+        let hits: Vec<usize> = headers
+            .iter()
+            .enumerate()
+            .filter(|(_, h)| h.eq_ignore_ascii_case(&name))
+            .map(|(i, _)| i)
+            .collect();
+        if hits.len() > 1 {
+            return Err(Error::parse(
+                path,
+                format!("line {header_line}"),
+                format!("column '{name}' appears more than once"),
+            ));
+        }
+        *slot = hits.first().copied();
+    }
+    Ok(out)
+}
+
+/// A number of column `col` (finite), `None` for an empty cell.
+fn parse_number(s: &str, col: &str, path: &Path, at: &str) -> Result<Option<f64>> {
+    if s.is_empty() {
+        return Ok(None);
+    }
+    let x: f64 = s.parse().map_err(|_| {
+        Error::parse(
+            path,
+            at,
+            format!("column {col}: '{s}' is not a number (leave the cell empty when not measured)"),
+        )
+    })?;
+    if !x.is_finite() {
+        return Err(Error::parse(
+            path,
+            at,
+            format!("column {col}: value must be finite"),
+        ));
+    }
+    Ok(Some(x))
+}
+
+/// File unit of DoF `d` to SI.
+fn to_si(d: usize, units: &Units) -> f64 {
+    if d < 3 {
+        units.angle_to_si()
+    } else {
+        units.length_to_si()
+    }
+}
+
+/// A measured value of DoF `d` in SI, checked against the plausible range.
+fn parse_value(s: &str, d: usize, units: &Units, path: &Path, at: &str) -> Result<Option<f64>> {
+    let Some(x) = parse_number(s, DOF_NAMES[d], path, at)? else {
+        return Ok(None);
+    };
+    let si = x * to_si(d, units);
+    let (limit, unit, other) = if d < 3 {
+        (
+            MAX_ANGLE_RAD,
+            units.angle,
+            if units.angle == "rad" { "deg" } else { "?" },
+        )
+    } else {
+        (
+            MAX_TRANSLATION_M,
+            units.length,
+            if units.length == "m" { "mm" } else { "?" },
+        )
+    };
+    if si.abs() > limit {
+        return Err(Error::parse(
+            path,
+            at,
+            format!(
+                "column {}: {x} {unit} is implausibly large for an increment between adjacent vertebrae \
+                 (more than {limit} {}): inconsistent units? ([units] says {unit}{})",
+                DOF_NAMES[d],
+                if d < 3 { "rad" } else { "m" },
+                if other != "?" { format!("; the values look like {other}") } else { String::new() }
+            ),
+        ));
+    }
+    Ok(Some(si))
+}
+
+/// A stated SD of DoF `d` in SI (`sd_*` column): finite and > 0.
+fn parse_sd(s: &str, d: usize, units: &Units, path: &Path, at: &str) -> Result<Option<f64>> {
+    let col = format!("sd_{}", DOF_NAMES[d]);
+    let Some(x) = parse_number(s, &col, path, at)? else {
+        return Ok(None);
+    };
+    if x <= 0.0 {
+        return Err(Error::parse(
+            path,
+            at,
+            format!("column {col}: a standard deviation must be > 0, got {x} (leave the cell empty when unknown)"),
+        ));
+    }
+    Ok(Some(x * to_si(d, units)))
 }
 
 #[cfg(test)]
@@ -865,6 +1020,77 @@ follower_load = 400.0
             for n in needles {
                 assert!(e.contains(n), "`{n}` not in: {e}");
             }
+        }
+    }
+
+    #[test]
+    fn uncertainty_columns_and_measurement_table_are_read_in_si() {
+        let d2r = std::f64::consts::PI / 180.0;
+        let rows = kin("case,upper,lower,rx,ry,rz,tx,ty,tz,SD_RX,sd_ry,sd_rz,sd_tx\nFE_neg_7.5,lumbar5,sacrum,1,2,3,,,,0.5,,1.5,\n").unwrap();
+        assert!((rows[0].sd[0].unwrap() - 0.5 * d2r).abs() < 1e-15);
+        assert_eq!(rows[0].sd[1], None);
+        assert!((rows[0].sd[2].unwrap() - 1.5 * d2r).abs() < 1e-15);
+        assert_eq!(rows[0].sd[3..], [None, None, None]);
+        // without sd columns nothing is stated
+        let rows = kin("case,upper,lower,rx,ry,rz,tx,ty,tz\nLB,lumbar5,sacrum,1,2,3\n").unwrap();
+        assert_eq!(rows[0].sd, [None; 6]);
+        for (text, needle) in [
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz,sd_rz\nLB,lumbar5,sacrum,1,2,3,,,,0\n",
+                "must be > 0",
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz,sd_rz\nLB,lumbar5,sacrum,1,2,3,,,,-1\n",
+                "must be > 0",
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz,sd_rz\nLB,lumbar5,sacrum,1,2,3,,,,x\n",
+                "column sd_rz",
+            ),
+            (
+                "case,upper,lower,rx,ry,rz,tx,ty,tz,sd_rz,sd_rz\n",
+                "more than once",
+            ),
+        ] {
+            let e = kin(text).unwrap_err().to_string();
+            assert!(e.contains(needle) && e.contains("kinematics.csv"), "{e}");
+        }
+        // [measurement]: SDs in the file's units, converted to SI
+        let t = TOML.replace(
+            "[units]",
+            "[measurement]\nrotation_sd = 0.2\ntranslation_sd = 0.05\nsource = \"mean of 10\"\nn_specimens = 10\n\n[units]",
+        );
+        let e = parse_experiment_toml(&t, Path::new("experiment.toml")).unwrap();
+        let m = &e.measurement;
+        assert!((m.rotation_sd.unwrap() - 0.2 * d2r).abs() < 1e-15);
+        assert!((m.translation_sd.unwrap() - 0.05e-3).abs() < 1e-15);
+        assert_eq!(
+            (m.source.as_deref(), m.n_specimens),
+            (Some("mean of 10"), Some(10))
+        );
+        let row = Measurement {
+            case: 0,
+            upper: "a".into(),
+            lower: "b".into(),
+            values: [None; 6],
+            sd: [Some(1.0), None, None, None, None, None],
+            line: 2,
+        };
+        assert_eq!(row.stated_sd(0, m), Some(1.0));
+        assert_eq!(row.stated_sd(1, m), m.rotation_sd);
+        assert_eq!(row.stated_sd(4, m), m.translation_sd);
+        assert_eq!(row.stated_sd(4, &MeasurementInfo::default()), None);
+        for (bad, needle) in [
+            ("rotation_sd = 0.0", "[measurement] rotation_sd"),
+            ("translation_sd = -1.0", "[measurement] translation_sd"),
+            ("n_specimens = 0", "[measurement] n_specimens"),
+            ("rotaton_sd = 1.0", "rotaton_sd"),
+        ] {
+            let t = TOML.replace("[units]", &format!("[measurement]\n{bad}\n\n[units]"));
+            let e = parse_experiment_toml(&t, Path::new("experiment.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(needle), "{e}");
         }
     }
 

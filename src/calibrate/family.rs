@@ -538,7 +538,7 @@ impl StiffnessFamily {
                     shape[d] = Some(params.len());
                     params.push(ParamInfo {
                         name: format!("{}_stiffening", DOF_NAMES[d]),
-                        unit: "1".into(),
+                        unit: "ratio: K(5 deg)/K(0) - 1".into(),
                         lower: 0.0,
                         upper: MAX_STIFFENING,
                         nominal: 0.0,
@@ -569,7 +569,7 @@ impl StiffnessFamily {
                 ] {
                     params.push(ParamInfo {
                         name: name.into(),
-                        unit: "1".into(),
+                        unit: "ratio (stiffness correlation)".into(),
                         lower: -MAX_CORRELATION,
                         upper: MAX_CORRELATION,
                         nominal: 0.0,

@@ -402,7 +402,13 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
     }
     let mut bmat = DMatrix::<f64>::zeros(n, n);
     for (ci, c) in pb.cells.iter().enumerate() {
-        let f = c.sqrt_w * c.sqrt_w * sigma2[c.dof];
+        // a stated SD is the cell's noise (w sigma^2 = 1); otherwise the
+        // residual estimate of its DoF
+        let f = if c.stated {
+            1.0
+        } else {
+            c.sqrt_w * c.sqrt_w * sigma2[c.dof]
+        };
         for a in 0..n {
             let ja = j[(ci, a)];
             if ja == 0.0 {

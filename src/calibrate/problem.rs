@@ -55,6 +55,9 @@ pub struct Cell {
     pub measured: f64,
     /// sqrt of the weight.
     pub sqrt_w: f64,
+    /// The weight is `1 / sd^2` of the cell's stated SD (the standard
+    /// error for means over several specimens): its noise is known.
+    pub stated: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -187,16 +190,25 @@ impl Problem {
                 }
             };
         }
+        // a stated SD (sd_* cell or [measurement]) sets the weight when
+        // --weights does not: 1 / SE^2 with SE = SD / sqrt(n_specimens)
+        let se_div = (exp.measurement.n_specimens.unwrap_or(1).max(1) as f64).sqrt();
         let mut cells = Vec::new();
         for (ri, r) in exp.rows.iter().enumerate() {
             for &d in &opts.dofs {
                 if let Some(m) = r.values[d] {
+                    let sd = r.stated_sd(d, &exp.measurement).map(|s| s / se_div);
+                    let stated = opts.weights[d].is_none() && sd.is_some();
                     cells.push(Cell {
                         row: ri,
                         case: r.case,
                         dof: d,
                         measured: m,
-                        sqrt_w: weights[d].sqrt(),
+                        sqrt_w: match sd {
+                            Some(s) if stated => 1.0 / s,
+                            _ => weights[d].sqrt(),
+                        },
+                        stated,
                     });
                 }
             }

@@ -36,5 +36,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         au,
         a.out.join("diagnosis.json").display()
     );
+    eprintln!("{}", diagnose::report::noise_line(&o));
+    eprintln!("{}", diagnose::report::params_line(&o));
+    eprintln!("{}", diagnose::report::separable_line(&o));
     Ok(0)
 }

@@ -274,6 +274,7 @@ impl Design {
             rule = format!("held out: {}; fitted on the rest", rules.join("; "));
         }
         let heldout = (0..info.len()).filter(|&i| held[i]).collect();
+        split_gaps(&info, &train, &style, &mut untestable, &mut missing);
         Design {
             cases: info,
             train,
@@ -288,6 +289,61 @@ impl Design {
     /// True when the effect is untestable by design.
     pub fn is_untestable(&self, effect: &str) -> bool {
         self.untestable.iter().any(|(e, _)| e == effect)
+    }
+}
+
+/// Effects the chosen split cannot test although the design could: an
+/// asymmetry needs both directions of an axis among the training cases
+/// (with one magnitude per direction the interleaved split trains on one
+/// direction and predicts the other). The missing cases: a second, smaller
+/// magnitude in both directions, so that the larger one can be held out.
+fn split_gaps(
+    info: &[CaseInfo],
+    train: &[usize],
+    style: &IdStyle,
+    untestable: &mut Vec<(String, String)>,
+    missing: &mut Vec<MissingCase>,
+) {
+    const ASYM: &str = "asymmetric_stiffness";
+    if untestable.iter().any(|(e, _)| e == ASYM) {
+        return;
+    }
+    let both = |a: usize, set: &mut dyn Iterator<Item = &CaseInfo>| {
+        let signs: BTreeSet<i8> = set.filter(|c| c.axis == Some(a)).map(|c| c.sign).collect();
+        signs.len() == 2
+    };
+    let axes: Vec<usize> = (0..3)
+        .filter(|&a| both(a, &mut info.iter()))
+        .filter(|&a| !both(a, &mut train.iter().map(|&i| &info[i])))
+        .collect();
+    if axes.is_empty() || axes.len() < (0..3).filter(|&a| both(a, &mut info.iter())).count() {
+        return;
+    }
+    let names: Vec<&str> = axes.iter().map(|&a| AXIS_NAMES[a]).collect();
+    untestable.push((
+        ASYM.to_string(),
+        format!(
+            "one moment magnitude per direction about {}: the held-out direction's stiffness is never seen in training",
+            names.join(", ")
+        ),
+    ));
+    for &a in &axes {
+        let mags = distinct(
+            info.iter()
+                .filter(|c| c.axis == Some(a))
+                .map(|c| c.magnitude),
+        );
+        let m = mags.first().copied().unwrap_or(1.0) / 2.0;
+        for sg in [-1, 1] {
+            missing.push(MissingCase {
+                case: style.id(a, sg, m),
+                effect: ASYM.into(),
+                reason: format!(
+                    "a second, smaller magnitude in both directions about {}: both sides are then fitted and the larger magnitude predicted",
+                    AXIS_NAMES[a]
+                ),
+            });
+        }
     }
 }
 
@@ -334,6 +390,35 @@ mod tests {
             assert!(c.magnitude < 7.5 && c.follower < 500.0, "{}", c.id);
         }
         assert_eq!(d.train.len() + d.heldout.len(), cs.len());
+    }
+
+    #[test]
+    fn one_magnitude_per_direction_makes_asymmetry_untestable_by_the_split() {
+        let mut cs = Vec::new();
+        for (a, n) in AXIS_NAMES.iter().enumerate() {
+            for (s, sg) in [(-1.0, "neg"), (1.0, "pos")] {
+                let mut v = [0.0; 3];
+                v[a] = s * 10.0;
+                cs.push(case(&format!("{n}_{sg}_10"), v, 0.0));
+            }
+        }
+        let d = Design::new(&cs);
+        assert!(d.is_untestable("nonlinear_stiffness"));
+        assert!(
+            d.is_untestable("asymmetric_stiffness"),
+            "{:?}",
+            d.untestable
+        );
+        let names: Vec<&str> = d.missing.iter().map(|m| m.case.as_str()).collect();
+        assert!(
+            names.contains(&"FE_pos_5") && names.contains(&"FE_neg_5"),
+            "{names:?}"
+        );
+        // level-dependent stiffness stays testable: every axis is trained
+        assert!(!d.is_untestable("level_dependent_stiffness"));
+        for a in 0..3 {
+            assert!(d.train.iter().any(|&i| d.cases[i].axis == Some(a)));
+        }
     }
 
     #[test]

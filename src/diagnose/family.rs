@@ -323,6 +323,66 @@ impl Family {
         f
     }
 
+    /// The fitted parameters `x` in physical units, keyed by name with the
+    /// unit in it: rotational stiffness in N*m/rad and as a ratio to the
+    /// nominal, stiffness ratios, sinh rate (1/rad), cubic coefficient
+    /// (N*m/rad^3), correlations, joint rotations (deg) and offsets (mm),
+    /// preload gain (1/mm of axial compression). Stiffness of global
+    /// factors is given at the first level (the nominal is the same at
+    /// every level of the format's specimens).
+    pub fn physical_params(&self, sim: &Sim, x: &[f64]) -> std::collections::BTreeMap<String, f64> {
+        let mut out = std::collections::BTreeMap::new();
+        let scale = rotation_scale(sim);
+        let level = |name: &str| sim.levels.iter().position(|l| l.name == name);
+        let kn = |li: usize, d: usize| sim.k_nominal.get(li).map(|k| k[d]).unwrap_or(f64::NAN);
+        // the global factor of DoF d (1 for per-level-per-DoF families)
+        let global = |d: usize| {
+            if self.kind == Kind::LevelPerDof {
+                1.0
+            } else {
+                x.get(d).map(|v| v.exp()).unwrap_or(1.0)
+            }
+        };
+        for (name, v) in self.names.iter().zip(x) {
+            let (lvl, key) = match name.split_once('.') {
+                Some((l, k)) => (Some(l), k),
+                None => (None, name.as_str()),
+            };
+            let li = lvl.and_then(level);
+            let pre = lvl.map(|l| format!("{l}.")).unwrap_or_default();
+            let dof = DOF3.iter().position(|d| key.ends_with(d)).unwrap_or(0);
+            if let Some(d) = key
+                .strip_prefix("log_k_")
+                .and_then(|d| DOF3.iter().position(|x| *x == d))
+            {
+                let l = li.unwrap_or(0);
+                out.insert(format!("{pre}k_{}_ratio_to_nominal", DOF3[d]), v.exp());
+                out.insert(format!("{pre}k_{}_N*m/rad", DOF3[d]), kn(l, d) * v.exp());
+            } else if key == "log_m" {
+                out.insert(format!("{pre}k_ratio_to_{}", sim.levels[0].name), v.exp());
+            } else if key.starts_with("log_lambda_") {
+                out.insert(format!("lambda_{}_1/rad", DOF3[dof]), v.exp());
+            } else if key.starts_with("log_c_") {
+                let c = kn(0, dof) * global(dof) * v.exp() / (scale[dof] * scale[dof]);
+                out.insert(format!("c_{}_N*m/rad^3", DOF3[dof]), c);
+            } else if key.starts_with("log_kpos_over_kneg_") {
+                out.insert(format!("{pre}kpos_over_kneg_{}", DOF3[dof]), v.exp());
+            } else if key.starts_with("rho_") {
+                out.insert(format!("{pre}{key}_ratio"), *v);
+            } else if let Some(a) = key
+                .strip_prefix("rot_")
+                .and_then(|k| k.strip_suffix("_rad"))
+            {
+                out.insert(format!("{pre}rot_{a}_deg"), v.to_degrees());
+            } else if key == "log_beta_per_m" {
+                out.insert("beta_1/mm_of_compression".into(), v.exp() * 1e-3);
+            } else {
+                out.insert(name.clone(), *v);
+            }
+        }
+        out
+    }
+
     /// Number of parameters.
     pub fn n(&self) -> usize {
         self.x0.len()

@@ -28,6 +28,14 @@ impl Weights {
             self.trans
         }
     }
+
+    /// Weight of a cell: `1 / sd` of its stated SD, else its class's weight.
+    pub fn cell(&self, c: &super::sim::Cell) -> f64 {
+        match c.sd {
+            Some(s) if s > 0.0 => 1.0 / s,
+            _ => self.of(c.dof),
+        }
+    }
 }
 
 /// A fitted family.
@@ -73,7 +81,7 @@ pub fn fit(
             train_cells.len(),
             train_cells.iter().map(|&ci| {
                 let c = &sim.cells[ci];
-                (pred[c.row][c.dof] - c.measured) * w.of(c.dof)
+                (pred[c.row][c.dof] - c.measured) * w.cell(c)
             }),
         )
     };

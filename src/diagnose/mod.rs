@@ -16,6 +16,7 @@
 pub mod design;
 pub mod family;
 pub mod fit;
+pub mod noise;
 pub mod report;
 pub mod select;
 pub mod sim;

@@ -113,7 +113,7 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
                    "heldout_rotation_rmse": r4(s.heldout_rot_rmse),
                    "dchi2_train": r4(s.dchi2_train), "p_train": s.p_train, "dbic_train": r4(s.dbic_train),
                    "dchi2_heldout": r4(s.dchi2_heldout), "score": r4(s.score), "earns": s.earns,
-                   "iterations": s.iterations, "params": s.params})
+                   "iterations": s.iterations, "params": s.params.iter().map(|(k, v)| (k.clone(), r4(*v))).collect::<std::collections::BTreeMap<_, _>>()})
         })
         .collect();
     json!({
@@ -142,8 +142,8 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
         },
         "untestable": o.design.untestable.iter().map(|(e, w)| json!({"effect": e, "reason": w})).collect::<Vec<_>>(),
         "missing_cases": missing,
-        "noise": {"rotation_deg": r4(1.0 / o.noise.rot), "translation_mm": r4(1.0 / o.noise.trans)},
-        "baseline": {"params": o.baseline.family.names.iter().cloned().zip(o.baseline.x.iter().map(|v| r4(*v))).collect::<std::collections::BTreeMap<_, _>>()},
+        "noise": noise_json(o),
+        "baseline": {"params": o.baseline.family.physical_params(&o.sim, &o.baseline.x).into_iter().map(|(k, v)| (k, r4(v))).collect::<std::collections::BTreeMap<_, _>>()},
         "candidates": candidates,
         "model": model_file,
         "experiment": exp.name,
@@ -466,6 +466,82 @@ pub fn curves_svg(o: &Outcome, _exp: &Experiment) -> String {
     s
 }
 
+/// Which candidate effects the design's held-out split can test.
+pub fn separable_line(o: &Outcome) -> String {
+    let (can, cannot): (Vec<_>, Vec<_>) = super::family::Effect::CANDIDATES
+        .iter()
+        .map(|e| e.name())
+        .partition(|e| !o.design.is_untestable(e));
+    format!(
+        "The held-out design can test: {}; it cannot test: {}.",
+        can.join(", "),
+        if cannot.is_empty() {
+            "-".to_string()
+        } else {
+            cannot.join(", ")
+        }
+    )
+}
+
+/// The noise of each measured class (an unmeasured class is left out),
+/// its source and degrees of freedom.
+fn noise_json(o: &Outcome) -> Value {
+    let class = |c: &super::noise::ClassNoise, unit: &str| {
+        json!({"sd": r4(c.sigma), "units": unit, "source": c.source, "dof": r4(c.dof),
+               "how": c.source.describe()})
+    };
+    let n = &o.noise_model;
+    json!({
+        "rotation": n.rotation.as_ref().map(|c| class(c, "deg")),
+        "translation": n.translation.as_ref().map(|c| class(c, "mm")),
+        "rotation_deg": n.rotation.map(|c| r4(c.sigma)),
+        "translation_mm": n.translation.map(|c| r4(c.sigma)),
+        "cells_with_own_sd": o.sim.cells.iter().filter(|c| c.sd.is_some()).count(),
+    })
+}
+
+/// One line on the noise for the report and the console.
+pub fn noise_line(o: &Outcome) -> String {
+    let n = &o.noise_model;
+    let part = |c: &Option<super::noise::ClassNoise>, what: &str, unit: &str| {
+        c.map(|c| format!("{what} {:.4} {unit} ({})", c.sigma, c.source.describe()))
+    };
+    let parts: Vec<String> = [
+        part(&n.rotation, "rotations", "deg"),
+        part(&n.translation, "translations", "mm"),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    let own = o.sim.cells.iter().filter(|c| c.sd.is_some()).count();
+    let mut line = format!("Noise: {}", parts.join("; "));
+    if n.translation.is_none() {
+        line.push_str("; translations not measured");
+    }
+    let stated = [n.rotation, n.translation]
+        .iter()
+        .flatten()
+        .any(|c| c.source == super::noise::NoiseSource::Stated);
+    if own > 0 && stated {
+        let _ = write!(line, "; {own} cells weighted by their own stated SD");
+    }
+    line
+}
+
+/// The chosen family's parameters in physical units (one line).
+pub fn params_line(o: &Outcome) -> String {
+    let f = o.augmented();
+    let p = f.family.physical_params(&o.sim, &f.x);
+    format!(
+        "Fitted parameters ({}): {}",
+        f.family.kind.label(),
+        p.iter()
+            .map(|(k, v)| format!("{k} = {v:.4}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
 /// The Markdown report.
 pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
     let mut m = String::new();
@@ -485,19 +561,20 @@ pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
         o.design.train.len(),
         o.design.heldout.len()
     );
+    let _ = writeln!(m, "{}\n", separable_line(o));
     if !o.design.untestable.is_empty() {
         let _ = writeln!(m, "Untestable by design:\n");
         for (e, w) in &o.design.untestable {
             let _ = writeln!(m, "- `{e}`: {w}");
         }
+        let _ = writeln!(m, "\nLoad cases that would make them testable:\n");
+        for c in &o.design.missing {
+            let _ = writeln!(m, "- `{}` ({}): {}", c.case, c.effect, c.reason);
+        }
         let _ = writeln!(m);
     }
-    let _ = writeln!(
-        m,
-        "Noise estimate: {:.4} deg (rotations), {:.4} mm (translations).\n",
-        1.0 / o.noise.rot,
-        1.0 / o.noise.trans
-    );
+    let _ = writeln!(m, "{}\n", noise_line(o));
+    let _ = writeln!(m, "{}\n", params_line(o));
     let _ = writeln!(m, "## Candidates\n\n| family | effect | params | dchi2 train | p train | dchi2 held-out | score | earns |\n|---|---|---|---|---|---|---|---|");
     for &i in &o.ranked {
         let s = &o.stats[i];

@@ -33,6 +33,7 @@
 use super::design::{Design, AXIS_NAMES};
 use super::family::{Effect, Family, Kind};
 use super::fit::{dominant_level, fit, kinds, Fitted, Weights};
+use super::noise;
 use super::sim::Sim;
 use crate::calibrate::experiment::{Experiment, DOF_NAMES};
 use crate::error::Result;
@@ -67,6 +68,59 @@ impl Default for Options {
             max_iterations: 40,
             progress: true,
         }
+    }
+}
+
+/// The verdict of a diagnosis, serialised as the format's strings
+/// (`none`, an effect name, `unidentifiable`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verdict {
+    /// Only parameter values are off.
+    None,
+    /// One effect of the vocabulary.
+    Effect(Effect),
+    /// The load cases cannot separate the candidates.
+    Unidentifiable,
+}
+
+impl Verdict {
+    /// The name in `diagnosis.json`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Verdict::None => "none",
+            Verdict::Effect(e) => e.name(),
+            Verdict::Unidentifiable => "unidentifiable",
+        }
+    }
+}
+
+impl std::fmt::Display for Verdict {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl PartialEq<str> for Verdict {
+    fn eq(&self, other: &str) -> bool {
+        self.name() == other
+    }
+}
+
+impl PartialEq<&str> for Verdict {
+    fn eq(&self, other: &&str) -> bool {
+        self.name() == *other
+    }
+}
+
+impl PartialEq<String> for Verdict {
+    fn eq(&self, other: &String) -> bool {
+        self.name() == other
+    }
+}
+
+impl Serialize for Verdict {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
     }
 }
 
@@ -128,14 +182,17 @@ pub struct LevelDofRmse {
 pub struct Outcome {
     pub sim: Sim,
     pub design: Design,
+    /// Weights (`1/sigma`, report units) of every chi-square.
     pub noise: Weights,
+    /// The noise of each measured class and where it comes from.
+    pub noise_model: noise::Noise,
     pub baseline: Fitted,
     pub fits: Vec<Fitted>,
     pub stats: Vec<CandidateStats>,
     /// Best variant per effect (index into `fits`), ranked by score.
     pub ranked: Vec<usize>,
-    /// `none`, an effect name or `unidentifiable`.
-    pub verdict: String,
+    /// `none`, an effect or `unidentifiable`.
+    pub verdict: Verdict,
     pub confidence: f64,
     /// The family used for the held-out comparison and the improved model
     /// (None for `none`).
@@ -146,7 +203,7 @@ pub struct Outcome {
 fn chi2_of(sim: &Sim, f: &Fitted, cells: &[usize], w: Weights) -> f64 {
     cells
         .iter()
-        .map(|&c| (f.residual(sim, c) * w.of(sim.cells[c].dof)).powi(2))
+        .map(|&c| (f.residual(sim, c) * w.cell(&sim.cells[c])).powi(2))
         .sum()
 }
 
@@ -162,334 +219,429 @@ fn rmse(sim: &Sim, f: &Fitted, cells: &[usize]) -> f64 {
         .sqrt()
 }
 
-/// Run the diagnosis on an experiment.
-pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
-    let sim = Sim::new(exp)?;
-    let design = Design::new(&exp.cases);
-    let in_train: Vec<bool> = (0..exp.cases.len())
-        .map(|i| design.train.contains(&i))
-        .collect();
-    let train_cells: Vec<usize> = (0..sim.cells.len())
-        .filter(|&c| in_train[sim.cells[c].case])
-        .collect();
-    let ho_cells: Vec<usize> = (0..sim.cells.len())
-        .filter(|&c| !in_train[sim.cells[c].case])
-        .collect();
-    let has_trans = sim.cells.iter().any(|c| c.dof >= 3);
-    let unit = Weights {
-        rot: 1.0,
-        trans: 1.0,
-    };
-    let kinds = kinds(design.has_follower);
-    let offsets = has_trans || design.has_follower;
-    let pb = if opts.progress {
-        let pb = indicatif::ProgressBar::new(kinds.len() as u64 + 4 + offsets as u64);
-        pb.set_style(
-            indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        pb.set_message("baseline");
-        pb
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    let baseline = fit(
-        &sim,
-        Family::new(Kind::Baseline, &sim, [0.0; 3]),
-        &train_cells,
-        &design.train,
-        unit,
-        opts.max_iterations,
-    )?;
-    pb.inc(1);
-    pb.set_message("candidates");
-    let g = [baseline.x[0], baseline.x[1], baseline.x[2]];
-    let mut fits: Vec<Fitted> = kinds
-        .par_iter()
-        .map(|&k| {
-            let r = fit(
-                &sim,
-                Family::new(k, &sim, g),
-                &train_cells,
-                &design.train,
-                unit,
-                opts.max_iterations,
-            );
-            pb.inc(1);
-            r
-        })
-        .collect::<Vec<Result<Fitted>>>()
-        .into_iter()
-        .collect::<Result<Vec<_>>>()?;
-    // second stage: pose with offsets from the rotation-only pose fit, and
-    // the local (one-level) coupling and pose variants at the level that
-    // carries most of the per-level fit
-    pb.set_message("pose offsets, local variants");
-    let find = |fits: &[Fitted], k: Kind| fits.iter().position(|f| f.family.kind == k);
-    let nl = sim.levels.len();
-    let mut stage2: Vec<Family> = Vec::new();
-    if let Some(i) = find(&fits, Kind::JointRotation) {
-        let rot = &fits[i];
-        let lj = dominant_level(&sim, rot, &train_cells, &design.train, 3)?;
-        let mut mask = vec![false; nl];
-        mask[lj] = true;
-        let mut loc = Family::masked(Kind::JointLocal, &sim, g, mask, offsets);
-        if let Some(x) = loc.x0.get_mut(..3) {
-            x.copy_from_slice(&rot.x[..3]);
-        }
-        for k in 0..3 {
-            if let (Some(v), Some(r)) = (loc.x0.get_mut(3 + k), rot.x.get(3 + 3 * lj + k)) {
-                *v = *r;
-            }
-        }
-        stage2.push(loc);
-        if offsets {
-            let mut pose = Family::new(Kind::JointPose, &sim, g);
-            pose.x0[..3].copy_from_slice(&rot.x[..3]);
-            for li in 0..nl {
-                for k in 0..3 {
-                    pose.x0[3 + 6 * li + k] = rot.x[3 + 3 * li + k];
-                }
-            }
-            stage2.push(pose);
-        }
-    }
-    // per-level one-sided stiffening, started from the global bilinear fit
-    if let Some(i) = find(&fits, Kind::AsymmetricBilinear) {
-        let ab = &fits[i];
-        let mut pl = Family::new(Kind::AsymmetricPerLevel, &sim, g);
-        // the same laws: a stiffer negative side (a < 0) lowers the global factor
-        for k in 0..3 {
-            if let (Some(v), Some(r), Some(a)) = (pl.x0.get_mut(k), ab.x.get(k), ab.x.get(3 + k)) {
-                *v = *r + a.min(0.0);
-            }
-        }
-        for li in 0..nl {
-            for k in 0..3 {
-                if let (Some(v), Some(r)) = (pl.x0.get_mut(3 + 3 * li + k), ab.x.get(3 + k)) {
-                    *v = *r;
-                }
-            }
-        }
-        stage2.push(pl);
-    }
-    if let Some(i) = find(&fits, Kind::CoupledPerLevel) {
-        let cp = &fits[i];
-        let lc = dominant_level(&sim, cp, &train_cells, &design.train, 3)?;
-        let mut mask = vec![false; nl];
-        mask[lc] = true;
-        let mut loc = Family::masked(Kind::CoupledLocal, &sim, g, mask, false);
-        for k in 0..6 {
-            let src = if k < 3 { k } else { 3 + 3 * lc + (k - 3) };
-            if let (Some(v), Some(r)) = (loc.x0.get_mut(k), cp.x.get(src)) {
-                *v = *r;
-            }
-        }
-        stage2.push(loc);
-    }
-    let more = stage2
-        .into_par_iter()
-        .map(|f| {
-            let r = fit(
-                &sim,
-                f,
-                &train_cells,
-                &design.train,
-                unit,
-                opts.max_iterations,
-            );
-            pb.inc(1);
-            r
-        })
-        .collect::<Vec<Result<Fitted>>>()
-        .into_iter()
-        .collect::<Result<Vec<_>>>()?;
-    fits.extend(more);
-    pb.finish_and_clear();
+/// Training and held-out cells (indices into `sim.cells`) of a design.
+struct Split {
+    train: Vec<usize>,
+    heldout: Vec<usize>,
+}
 
-    // noise from the best-fitting family
-    let n = train_cells.len() as f64;
-    let class_sse = |f: &Fitted, rot: bool| -> (f64, f64) {
-        let v: Vec<f64> = train_cells
-            .iter()
-            .filter(|&&c| (sim.cells[c].dof < 3) == rot)
-            .map(|&c| f.residual(&sim, c).powi(2))
+impl Split {
+    fn of(sim: &Sim, design: &Design) -> Split {
+        let in_train: Vec<bool> = (0..sim.loads.len())
+            .map(|i| design.train.contains(&i))
             .collect();
-        (v.iter().sum(), v.len() as f64)
-    };
-    let best = fits
-        .iter()
-        .chain(std::iter::once(&baseline))
-        .min_by(|a, b| {
-            let sa: f64 = train_cells
-                .iter()
-                .map(|&c| a.residual(&sim, c).powi(2))
-                .sum();
-            let sb: f64 = train_cells
-                .iter()
-                .map(|&c| b.residual(&sim, c).powi(2))
-                .sum();
-            sa.total_cmp(&sb)
-        })
-        .unwrap_or(&baseline);
-    let sigma = |rot: bool| -> f64 {
-        let (sse, nc) = class_sse(best, rot);
-        if nc == 0.0 {
-            return 1.0;
+        let (train, heldout) =
+            (0..sim.cells.len()).partition(|&c| in_train.get(sim.cells[c].case) == Some(&true));
+        Split { train, heldout }
+    }
+}
+
+/// The progress bar (hidden without `opts.progress`).
+fn progress_bar(opts: &Options, len: u64) -> indicatif::ProgressBar {
+    if !opts.progress {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(len);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    pb.set_message("baseline");
+    pb
+}
+
+/// What every fit of one diagnosis shares.
+struct FitCtx<'a> {
+    sim: &'a Sim,
+    design: &'a Design,
+    split: &'a Split,
+    w: Weights,
+    opts: &'a Options,
+    pb: &'a indicatif::ProgressBar,
+}
+
+impl FitCtx<'_> {
+    /// Fit families in parallel on the training cells.
+    fn fit_all(&self, families: Vec<Family>) -> Result<Vec<Fitted>> {
+        families
+            .into_par_iter()
+            .map(|f| {
+                let r = fit(
+                    self.sim,
+                    f,
+                    &self.split.train,
+                    &self.design.train,
+                    self.w,
+                    self.opts.max_iterations,
+                );
+                self.pb.inc(1);
+                r
+            })
+            .collect::<Vec<Result<Fitted>>>()
+            .into_iter()
+            .collect()
+    }
+}
+
+/// Second stage, local pose: the pose family at the level that carries
+/// most of the rotation-only pose fit, started from it.
+fn local_pose_family(ctx: &FitCtx, rot: &Fitted, g: [f64; 3], offsets: bool) -> Result<Family> {
+    let sim = ctx.sim;
+    let lj = dominant_level(sim, rot, &ctx.split.train, &ctx.design.train, 3)?;
+    let mut mask = vec![false; sim.levels.len()];
+    mask[lj] = true;
+    let mut loc = Family::masked(Kind::JointLocal, sim, g, mask, offsets);
+    if let Some(x) = loc.x0.get_mut(..3) {
+        x.copy_from_slice(&rot.x[..3]);
+    }
+    for k in 0..3 {
+        if let (Some(v), Some(r)) = (loc.x0.get_mut(3 + k), rot.x.get(3 + 3 * lj + k)) {
+            *v = *r;
         }
-        let dof = (nc - best.x.len() as f64 * nc / n).max(1.0);
-        (sse / dof).sqrt().max(1e-6)
-    };
-    let noise = Weights {
-        rot: 1.0 / sigma(true),
-        trans: 1.0 / sigma(false),
-    };
-    let chi_b_tr = chi2_of(&sim, &baseline, &train_cells, noise);
-    let chi_b_ho = chi2_of(&sim, &baseline, &ho_cells, noise);
-    let ho_rot: Vec<usize> = ho_cells
+    }
+    Ok(loc)
+}
+
+/// Second stage, pose with offsets, started from the rotation-only fit.
+fn pose_offsets_family(sim: &Sim, rot: &Fitted, g: [f64; 3]) -> Family {
+    let mut pose = Family::new(Kind::JointPose, sim, g);
+    pose.x0[..3].copy_from_slice(&rot.x[..3]);
+    for li in 0..sim.levels.len() {
+        for k in 0..3 {
+            pose.x0[3 + 6 * li + k] = rot.x[3 + 3 * li + k];
+        }
+    }
+    pose
+}
+
+/// Second stage, per-level one-sided stiffening, started from the global
+/// bilinear fit (a stiffer negative side, a < 0, lowers the global factor).
+fn asym_per_level_family(sim: &Sim, ab: &Fitted, g: [f64; 3]) -> Family {
+    let mut pl = Family::new(Kind::AsymmetricPerLevel, sim, g);
+    for k in 0..3 {
+        if let (Some(v), Some(r), Some(a)) = (pl.x0.get_mut(k), ab.x.get(k), ab.x.get(3 + k)) {
+            *v = *r + a.min(0.0);
+        }
+    }
+    for li in 0..sim.levels.len() {
+        for k in 0..3 {
+            if let (Some(v), Some(r)) = (pl.x0.get_mut(3 + 3 * li + k), ab.x.get(3 + k)) {
+                *v = *r;
+            }
+        }
+    }
+    pl
+}
+
+/// Second stage, coupling at the level that carries most of the per-level
+/// coupling fit, started from it.
+fn local_coupling_family(ctx: &FitCtx, cp: &Fitted, g: [f64; 3]) -> Result<Family> {
+    let sim = ctx.sim;
+    let lc = dominant_level(sim, cp, &ctx.split.train, &ctx.design.train, 3)?;
+    let mut mask = vec![false; sim.levels.len()];
+    mask[lc] = true;
+    let mut loc = Family::masked(Kind::CoupledLocal, sim, g, mask, false);
+    for k in 0..6 {
+        let src = if k < 3 { k } else { 3 + 3 * lc + (k - 3) };
+        if let (Some(v), Some(r)) = (loc.x0.get_mut(k), cp.x.get(src)) {
+            *v = *r;
+        }
+    }
+    Ok(loc)
+}
+
+/// The second-stage families, each started from a first-stage fit.
+fn stage2_families(
+    ctx: &FitCtx,
+    fits: &[Fitted],
+    g: [f64; 3],
+    offsets: bool,
+) -> Result<Vec<Family>> {
+    let find = |k: Kind| fits.iter().find(|f| f.family.kind == k);
+    let mut out = Vec::new();
+    if let Some(rot) = find(Kind::JointRotation) {
+        out.push(local_pose_family(ctx, rot, g, offsets)?);
+        if offsets {
+            out.push(pose_offsets_family(ctx.sim, rot, g));
+        }
+    }
+    if let Some(ab) = find(Kind::AsymmetricBilinear) {
+        out.push(asym_per_level_family(ctx.sim, ab, g));
+    }
+    if let Some(cp) = find(Kind::CoupledPerLevel) {
+        out.push(local_coupling_family(ctx, cp, g)?);
+    }
+    Ok(out)
+}
+
+/// Baseline and every candidate family fitted on the training cells.
+fn fit_families(ctx: &FitCtx, offsets: bool) -> Result<(Fitted, Vec<Fitted>)> {
+    let sim = ctx.sim;
+    let baseline = ctx
+        .fit_all(vec![Family::new(Kind::Baseline, sim, [0.0; 3])])?
+        .remove(0);
+    ctx.pb.set_message("candidates");
+    let g = [baseline.x[0], baseline.x[1], baseline.x[2]];
+    let first: Vec<Family> = kinds(ctx.design.has_follower)
+        .into_iter()
+        .map(|k| Family::new(k, sim, g))
+        .collect();
+    let mut fits = ctx.fit_all(first)?;
+    ctx.pb.set_message("pose offsets, local variants");
+    let more = ctx.fit_all(stage2_families(ctx, &fits, g, offsets)?)?;
+    fits.extend(more);
+    Ok((baseline, fits))
+}
+
+/// Selection statistics of every fit against the baseline (noise weights `w`).
+fn candidate_stats(
+    sim: &Sim,
+    design: &Design,
+    split: &Split,
+    baseline: &Fitted,
+    fits: &[Fitted],
+    w: Weights,
+) -> Vec<CandidateStats> {
+    let n = split.train.len() as f64;
+    let chi_b_tr = chi2_of(sim, baseline, &split.train, w);
+    let chi_b_ho = chi2_of(sim, baseline, &split.heldout, w);
+    let ho_rot: Vec<usize> = rotations(sim, &split.heldout);
+    let p0 = baseline.x.len();
+    fits.iter()
+        .map(|f| {
+            let chi_tr = chi2_of(sim, f, &split.train, w);
+            let chi_ho = chi2_of(sim, f, &split.heldout, w);
+            let dp = (f.x.len() - p0).max(1) as f64;
+            let d_tr = chi_b_tr - chi_tr;
+            let p_train = if d_tr > 0.0 {
+                ChiSquared::new(dp).map(|c| c.sf(d_tr)).unwrap_or(1.0)
+            } else {
+                1.0
+            };
+            let dbic = d_tr - dp * n.ln();
+            let d_ho = chi_b_ho - chi_ho;
+            let untestable = design.is_untestable(f.family.kind.effect().name());
+            CandidateStats {
+                family: f.family.kind,
+                effect: f.family.kind.effect(),
+                n_params: f.x.len(),
+                chi2_train: chi_tr,
+                chi2_heldout: chi_ho,
+                heldout_rot_rmse: rmse(sim, f, &ho_rot),
+                dchi2_train: d_tr,
+                p_train,
+                dbic_train: dbic,
+                dchi2_heldout: d_ho,
+                score: d_ho + dbic,
+                earns: !untestable && p_train < ALPHA && d_ho > HELDOUT_MIN,
+                iterations: f.iterations,
+                params: f.family.physical_params(sim, &f.x),
+            }
+        })
+        .collect()
+}
+
+/// The rotational cells among `cells`.
+fn rotations(sim: &Sim, cells: &[usize]) -> Vec<usize> {
+    cells
         .iter()
         .copied()
         .filter(|&c| sim.cells[c].dof < 3)
-        .collect();
-    let p0 = baseline.x.len();
-    let mut stats = Vec::new();
-    for f in &fits {
-        let chi_tr = chi2_of(&sim, f, &train_cells, noise);
-        let chi_ho = chi2_of(&sim, f, &ho_cells, noise);
-        let dp = (f.x.len() - p0).max(1) as f64;
-        let d_tr = chi_b_tr - chi_tr;
-        let p_train = if d_tr > 0.0 {
-            ChiSquared::new(dp).map(|c| c.sf(d_tr)).unwrap_or(1.0)
-        } else {
-            1.0
-        };
-        let dbic = d_tr - dp * n.ln();
-        let d_ho = chi_b_ho - chi_ho;
-        let untestable = design.is_untestable(f.family.kind.effect().name());
-        let earns = !untestable && p_train < ALPHA && d_ho > HELDOUT_MIN;
-        stats.push(CandidateStats {
-            family: f.family.kind,
-            effect: f.family.kind.effect(),
-            n_params: f.x.len(),
-            chi2_train: chi_tr,
-            chi2_heldout: chi_ho,
-            heldout_rot_rmse: rmse(&sim, f, &ho_rot),
-            dchi2_train: d_tr,
-            p_train,
-            dbic_train: dbic,
-            dchi2_heldout: d_ho,
-            score: d_ho + dbic,
-            earns,
-            iterations: f.iterations,
-            params: f
-                .family
-                .names
-                .iter()
-                .cloned()
-                .zip(f.x.iter().copied())
-                .collect(),
-        });
-    }
-    // best variant per effect: lowest training BIC
+        .collect()
+}
+
+/// The best variant of each effect (lowest training BIC), ranked by score.
+fn rank_effects(stats: &[CandidateStats], n_train: usize) -> Vec<usize> {
+    let ln_n = (n_train.max(1) as f64).ln();
+    let bic = |s: &CandidateStats| s.chi2_train + s.n_params as f64 * ln_n;
     let mut per_effect: BTreeMap<Effect, usize> = BTreeMap::new();
     for (i, s) in stats.iter().enumerate() {
         let e = per_effect.entry(s.effect).or_insert(i);
-        let bic = |s: &CandidateStats| s.chi2_train + s.n_params as f64 * n.ln();
         if bic(s) < bic(&stats[*e]) {
             *e = i;
         }
     }
     let mut ranked: Vec<usize> = per_effect.values().copied().collect();
     ranked.sort_by(|a, b| stats[*b].score.total_cmp(&stats[*a].score).then(a.cmp(b)));
-    let earning: Vec<usize> = ranked.iter().copied().filter(|&i| stats[i].earns).collect();
+    ranked
+}
+
+/// The verdict, the chosen fit, the confidence and the reasons.
+struct Decision {
+    verdict: Verdict,
+    chosen: Option<usize>,
+    confidence: f64,
+    reasons: Vec<String>,
+}
+
+/// Held-out residuals (noise units) of the baseline and of every fit.
+struct HeldoutResiduals {
+    base: Vec<f64>,
+    fits: Vec<Vec<f64>>,
+}
+
+impl HeldoutResiduals {
+    fn of(sim: &Sim, split: &Split, baseline: &Fitted, fits: &[Fitted], w: Weights) -> Self {
+        let res = |f: &Fitted| -> Vec<f64> {
+            split
+                .heldout
+                .iter()
+                .map(|&c| f.residual(sim, c) * w.cell(&sim.cells[c]))
+                .collect()
+        };
+        HeldoutResiduals {
+            base: res(baseline),
+            fits: fits.iter().map(res).collect(),
+        }
+    }
+}
+
+/// Decide when some effect earns its parameters: the top one, unless the
+/// runner-up is as good or an untestable effect could carry the gap.
+/// `b_rot` is the baseline's held-out rotation RMSE.
+fn decide_effect(
+    split: &Split,
+    b_rot: f64,
+    stats: &[CandidateStats],
+    ranked: &[usize],
+    earning: &[usize],
+    design_gaps: &[&(String, String)],
+    hr: &HeldoutResiduals,
+) -> Decision {
+    let top = earning[0];
+    let n_ho = split.heldout.len().max(1) as f64;
+    let t = (stats[top].chi2_heldout / n_ho).max(1.0);
+    let top_score = stats[top].score;
+    let confidence = calibrated_confidence(stats, ranked, top, &hr.fits, &hr.base, t);
     let mut reasons = Vec::new();
-    let (verdict, chosen, confidence);
+    if let Some(&second) = earning.get(1) {
+        if top_score - stats[second].score < INDISTINGUISHABLE * t {
+            reasons.push(format!(
+                "{} and {} explain the gap equally well (scores {:.1} and {:.1})",
+                stats[top].effect.name(),
+                stats[second].effect.name(),
+                top_score,
+                stats[second].score
+            ));
+        }
+    }
+    // an effect the design cannot test could carry the gap too: only a
+    // candidate that closes most of the held-out gap excludes it
+    let top_shrink = if b_rot > 0.0 {
+        1.0 - stats[top].heldout_rot_rmse / b_rot
+    } else {
+        0.0
+    };
+    if top_shrink < DECISIVE_SHRINK {
+        for (e, why) in design_gaps {
+            reasons.push(format!(
+                "{e} cannot be tested ({why}) and {} closes only {:.0}% of the held-out gap",
+                stats[top].effect.name(),
+                100.0 * top_shrink
+            ));
+        }
+    }
+    let verdict = if reasons.is_empty() {
+        Verdict::Effect(stats[top].effect)
+    } else {
+        Verdict::Unidentifiable
+    };
+    Decision {
+        verdict,
+        chosen: Some(top),
+        confidence,
+        reasons,
+    }
+}
+
+/// Decide when no effect earns its parameters: `none`, or
+/// `unidentifiable` when the design leaves an effect untestable.
+fn decide_none(
+    split: &Split,
+    stats: &[CandidateStats],
+    ranked: &[usize],
+    design_gaps: &[&(String, String)],
+    hr: &HeldoutResiduals,
+    chi_b_ho: f64,
+) -> Decision {
+    if design_gaps.is_empty() {
+        let t = (chi_b_ho / split.heldout.len().max(1) as f64).max(1.0);
+        return Decision {
+            verdict: Verdict::None,
+            chosen: None,
+            confidence: none_confidence(stats, ranked, &hr.fits, &hr.base, t),
+            reasons: Vec::new(),
+        };
+    }
+    Decision {
+        verdict: Verdict::Unidentifiable,
+        chosen: ranked.first().copied(),
+        confidence: 0.0,
+        reasons: design_gaps
+            .iter()
+            .map(|(e, why)| format!("{e} cannot be tested: {why}"))
+            .collect(),
+    }
+}
+
+/// Run the diagnosis on an experiment.
+pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
+    let mut sim = Sim::new(exp)?;
+    let design = Design::new(&exp.cases);
+    let split = Split::of(&sim, &design);
+    // noise stated, assumed for means, or from replicates (known before
+    // any fit), and the fit weights
+    let assumed = noise::assume_spread_of_means(&mut sim, exp.measurement.n_specimens);
+    let prior = noise::prior(&sim, &exp.cases, assumed);
+    let fw = noise::fit_weights(&prior);
+    let offsets = sim.cells.iter().any(|c| c.dof >= 3) || design.has_follower;
+    let n_kinds = kinds(design.has_follower).len() as u64;
+    let pb = progress_bar(opts, n_kinds + 4 + offsets as u64);
+    let ctx = FitCtx {
+        sim: &sim,
+        design: &design,
+        split: &split,
+        w: fw,
+        opts,
+        pb: &pb,
+    };
+    // baseline and candidates on the training cases
+    let (baseline, fits) = fit_families(&ctx, offsets)?;
+    pb.finish_and_clear();
+    // the noise left to estimate: residuals of the best fit, or the floor
+    let every: Vec<&Fitted> = fits.iter().chain(std::iter::once(&baseline)).collect();
+    let noise_model = noise::complete(prior, &sim, &every, &split.train, fw);
+    let w = noise_model.weights();
+    // statistics, ranking and verdict
+    let stats = candidate_stats(&sim, &design, &split, &baseline, &fits, w);
+    let ranked = rank_effects(&stats, split.train.len());
+    let earning: Vec<usize> = ranked.iter().copied().filter(|&i| stats[i].earns).collect();
     let design_gaps: Vec<&(String, String)> = design
         .untestable
         .iter()
         .filter(|(e, _)| e != "preload_stiffening")
         .collect();
-    // held-out residuals of every fit (noise units): the confidence
-    // compares them pairwise
-    let ho_pred = |f: &Fitted| -> Vec<f64> {
-        ho_cells
-            .iter()
-            .map(|&c| f.residual(&sim, c) * noise.of(sim.cells[c].dof))
-            .collect()
-    };
-    let pred_base = ho_pred(&baseline);
-    let pred_fit: Vec<Vec<f64>> = fits.iter().map(ho_pred).collect();
-    let reduced = |chi2: f64| (chi2 / ho_cells.len().max(1) as f64).max(1.0);
-    if let Some(&top) = earning.first() {
-        let t = (stats[top].chi2_heldout / ho_cells.len().max(1) as f64).max(1.0);
-        let top_score = stats[top].score;
-        confidence = calibrated_confidence(&stats, &ranked, top, &pred_fit, &pred_base, t);
-        chosen = Some(top);
-        if let Some(&second) = earning.get(1) {
-            if top_score - stats[second].score < INDISTINGUISHABLE * t {
-                reasons.push(format!(
-                    "{} and {} explain the gap equally well (scores {:.1} and {:.1})",
-                    stats[top].effect.name(),
-                    stats[second].effect.name(),
-                    top_score,
-                    stats[second].score
-                ));
-            }
-        }
-        // an effect the design cannot test could carry the gap too: only a
-        // candidate that closes most of the held-out gap excludes it
-        let (b_rot, top_rot) = {
-            let hr: Vec<usize> = ho_cells
-                .iter()
-                .copied()
-                .filter(|&c| sim.cells[c].dof < 3)
-                .collect();
-            (rmse(&sim, &baseline, &hr), stats[top].heldout_rot_rmse)
-        };
-        let top_shrink = if b_rot > 0.0 {
-            1.0 - top_rot / b_rot
-        } else {
-            0.0
-        };
-        if !design_gaps.is_empty() && top_shrink < DECISIVE_SHRINK {
-            for (e, why) in &design_gaps {
-                reasons.push(format!(
-                    "{e} cannot be tested ({why}) and {} closes only {:.0}% of the held-out gap",
-                    stats[top].effect.name(),
-                    100.0 * top_shrink
-                ));
-            }
-        }
-        verdict = if reasons.is_empty() {
-            stats[top].effect.name().to_string()
-        } else {
-            "unidentifiable".to_string()
-        };
+    let hr = HeldoutResiduals::of(&sim, &split, &baseline, &fits, w);
+    let d = if earning.is_empty() {
+        let chi_b_ho = chi2_of(&sim, &baseline, &split.heldout, w);
+        decide_none(&split, &stats, &ranked, &design_gaps, &hr, chi_b_ho)
     } else {
-        chosen = ranked.first().copied().filter(|_| !design_gaps.is_empty());
-        if design_gaps.is_empty() {
-            verdict = "none".to_string();
-            confidence = none_confidence(&stats, &ranked, &pred_fit, &pred_base, reduced(chi_b_ho));
-        } else {
-            verdict = "unidentifiable".to_string();
-            confidence = 0.0;
-            for (e, why) in &design_gaps {
-                reasons.push(format!("{e} cannot be tested: {why}"));
-            }
-        }
-    }
+        let b_rot = rmse(&sim, &baseline, &rotations(&sim, &split.heldout));
+        decide_effect(&split, b_rot, &stats, &ranked, &earning, &design_gaps, &hr)
+    };
     Ok(Outcome {
         sim,
         design,
-        noise,
+        noise: w,
+        noise_model,
         baseline,
         fits,
         stats,
         ranked,
-        verdict,
-        confidence,
-        chosen,
-        reasons,
+        verdict: d.verdict,
+        confidence: d.confidence,
+        chosen: d.chosen,
+        reasons: d.reasons,
     })
 }
 
@@ -632,7 +784,7 @@ impl Outcome {
         let w = self.noise;
         let total: f64 = cells
             .iter()
-            .map(|&c| (self.baseline.residual(&self.sim, c) * w.of(self.sim.cells[c].dof)).powi(2))
+            .map(|&c| (self.baseline.residual(&self.sim, c) * w.cell(&self.sim.cells[c])).powi(2))
             .sum();
         let mut out: Vec<GapCell> = cells
             .iter()
@@ -651,7 +803,7 @@ impl Outcome {
                         .map(|c| c.id.clone())
                         .unwrap_or_default(),
                     share: if total > 0.0 {
-                        (r * w.of(cell.dof)).powi(2) / total
+                        (r * w.cell(cell)).powi(2) / total
                     } else {
                         0.0
                     },
@@ -670,7 +822,7 @@ impl Outcome {
         let cells = self.heldout_cells();
         let w = self.noise;
         let sq =
-            |c: usize| (self.baseline.residual(&self.sim, c) * w.of(self.sim.cells[c].dof)).powi(2);
+            |c: usize| (self.baseline.residual(&self.sim, c) * w.cell(&self.sim.cells[c])).powi(2);
         let total: f64 = cells.iter().map(|&c| sq(c)).sum::<f64>().max(1e-300);
         let mut tables = BTreeMap::new();
         let mut agg = |name: &str, key: &dyn Fn(usize) -> String| {
@@ -722,7 +874,7 @@ impl Outcome {
             });
             match mirror {
                 Some(o) if ic.sign > 0 => {
-                    let wd = w.of(cell.dof);
+                    let wd = w.cell(cell);
                     let rp = self.baseline.residual(sim, c) * wd;
                     let rm = self.baseline.residual(sim, o) * wd;
                     // r+^2 + r-^2 = 2 odd^2 + 2 even^2

@@ -25,6 +25,10 @@ pub struct Cell {
     pub dof: usize,
     /// Measured value in report units (deg for rotations, mm for translations).
     pub measured: f64,
+    /// Stated SD in report units (the cell's `sd_*` value, else the
+    /// `[measurement]` one; divided by `sqrt(n_specimens)` for means, the
+    /// standard error of the mean); `None` when the file states none.
+    pub sd: Option<f64>,
 }
 
 /// Report units: degrees for rotations, millimetres for translations.
@@ -189,6 +193,9 @@ impl Sim {
                     )
                 })?;
             row_bodies.push((u, lo));
+            // cells that are means over n specimens: the stated SD is the
+            // between-specimen one, the mean's standard error is SD / sqrt(n)
+            let se_divisor = (exp.measurement.n_specimens.unwrap_or(1).max(1) as f64).sqrt();
             if let Some(v) = case_rows.get_mut(r.case) {
                 v.push(ri);
             }
@@ -200,6 +207,9 @@ impl Sim {
                         level: li,
                         dof: d,
                         measured: to_report_units(d, m),
+                        sd: r
+                            .stated_sd(d, &exp.measurement)
+                            .map(|s| to_report_units(d, s) / se_divisor),
                     });
                 }
             }
