@@ -514,6 +514,9 @@ impl Model {
                 }
                 None => [0.0; 6],
             };
+            if let Some(why) = super::physics::mass_error(mass, &inertia) {
+                return Err(cx.err(b, why));
+            }
             let body_path = format!("/{}/{}", set_name(m.child("BodySet").unwrap_or(b)), name);
             model
                 .frames
@@ -789,10 +792,13 @@ impl Model {
                 ));
             }
         }
+        // Bodies already shown to reach ground: each walk stops at one, so
+        // the check is linear in the body count (a chain is not quadratic).
+        let mut grounded: BTreeSet<String> = BTreeSet::new();
         for b in &self.bodies {
             let mut seen = BTreeSet::new();
             let mut cur = b.name.clone();
-            while cur != "ground" {
+            while cur != "ground" && !grounded.contains(&cur) {
                 if !seen.insert(cur.clone()) {
                     return Err(Error::parse(
                         file,
@@ -815,6 +821,7 @@ impl Model {
                     }
                 }
             }
+            grounded.extend(seen);
         }
         // Force sockets.
         let force_els: Vec<&Element> = objects(m, "ForceSet").collect();
@@ -1167,10 +1174,14 @@ fn parse_joint(
                 }
                 _ => motion_from_joint(&class, &axes, &cname, coordinates.len()),
             };
+            let default_value = f64_or(c, "default_value", 0.0, f)?;
+            if let Some(why) = super::physics::default_error(default_value) {
+                return Err(cx.err(c, why));
+            }
             coordinates.push(Coordinate {
                 name: cname,
                 joint: name.clone(),
-                default_value: f64_or(c, "default_value", 0.0, f)?,
+                default_value,
                 default_speed_value: f64_or(c, "default_speed_value", 0.0, f)?,
                 range,
                 clamped: bool_or(c, "clamped", false, f)?,
@@ -1231,21 +1242,47 @@ fn motion_from_joint(class: &str, axes: &[TransformAxis], coord: &str, index: us
     }
 }
 
+/// `b` when its stiffness and damping are finite and bounded
+/// ([`super::physics::stiffness_error`]).
+fn checked_bushing(b: BushingForce, fe: &Element, cx: &Ctx) -> Result<BushingForce> {
+    let props = [
+        ("rotational_stiffness", &b.rotational_stiffness),
+        ("translational_stiffness", &b.translational_stiffness),
+        ("rotational_damping", &b.rotational_damping),
+        ("translational_damping", &b.translational_damping),
+    ];
+    for (prop, v) in props {
+        if let Some(why) = super::physics::stiffness_error(prop, v.as_slice()) {
+            return Err(cx.err(fe.child(prop).unwrap_or(fe), why));
+        }
+    }
+    Ok(b)
+}
+
 fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -> Result<Force> {
     let f = cx.file;
     let name = fe.name_attr().to_string();
     let class = fe.name.clone();
     Ok(match class.as_str() {
-        "BushingForce" => Force::Bushing(BushingForce {
-            socket_frame1: required_text(fe, "socket_frame1", cx)?,
-            socket_frame2: required_text(fe, "socket_frame2", cx)?,
-            frames: frames_of(fe, all_frames),
-            rotational_stiffness: vec3_or(fe, "rotational_stiffness", Vector3::zeros(), f)?,
-            translational_stiffness: vec3_or(fe, "translational_stiffness", Vector3::zeros(), f)?,
-            rotational_damping: vec3_or(fe, "rotational_damping", Vector3::zeros(), f)?,
-            translational_damping: vec3_or(fe, "translational_damping", Vector3::zeros(), f)?,
-            name,
-        }),
+        "BushingForce" => Force::Bushing(checked_bushing(
+            BushingForce {
+                socket_frame1: required_text(fe, "socket_frame1", cx)?,
+                socket_frame2: required_text(fe, "socket_frame2", cx)?,
+                frames: frames_of(fe, all_frames),
+                rotational_stiffness: vec3_or(fe, "rotational_stiffness", Vector3::zeros(), f)?,
+                translational_stiffness: vec3_or(
+                    fe,
+                    "translational_stiffness",
+                    Vector3::zeros(),
+                    f,
+                )?,
+                rotational_damping: vec3_or(fe, "rotational_damping", Vector3::zeros(), f)?,
+                translational_damping: vec3_or(fe, "translational_damping", Vector3::zeros(), f)?,
+                name,
+            },
+            fe,
+            cx,
+        )?),
         "FunctionBasedBushingForce" | "ExpressionBasedBushingForce" => {
             Force::OtherBushing(OtherBushing {
                 socket_frame1: required_text(fe, "socket_frame1", cx)?,
