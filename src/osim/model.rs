@@ -486,6 +486,7 @@ impl Model {
         }
         let mut offset_frames: Vec<(OffsetFrame, &Element)> = Vec::new();
         collect_offset_frames(m, &mut Vec::new(), &cx, &mut offset_frames)?;
+        let frame_table = FrameTable::new(&offset_frames);
 
         for b in objects(m, "BodySet") {
             let name = b.name_attr().to_string();
@@ -565,7 +566,7 @@ impl Model {
             .map(set_name)
             .unwrap_or_else(|| "jointset".into());
         for j in objects(m, "JointSet") {
-            let joint = parse_joint(j, &format!("/{jointset}"), &cx, &offset_frames)?;
+            let joint = parse_joint(j, &format!("/{jointset}"), &cx, &frame_table)?;
             for c in &joint.coordinates {
                 model.coordinate_paths.insert(
                     format!("/{jointset}/{}/{}", joint.name, c.name),
@@ -592,7 +593,7 @@ impl Model {
             .map(set_name)
             .unwrap_or_else(|| "forceset".into());
         for f in objects(m, "ForceSet") {
-            let force = parse_force(f, &cx, &offset_frames)?;
+            let force = parse_force(f, &cx, &frame_table)?;
             model.forces.push(force);
         }
         for mk in objects(m, "MarkerSet") {
@@ -1001,16 +1002,29 @@ fn collect_offset_frames<'a>(
     Ok(())
 }
 
-fn frames_of(owner: &Element, all: &[(OffsetFrame, &Element)]) -> Vec<OffsetFrame> {
+/// The offset frames of the document by the address of their element, so
+/// a component's `<frames>` are found in constant time (a linear scan per
+/// component made reading a long chain quadratic).
+struct FrameTable<'a> {
+    by_el: std::collections::HashMap<*const Element, &'a OffsetFrame>,
+}
+
+impl<'a> FrameTable<'a> {
+    fn new(all: &'a [(OffsetFrame, &'a Element)]) -> Self {
+        let by_el = all
+            .iter()
+            .map(|(o, el)| (*el as *const Element, o))
+            .collect();
+        FrameTable { by_el }
+    }
+}
+
+fn frames_of(owner: &Element, all: &FrameTable) -> Vec<OffsetFrame> {
     let Some(list) = owner.child("frames") else {
         return vec![];
     };
     list.elements()
-        .filter_map(|f| {
-            all.iter()
-                .find(|(_, el)| std::ptr::eq(*el, f))
-                .map(|(o, _)| o.clone())
-        })
+        .filter_map(|f| all.by_el.get(&(f as *const Element)).map(|o| (*o).clone()))
         .collect()
 }
 
@@ -1078,12 +1092,7 @@ fn parse_wraps(frame: &Element, body: &str, cx: &Ctx) -> Result<Vec<WrapObject>>
     Ok(out)
 }
 
-fn parse_joint(
-    j: &Element,
-    set_path: &str,
-    cx: &Ctx,
-    all_frames: &[(OffsetFrame, &Element)],
-) -> Result<Joint> {
+fn parse_joint(j: &Element, set_path: &str, cx: &Ctx, all_frames: &FrameTable) -> Result<Joint> {
     let f = cx.file;
     let name = j.name_attr().to_string();
     if name.is_empty() {
@@ -1259,7 +1268,7 @@ fn checked_bushing(b: BushingForce, fe: &Element, cx: &Ctx) -> Result<BushingFor
     Ok(b)
 }
 
-fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -> Result<Force> {
+fn parse_force(fe: &Element, cx: &Ctx, all_frames: &FrameTable) -> Result<Force> {
     let f = cx.file;
     let name = fe.name_attr().to_string();
     let class = fe.name.clone();
