@@ -1,33 +1,19 @@
-//! Small shared helpers: atomic output, deterministic number formatting,
+//! Small shared helpers: the input gate every reader goes through
+//! ([`input`]), atomic output, deterministic number formatting,
 //! reports at a stated precision ([`report`]) and the shared SVG figures
 //! ([`svg`]).
 
+pub mod guard;
+pub mod input;
+pub mod output;
 pub mod report;
 pub mod svg;
+
+pub use input::{read_bytes_capped, read_text_capped};
 
 use crate::error::{Error, Result};
 use std::io::Write;
 use std::path::Path;
-
-/// Read a UTF-8 text file, refusing one larger than `max_bytes` before
-/// reading it (`what` names the kind of file in the message, e.g.
-/// "landmark files").
-pub fn read_text_capped(path: &Path, max_bytes: u64, what: &str) -> Result<String> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if meta.len() > max_bytes {
-        return Err(Error::parse(
-            path,
-            "file",
-            format!(
-                "file is {} bytes; {what} are limited to {max_bytes} bytes",
-                meta.len()
-            ),
-        ));
-    }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    String::from_utf8(bytes)
-        .map_err(|e| Error::parse(path, "file", format!("not UTF-8 text ({e})")))
-}
 
 /// Write `bytes` to `path` atomically: a temporary file in the same folder,
 /// flushed and then renamed over `path`. Readers never see a half-written

@@ -160,7 +160,7 @@ pub fn parse_cases(text: &str, file: &Path) -> Result<Vec<LoadCase>> {
 
 /// Read and parse a load file.
 pub fn read_cases(path: &Path) -> Result<Vec<LoadCase>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::util::read_text_capped(path, MAX_FILE_BYTES, "load files")?;
     parse_cases(&text, path)
 }
 

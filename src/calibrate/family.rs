@@ -928,7 +928,8 @@ struct RatioToml {
 /// `rx .. tz`) or CSV with a header `level,rx,ry,rz[,tx,ty,tz]`. Values must
 /// be positive; levels must be unique.
 pub fn read_ratio_table(path: &std::path::Path) -> Result<RatioTable> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text =
+        crate::util::read_text_capped(path, crate::util::input::MAX_TABLE_BYTES, "ratio tables")?;
     let mut out = RatioTable::new();
     let mut put = |name: &str, vals: [Option<f64>; 6], at: String| -> Result<()> {
         for (d, v) in vals.iter().enumerate() {

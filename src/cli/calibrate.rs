@@ -279,8 +279,9 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         tool: concat!("osim-spine ", env!("CARGO_PKG_VERSION")),
         experiment: ExperimentInfo {
             name: exp.name.clone(),
-            dir: exp.dir.display().to_string(),
-            model: exp.model_path.display().to_string(),
+            // Names only: the report is the same wherever the experiment lies.
+            dir: file_name_of(&exp.dir),
+            model: file_name_of(&exp.model_path),
             fixed_body: exp.fixed_body.clone(),
             gravity: exp.gravity,
             units: exp.units,
@@ -366,4 +367,11 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     }
     eprintln!("calibrate: written to {}", a.out.display());
     Ok(0)
+}
+
+/// The last component of `p` (the whole path when it has none).
+fn file_name_of(p: &std::path::Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| p.display().to_string())
 }

@@ -44,6 +44,24 @@ pub struct Args {
     /// Skip the self-check (bushings, muscles through bone, equilibrium).
     #[arg(long)]
     pub no_self_check: bool,
+    /// Allow --out to overwrite an input or to go into the base model's folder.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// `--out` may not be an input (after symlinks) nor go into the base
+/// model's folder (its Geometry/ would be overwritten), unless `--force`.
+fn refuse_overwriting_inputs(args: &Args) -> crate::Result<()> {
+    let base = base_file(&args.base)?;
+    let folder = match base.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let protected = crate::util::guard::Protected::default()
+        .file(&base)
+        .file(&args.landmarks)
+        .folder(&folder);
+    crate::util::guard::check_outputs(&[&args.out], &protected, args.force)
 }
 
 /// The base model file of `--base`.
@@ -87,6 +105,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
+    refuse_overwriting_inputs(&args)?;
     // Landmarks: check, then load strictly.
     let raw = crate::landmarks::read_path(&args.landmarks)?;
     let rep = check_raw(&raw);
@@ -242,7 +261,7 @@ pub fn model_files(
             })?;
             match resolve(base_path, mesh_file, &[]) {
                 MeshLookup::Found(p) => {
-                    let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
+                    let bytes = crate::mesh::read_file_bytes(&p)?;
                     files.push((dir.join("Geometry").join(rel), bytes));
                 }
                 MeshLookup::Missing => {

@@ -181,6 +181,9 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     let model = super::convert::typed_model(&doc)?;
     let s = summarize(&doc, &model, &args.geometry)?;
     refuse_escaping_meshes(&s)?;
+    for w in crate::osim::physics::warnings(&model) {
+        eprintln!("warning: {}: {w}", args.model.display());
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
     } else {

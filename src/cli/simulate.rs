@@ -103,6 +103,37 @@ fn welded_root(sys: &System) -> Option<String> {
     }
 }
 
+/// `--dynamic` needs an inertia some mass distribution has: refuse bodies
+/// whose principal moments break the triangle inequality.
+fn refuse_impossible_inertia(model: &crate::osim::model::Model) -> anyhow::Result<()> {
+    for b in &model.bodies {
+        if crate::osim::physics::breaks_triangle(&b.inertia) {
+            bail!(
+                "{}: <Body name=\"{}\"> (line {}): inertia {:?} breaks the triangle inequality of principal moments (I1 + I2 >= I3); forward dynamics refused",
+                model.file.display(),
+                b.name,
+                b.line,
+                b.inertia
+            );
+        }
+    }
+    Ok(())
+}
+
+/// A progress bar over the steps of one dynamic case (on stderr, hidden
+/// when stderr is not a terminal).
+fn step_bar(case: &str, t: f64, dt: f64) -> indicatif::ProgressBar {
+    let steps = crate::solver::dynamics::step_count(t, dt).unwrap_or(0) as u64;
+    let bar = indicatif::ProgressBar::new(steps);
+    if let Ok(st) =
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps ({eta} left)")
+    {
+        bar.set_style(st);
+    }
+    bar.set_message(format!("case {case}"));
+    bar
+}
+
 /// Run `simulate`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
     if let Some(t) = a.dynamic {
@@ -115,9 +146,16 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 a.dt
             );
         }
+        crate::solver::dynamics::step_count(t, a.dt).context("--dynamic")?;
     }
     let doc = Document::read(&a.model)?;
     let model = doc.model()?;
+    for w in crate::osim::physics::warnings(&model) {
+        eprintln!("warning: {}: {w}", a.model.display());
+    }
+    if a.dynamic.is_some() {
+        refuse_impossible_inertia(&model)?;
+    }
     let mut spec = SystemSpec::from_model(&model)?;
     let ignored = ignored_forces(&model);
     if a.no_gravity {
@@ -170,9 +208,23 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 let mut integ = Integrator::new(&sys, a.dt);
                 let every = ((0.01 / a.dt).round() as usize).max(1);
                 let u0 = vec![0.0; sys.n_dofs()];
+                let bar = step_bar(&case.id, t, a.dt);
                 let traj = integ
-                    .run(&sys, &loads, &mut ws, q0.as_slice(), &u0, t, every)
+                    .run_observed(
+                        &sys,
+                        &loads,
+                        &mut ws,
+                        (q0.as_slice(), &u0),
+                        t,
+                        every,
+                        &mut |s, _| {
+                            if s % 1000 == 0 {
+                                bar.set_position(s as u64)
+                            }
+                        },
+                    )
                     .with_context(ctx)?;
+                bar.finish_and_clear();
                 let Some(last) = traj.last() else {
                     bail!("{}: empty trajectory", ctx())
                 };

@@ -37,10 +37,37 @@ pub struct Args {
     /// Accept non-monotone (softening) curves.
     #[arg(long)]
     pub allow_softening: bool,
+    /// Allow --out to overwrite an input (the model or the table).
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// `--out` may not overwrite the model or the table (after symlinks)
+/// unless `--force`; with `--list` it must be a table file (.toml/.csv).
+fn check_out(args: &Args) -> anyhow::Result<()> {
+    let Some(out) = &args.out else {
+        return Ok(());
+    };
+    let mut protected = crate::util::guard::Protected::default().file(&args.model);
+    if let Some(t) = &args.table {
+        protected = protected.file(t);
+    }
+    crate::util::guard::check_outputs(&[out], &protected, args.force)?;
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let want = match (args.list, ext.as_deref()) {
+        (true, Some("toml" | "csv")) | (false, Some("osim")) => return Ok(()),
+        (true, _) => "a .toml or .csv table",
+        (false, _) => "a .osim model",
+    };
+    anyhow::bail!("{}: --out must be {want}", out.display())
 }
 
 /// Run `stiffness`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
+    check_out(&args)?;
     let doc = Document::read(&args.model)?;
     doc.model()?;
     if args.list {

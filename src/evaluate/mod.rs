@@ -181,7 +181,11 @@ pub fn load_model(path: &Path, def: CentreDef) -> Result<ModelShape> {
     let doc = Document::read(path)?;
     let rp = report_path(path);
     let registration = if rp.exists() {
-        let text = std::fs::read_to_string(&rp).map_err(|e| Error::io(&rp, e))?;
+        let text = crate::util::read_text_capped(
+            &rp,
+            crate::util::input::MAX_TABLE_BYTES,
+            "generate reports",
+        )?;
         let v: serde_json::Value = serde_json::from_str(&text)
             .map_err(|e| Error::parse(&rp, "file", format!("not JSON: {e}")))?;
         match v.get("registration") {
@@ -208,7 +212,8 @@ pub struct Truth {
 
 /// Read a centres CSV (`level,x,y,z`; `# units:` and `# frame:` required).
 pub fn read_centres_csv(path: &Path) -> Result<BTreeMap<Level, Point3<f64>>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text =
+        crate::util::read_text_capped(path, crate::util::input::MAX_TABLE_BYTES, "truth files")?;
     parse_centres_csv(&text, path)
 }
 
@@ -477,8 +482,11 @@ pub fn parse_cobb_ends(s: &str) -> Result<(Level, Level)> {
         a.trim().parse().map_err(|_| bad())?,
         b.trim().parse().map_err(|_| bad())?,
     );
-    if u > l || l.is_sacrum() {
-        return Err(bad());
+    if u >= l || l.is_sacrum() {
+        return Err(Error::invalid(
+            "--cobb-ends",
+            format!("'{s}': UPPER must be a vertebra above LOWER, and LOWER not S1 (e.g. T12,L4)"),
+        ));
     }
     Ok((u, l))
 }

@@ -342,6 +342,30 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
         .collect())
 }
 
+/// Largest `NumMarkers` / `NumFrames` a TRC header may claim.
+pub const MAX_TRC_COUNT: u64 = 1_000_000;
+
+/// The header counts (`NumMarkers`, `NumFrames`, `OrigNumFrames`), when
+/// present, must be whole numbers no larger than [`MAX_TRC_COUNT`].
+fn check_trc_counts(keys: &[String], vals: &[String], path: &Path) -> Result<()> {
+    for (k, v) in keys.iter().zip(vals) {
+        if !matches!(k.as_str(), "NumMarkers" | "NumFrames" | "OrigNumFrames") {
+            continue;
+        }
+        match v.parse::<u64>() {
+            Ok(n) if n <= MAX_TRC_COUNT => {}
+            _ => {
+                return Err(Error::parse(
+                    path,
+                    "line 3",
+                    format!("TRC {k} `{v}`: expected a whole number up to {MAX_TRC_COUNT}"),
+                ))
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Parse an OpenSim TRC marker file (see the module docs).
 pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
     let lines: Vec<&str> = strip_bom(text).lines().collect();
@@ -368,6 +392,7 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
     };
     let keys = cells(at(1)?);
     let vals = cells(at(2)?);
+    check_trc_counts(&keys, &vals, path)?;
     let units_idx = keys.iter().position(|k| k.eq_ignore_ascii_case("Units"));
     let units = match units_idx.and_then(|k| vals.get(k)) {
         Some(u) => Some(Units::parse_label(u).ok_or_else(|| {

@@ -193,17 +193,53 @@ impl Format {
 /// (`.vtp`, `.stl`, `.obj`, `.ply`). Coordinates are taken as metres.
 pub fn read(path: &Path) -> Result<TriMesh> {
     let format = Format::from_path(path)?;
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = read_file_bytes(path)?;
     read_bytes(format, &bytes, path)
+}
+
+/// Largest mesh file read (bytes): far above any vertebra or pelvis mesh.
+pub const MAX_MESH_BYTES: u64 = 512 * 1024 * 1024;
+
+/// The bytes of a mesh file, through the crate's input gate (regular files
+/// only, at most [`MAX_MESH_BYTES`]).
+pub fn read_file_bytes(path: &Path) -> Result<Vec<u8>> {
+    crate::util::read_bytes_capped(path, MAX_MESH_BYTES, "mesh files")
 }
 
 /// Parse in-memory bytes in `format`; `name` is used in error messages.
 pub fn read_bytes(format: Format, bytes: &[u8], name: &Path) -> Result<TriMesh> {
-    match format {
+    let mesh = match format {
         Format::Vtp => vtp::read_bytes(bytes, name),
         Format::Stl => stl::read_bytes(bytes, name),
         Format::Obj => obj::read_bytes(bytes, name),
         Format::Ply => ply::read_bytes(bytes, name),
+    }?;
+    check_coordinates(&mesh, name)?;
+    Ok(mesh)
+}
+
+/// Largest |coordinate| a mesh may have (in its file's unit, metres or
+/// millimetres): far beyond any anatomy, small enough that areas, normals
+/// and volumes stay finite in f64.
+pub const MAX_COORDINATE: f64 = 1e9;
+
+/// Refuse a mesh with a coordinate that is not finite or beyond
+/// [`MAX_COORDINATE`], naming the vertex.
+pub fn check_coordinates(mesh: &TriMesh, name: &Path) -> Result<()> {
+    let bad = mesh
+        .vertices
+        .iter()
+        .position(|p| p.coords.iter().any(|x| !(x.abs() <= MAX_COORDINATE)));
+    match bad {
+        None => Ok(()),
+        Some(i) => Err(Error::parse(
+            name,
+            format!("vertex {i}"),
+            format!(
+                "coordinates {:?} are not finite or beyond +-{MAX_COORDINATE:e}",
+                mesh.vertices[i].coords.as_slice()
+            ),
+        )),
     }
 }
 

@@ -57,7 +57,7 @@ const IGNORED: &[&str] = &[
 
 /// Read an OBJ file.
 pub fn read(path: &Path) -> Result<TriMesh> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = super::read_file_bytes(path)?;
     read_bytes(&bytes, path)
 }
 

@@ -20,7 +20,7 @@ use std::path::Path;
 
 /// Read an STL file (ASCII or binary).
 pub fn read(path: &Path) -> Result<TriMesh> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = super::read_file_bytes(path)?;
     read_bytes(&bytes, path)
 }
 
@@ -239,7 +239,15 @@ fn read_ascii(bytes: &[u8], name: &Path) -> Result<TriMesh> {
             "facet is not closed by `endfacet` (truncated file?)",
         ));
     }
-    Ok(w.finish())
+    let mesh = w.finish();
+    if mesh.triangles.is_empty() {
+        return Err(Error::parse(
+            name,
+            "end of file",
+            "ASCII STL has no facets (empty mesh)",
+        ));
+    }
+    Ok(mesh)
 }
 
 /// ASCII STL with shortest round-trip coordinates (lossless for f64).

@@ -23,7 +23,6 @@ use super::TriMesh;
 use crate::error::{Error, Result};
 use base64::Engine as _;
 use nalgebra::Point3;
-use quick_xml::events::Event;
 use std::io::Read;
 use std::path::Path;
 
@@ -36,7 +35,7 @@ const BLOCK_SIZE: usize = 1 << 15;
 
 /// Read a VTP file.
 pub fn read(path: &Path) -> Result<TriMesh> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = super::read_file_bytes(path)?;
     read_bytes(&bytes, path)
 }
 
@@ -67,134 +66,43 @@ impl Elem {
     }
 }
 
-/// Line numbers of increasing byte offsets in linear total time.
-struct LineCounter<'a> {
-    bytes: &'a [u8],
-    pos: usize,
-    line: usize,
-}
-
-impl<'a> LineCounter<'a> {
-    fn new(bytes: &'a [u8]) -> Self {
-        LineCounter {
-            bytes,
-            pos: 0,
-            line: 1,
-        }
-    }
-    /// 1-based line of `pos` (offsets must not decrease between calls;
-    /// a smaller one falls back to counting from the start).
-    fn at(&mut self, pos: usize) -> usize {
-        let pos = pos.min(self.bytes.len());
-        if pos < self.pos {
-            return super::line_of(self.bytes, pos);
-        }
-        self.line += self.bytes[self.pos..pos]
-            .iter()
-            .filter(|&&b| b == b'\n')
-            .count();
-        self.pos = pos;
-        self.line
-    }
-}
-
+/// Parse the XML part with the crate's one XML tree
+/// ([`crate::osim::xml::parse`]), so VTP files obey the same hostile-input
+/// rules as `.osim` documents: no DOCTYPE, only the five predefined entities
+/// and numeric character references, bounded nesting. The root is returned
+/// as the only child of a `#document` element.
 fn parse_xml(xml: &[u8], name: &Path) -> Result<Elem> {
-    let mut reader = quick_xml::Reader::from_reader(xml);
-    let mut lines = LineCounter::new(xml);
-    let mut stack: Vec<Elem> = vec![Elem {
+    let text = std::str::from_utf8(xml).map_err(|e| {
+        let line = super::line_of(xml, e.valid_up_to());
+        Error::parse(name, format!("line {line}"), "XML part is not UTF-8 text")
+    })?;
+    let tree = crate::osim::xml::parse(text, name)?;
+    Ok(Elem {
         name: "#document".into(),
+        children: vec![to_elem(tree.root)],
         ..Default::default()
-    }];
-    loop {
-        let pos = reader.buffer_position() as usize;
-        let ev = reader.read_event().map_err(|e| {
-            let at = reader.error_position() as usize;
-            Error::parse(
-                name,
-                format!("line {}", super::line_of(xml, at)),
-                format!("malformed XML: {e}"),
-            )
-        })?;
-        match ev {
-            Event::Start(ref e) | Event::Empty(ref e) => {
-                let line = lines.at(pos);
-                let mut el = Elem {
-                    name: String::from_utf8_lossy(e.name().as_ref()).into_owned(),
-                    line,
-                    ..Default::default()
-                };
-                for a in e.attributes() {
-                    let a = a.map_err(|err| {
-                        Error::parse(
-                            name,
-                            format!("line {line}"),
-                            format!("bad attribute: {err}"),
-                        )
-                    })?;
-                    let v = a.unescape_value().map_err(|err| {
-                        Error::parse(
-                            name,
-                            format!("line {line}"),
-                            format!("bad attribute: {err}"),
-                        )
-                    })?;
-                    el.attrs.push((
-                        String::from_utf8_lossy(a.key.as_ref()).into_owned(),
-                        v.into_owned(),
-                    ));
-                }
-                if matches!(ev, Event::Start(_)) {
-                    stack.push(el);
-                } else if let Some(parent) = stack.last_mut() {
-                    parent.children.push(el);
-                }
-            }
-            Event::End(_) => {
-                if stack.len() < 2 {
-                    return Err(Error::parse(
-                        name,
-                        format!("line {}", lines.at(pos)),
-                        "unbalanced closing tag",
-                    ));
-                }
-                if let Some(done) = stack.pop() {
-                    if let Some(parent) = stack.last_mut() {
-                        parent.children.push(done);
-                    }
-                }
-            }
-            Event::Text(t) => {
-                if let Some(cur) = stack.last_mut() {
-                    let s = t.decode().map_err(|err| {
-                        Error::parse(
-                            name,
-                            format!("line {}", lines.at(pos)),
-                            format!("text is not valid: {err}"),
-                        )
-                    })?;
-                    cur.text.push_str(&s);
-                }
-            }
-            Event::CData(t) => {
-                if let Some(cur) = stack.last_mut() {
-                    cur.text.push_str(&String::from_utf8_lossy(&t));
-                }
-            }
-            Event::Eof => break,
-            _ => {}
-        }
+    })
+}
+
+/// The VTP reader's view of an element: attributes, text (text and CDATA
+/// concatenated), child elements.
+fn to_elem(el: crate::osim::xml::Element) -> Elem {
+    let text = el.text();
+    let children = el
+        .children
+        .into_iter()
+        .filter_map(|n| match n {
+            crate::osim::xml::Node::Element(e) => Some(to_elem(e)),
+            _ => None,
+        })
+        .collect();
+    Elem {
+        name: el.name,
+        attrs: el.attrs,
+        text,
+        children,
+        line: el.line,
     }
-    if stack.len() != 1 {
-        let open = stack.last().map(|e| e.name.clone()).unwrap_or_default();
-        return Err(Error::parse(
-            name,
-            "end of file",
-            format!("element <{open}> is not closed (truncated file?)"),
-        ));
-    }
-    stack
-        .pop()
-        .ok_or_else(|| Error::parse(name, "end of file", "empty document"))
 }
 
 // ---------------------------------------------------------------------------

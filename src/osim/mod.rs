@@ -17,6 +17,7 @@ pub mod function;
 pub mod geometry;
 pub mod legacy;
 pub mod model;
+pub mod physics;
 pub mod xml;
 
 pub use document::{Document, CURRENT_VERSION};

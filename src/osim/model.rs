@@ -486,6 +486,7 @@ impl Model {
         }
         let mut offset_frames: Vec<(OffsetFrame, &Element)> = Vec::new();
         collect_offset_frames(m, &mut Vec::new(), &cx, &mut offset_frames)?;
+        let frame_table = FrameTable::new(&offset_frames);
 
         for b in objects(m, "BodySet") {
             let name = b.name_attr().to_string();
@@ -514,6 +515,9 @@ impl Model {
                 }
                 None => [0.0; 6],
             };
+            if let Some(why) = super::physics::mass_error(mass, &inertia) {
+                return Err(cx.err(b, why));
+            }
             let body_path = format!("/{}/{}", set_name(m.child("BodySet").unwrap_or(b)), name);
             model
                 .frames
@@ -562,7 +566,7 @@ impl Model {
             .map(set_name)
             .unwrap_or_else(|| "jointset".into());
         for j in objects(m, "JointSet") {
-            let joint = parse_joint(j, &format!("/{jointset}"), &cx, &offset_frames)?;
+            let joint = parse_joint(j, &format!("/{jointset}"), &cx, &frame_table)?;
             for c in &joint.coordinates {
                 model.coordinate_paths.insert(
                     format!("/{jointset}/{}/{}", joint.name, c.name),
@@ -589,7 +593,7 @@ impl Model {
             .map(set_name)
             .unwrap_or_else(|| "forceset".into());
         for f in objects(m, "ForceSet") {
-            let force = parse_force(f, &cx, &offset_frames)?;
+            let force = parse_force(f, &cx, &frame_table)?;
             model.forces.push(force);
         }
         for mk in objects(m, "MarkerSet") {
@@ -789,10 +793,13 @@ impl Model {
                 ));
             }
         }
+        // Bodies already shown to reach ground: each walk stops at one, so
+        // the check is linear in the body count (a chain is not quadratic).
+        let mut grounded: BTreeSet<String> = BTreeSet::new();
         for b in &self.bodies {
             let mut seen = BTreeSet::new();
             let mut cur = b.name.clone();
-            while cur != "ground" {
+            while cur != "ground" && !grounded.contains(&cur) {
                 if !seen.insert(cur.clone()) {
                     return Err(Error::parse(
                         file,
@@ -815,6 +822,7 @@ impl Model {
                     }
                 }
             }
+            grounded.extend(seen);
         }
         // Force sockets.
         let force_els: Vec<&Element> = objects(m, "ForceSet").collect();
@@ -994,16 +1002,29 @@ fn collect_offset_frames<'a>(
     Ok(())
 }
 
-fn frames_of(owner: &Element, all: &[(OffsetFrame, &Element)]) -> Vec<OffsetFrame> {
+/// The offset frames of the document by the address of their element, so
+/// a component's `<frames>` are found in constant time (a linear scan per
+/// component made reading a long chain quadratic).
+struct FrameTable<'a> {
+    by_el: std::collections::HashMap<*const Element, &'a OffsetFrame>,
+}
+
+impl<'a> FrameTable<'a> {
+    fn new(all: &'a [(OffsetFrame, &'a Element)]) -> Self {
+        let by_el = all
+            .iter()
+            .map(|(o, el)| (*el as *const Element, o))
+            .collect();
+        FrameTable { by_el }
+    }
+}
+
+fn frames_of(owner: &Element, all: &FrameTable) -> Vec<OffsetFrame> {
     let Some(list) = owner.child("frames") else {
         return vec![];
     };
     list.elements()
-        .filter_map(|f| {
-            all.iter()
-                .find(|(_, el)| std::ptr::eq(*el, f))
-                .map(|(o, _)| o.clone())
-        })
+        .filter_map(|f| all.by_el.get(&(f as *const Element)).map(|o| (*o).clone()))
         .collect()
 }
 
@@ -1071,12 +1092,7 @@ fn parse_wraps(frame: &Element, body: &str, cx: &Ctx) -> Result<Vec<WrapObject>>
     Ok(out)
 }
 
-fn parse_joint(
-    j: &Element,
-    set_path: &str,
-    cx: &Ctx,
-    all_frames: &[(OffsetFrame, &Element)],
-) -> Result<Joint> {
+fn parse_joint(j: &Element, set_path: &str, cx: &Ctx, all_frames: &FrameTable) -> Result<Joint> {
     let f = cx.file;
     let name = j.name_attr().to_string();
     if name.is_empty() {
@@ -1167,10 +1183,14 @@ fn parse_joint(
                 }
                 _ => motion_from_joint(&class, &axes, &cname, coordinates.len()),
             };
+            let default_value = f64_or(c, "default_value", 0.0, f)?;
+            if let Some(why) = super::physics::default_error(default_value) {
+                return Err(cx.err(c, why));
+            }
             coordinates.push(Coordinate {
                 name: cname,
                 joint: name.clone(),
-                default_value: f64_or(c, "default_value", 0.0, f)?,
+                default_value,
                 default_speed_value: f64_or(c, "default_speed_value", 0.0, f)?,
                 range,
                 clamped: bool_or(c, "clamped", false, f)?,
@@ -1231,21 +1251,47 @@ fn motion_from_joint(class: &str, axes: &[TransformAxis], coord: &str, index: us
     }
 }
 
-fn parse_force(fe: &Element, cx: &Ctx, all_frames: &[(OffsetFrame, &Element)]) -> Result<Force> {
+/// `b` when its stiffness and damping are finite and bounded
+/// ([`super::physics::stiffness_error`]).
+fn checked_bushing(b: BushingForce, fe: &Element, cx: &Ctx) -> Result<BushingForce> {
+    let props = [
+        ("rotational_stiffness", &b.rotational_stiffness),
+        ("translational_stiffness", &b.translational_stiffness),
+        ("rotational_damping", &b.rotational_damping),
+        ("translational_damping", &b.translational_damping),
+    ];
+    for (prop, v) in props {
+        if let Some(why) = super::physics::stiffness_error(prop, v.as_slice()) {
+            return Err(cx.err(fe.child(prop).unwrap_or(fe), why));
+        }
+    }
+    Ok(b)
+}
+
+fn parse_force(fe: &Element, cx: &Ctx, all_frames: &FrameTable) -> Result<Force> {
     let f = cx.file;
     let name = fe.name_attr().to_string();
     let class = fe.name.clone();
     Ok(match class.as_str() {
-        "BushingForce" => Force::Bushing(BushingForce {
-            socket_frame1: required_text(fe, "socket_frame1", cx)?,
-            socket_frame2: required_text(fe, "socket_frame2", cx)?,
-            frames: frames_of(fe, all_frames),
-            rotational_stiffness: vec3_or(fe, "rotational_stiffness", Vector3::zeros(), f)?,
-            translational_stiffness: vec3_or(fe, "translational_stiffness", Vector3::zeros(), f)?,
-            rotational_damping: vec3_or(fe, "rotational_damping", Vector3::zeros(), f)?,
-            translational_damping: vec3_or(fe, "translational_damping", Vector3::zeros(), f)?,
-            name,
-        }),
+        "BushingForce" => Force::Bushing(checked_bushing(
+            BushingForce {
+                socket_frame1: required_text(fe, "socket_frame1", cx)?,
+                socket_frame2: required_text(fe, "socket_frame2", cx)?,
+                frames: frames_of(fe, all_frames),
+                rotational_stiffness: vec3_or(fe, "rotational_stiffness", Vector3::zeros(), f)?,
+                translational_stiffness: vec3_or(
+                    fe,
+                    "translational_stiffness",
+                    Vector3::zeros(),
+                    f,
+                )?,
+                rotational_damping: vec3_or(fe, "rotational_damping", Vector3::zeros(), f)?,
+                translational_damping: vec3_or(fe, "translational_damping", Vector3::zeros(), f)?,
+                name,
+            },
+            fe,
+            cx,
+        )?),
         "FunctionBasedBushingForce" | "ExpressionBasedBushingForce" => {
             Force::OtherBushing(OtherBushing {
                 socket_frame1: required_text(fe, "socket_frame1", cx)?,

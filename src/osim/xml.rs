@@ -224,34 +224,7 @@ pub fn read_file_capped(path: &Path) -> Result<String> {
 
 /// [`read_file_capped`] with an explicit cap (bytes).
 pub fn read_file_with_cap(path: &Path, cap: u64) -> Result<String> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if !meta.is_file() {
-        return Err(Error::parse(path, "file", "not a regular file"));
-    }
-    if meta.len() > cap {
-        return Err(Error::parse(
-            path,
-            "file",
-            format!(
-                "file is {} bytes, larger than the {} MB limit for .osim documents; refusing to read it",
-                meta.len(),
-                cap / (1024 * 1024)
-            ),
-        ));
-    }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    if bytes.len() as u64 > cap {
-        return Err(Error::parse(
-            path,
-            "file",
-            "file grew past the size limit while being read",
-        ));
-    }
-    String::from_utf8(bytes).map_err(|e| {
-        let at = e.utf8_error().valid_up_to();
-        let line = 1 + e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count();
-        Error::parse(path, format!("line {line}"), "file is not valid UTF-8")
-    })
+    crate::util::read_text_capped(path, cap, ".osim documents")
 }
 
 /// Incremental byte offset -> line number converter.
@@ -442,7 +415,7 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
                 return Err(Error::parse(
                     path,
                     loc(),
-                    "DOCTYPE / entity declarations are not allowed in .osim documents (refused: entity expansion)",
+                    "DOCTYPE / entity declarations are not allowed (refused: entity expansion, external entities)",
                 ));
             }
             Event::Start(s) => {
@@ -622,7 +595,10 @@ fn start_element(
         .map_err(|_| Error::parse(path, loc(), "element name is not UTF-8"))?
         .to_string();
     let mut attrs: Vec<(String, String)> = Vec::new();
-    for a in s.attributes() {
+    // quick-xml's own duplicate check is quadratic in the attribute count;
+    // duplicates are found here with a set once there are many.
+    let mut seen: std::collections::HashSet<String> = std::collections::HashSet::new();
+    for a in s.attributes().with_checks(false) {
         let a =
             a.map_err(|e| Error::parse(path, loc(), format!("bad attribute in <{name}>: {e}")))?;
         let key = utf8(text, a.key.into_inner()).map_err(|_| {
@@ -642,7 +618,7 @@ fn start_element(
                 )
             })?
             .into_owned();
-        if attrs.iter().any(|(k, _)| k == key) {
+        if is_duplicate(&attrs, &mut seen, key) {
             return Err(Error::parse(
                 path,
                 loc(),
@@ -657,6 +633,23 @@ fn start_element(
         children: Vec::new(),
         line,
     })
+}
+
+/// Whether attribute `key` is already in `attrs`: a linear scan for the
+/// usual handful, a hash set (filled on first use) beyond 16 attributes.
+fn is_duplicate(
+    attrs: &[(String, String)],
+    seen: &mut std::collections::HashSet<String>,
+    key: &str,
+) -> bool {
+    const SCAN: usize = 16;
+    if attrs.len() < SCAN {
+        return attrs.iter().any(|(k, _)| k == key);
+    }
+    if seen.is_empty() {
+        seen.extend(attrs.iter().map(|(k, _)| k.clone()));
+    }
+    !seen.insert(key.to_string())
 }
 
 fn escape_text(s: &str, out: &mut String) {

@@ -10,6 +10,7 @@
 //! [`super::resolve`] merges rows with the model and validates the laws.
 
 use crate::error::{Error, Result};
+use crate::osim::physics::MAX_STIFFNESS;
 use crate::solver::spec::DOF_NAMES;
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -283,10 +284,15 @@ fn dof_map(
                     format!("{what}: unknown DoF '{k}' (DoFs: {})", DOF_NAMES.join(", ")),
                 )
             })?;
-            if !v.is_finite() {
-                return Err(Error::parse(path, loc, format!("{what}.{k} is not finite")));
+            let si = v * factor.map(|f| f[i]).unwrap_or(1.0);
+            if !(si.abs() <= MAX_STIFFNESS) {
+                return Err(Error::parse(
+                    path,
+                    loc,
+                    format!("{what}.{k} = {v:e} is not finite or beyond +-{MAX_STIFFNESS:e} (SI)"),
+                ));
             }
-            out[i] = Some(v * factor.map(|f| f[i]).unwrap_or(1.0));
+            out[i] = Some(si);
         }
     }
     Ok(out)
@@ -453,11 +459,11 @@ fn toml_row(path: &Path, loc: String, r: &TomlRow, units: &Units) -> Result<Row>
         let mut k = [[0.0; 6]; 6];
         for (i, rr) in m.iter().enumerate() {
             for (j, v) in rr.iter().enumerate() {
-                if !v.is_finite() {
+                if !(v.abs() <= MAX_STIFFNESS) {
                     return Err(Error::parse(
                         path,
                         &loc,
-                        format!("matrix[{i}][{j}] is not finite"),
+                        format!("matrix[{i}][{j}] is not finite or beyond +-{MAX_STIFFNESS:e}"),
                     ));
                 }
                 k[i][j] = *v;
@@ -728,11 +734,14 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
                     format!("column {}: '{cell}' is not a number", ci + 1),
                 )
             })?;
-            if !v.is_finite() {
+            if !(v.abs() <= MAX_STIFFNESS) {
                 return Err(Error::parse(
                     path,
                     &loc,
-                    format!("column {}: not finite", ci + 1),
+                    format!(
+                        "column {}: not finite or beyond +-{MAX_STIFFNESS:e}",
+                        ci + 1
+                    ),
                 ));
             }
             match kind {
@@ -760,15 +769,11 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
 
 /// Read a table file: `.csv` as CSV, anything else as TOML.
 pub fn read_table(path: &Path) -> Result<Table> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if meta.len() > 64 * 1024 * 1024 {
-        return Err(Error::parse(
-            path,
-            "file",
-            "larger than 64 MiB: not a stiffness table",
-        ));
-    }
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::util::read_text_capped(
+        path,
+        crate::util::input::MAX_TABLE_BYTES,
+        "stiffness tables",
+    )?;
     if is_csv(path) {
         parse_csv(&text, path)
     } else {

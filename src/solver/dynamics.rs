@@ -598,16 +598,27 @@ impl Integrator {
         duration: f64,
         every: usize,
     ) -> Result<Vec<Sample>> {
-        if !(self.dt > 0.0 && self.dt.is_finite() && duration >= 0.0 && duration.is_finite()) {
-            return Err(Error::invalid(
-                "dynamics",
-                "time step and duration must be positive and finite",
-            ));
-        }
+        self.run_observed(sys, loads, ws, (q0, u0), duration, every, &mut |_, _| {})
+    }
+
+    /// [`Integrator::run`], calling `progress(step, steps)` after every
+    /// step (for a progress bar). Refuses more than [`MAX_STEPS`] steps.
+    #[allow(clippy::too_many_arguments)]
+    pub fn run_observed(
+        &mut self,
+        sys: &System,
+        loads: &LoadSet,
+        ws: &mut Workspace,
+        (q0, u0): (&[f64], &[f64]),
+        duration: f64,
+        every: usize,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Vec<Sample>> {
+        let steps = step_count(duration, self.dt)?;
         let mut q = q0.to_vec();
         let mut u = u0.to_vec();
-        let steps = (duration / self.dt).round() as usize;
-        let every = every.max(1);
+        // At most MAX_SAMPLES samples are kept, however long the run.
+        let every = every.max(1).max(steps / MAX_SAMPLES);
         let mut out = vec![Sample {
             time: 0.0,
             q: DVector::from_vec(q.clone()),
@@ -615,6 +626,7 @@ impl Integrator {
         }];
         for s in 1..=steps {
             self.step(sys, loads, ws, &mut q, &mut u)?;
+            progress(s, steps);
             if s % every == 0 || s == steps {
                 out.push(Sample {
                     time: s as f64 * self.dt,
@@ -625,6 +637,32 @@ impl Integrator {
         }
         Ok(out)
     }
+}
+
+/// Most integration steps one run may take (a step cap: `--dynamic 1e9
+/// --dt 1e-9` is refused up front instead of running for ever).
+pub const MAX_STEPS: usize = 10_000_000;
+/// Most samples one run keeps (longer runs sample more sparsely).
+pub const MAX_SAMPLES: usize = 100_000;
+
+/// Number of steps of `duration` at `dt`, refused beyond [`MAX_STEPS`].
+pub fn step_count(duration: f64, dt: f64) -> Result<usize> {
+    if !(dt > 0.0 && dt.is_finite() && duration >= 0.0 && duration.is_finite()) {
+        return Err(Error::invalid(
+            "dynamics",
+            "time step and duration must be positive and finite",
+        ));
+    }
+    let steps = (duration / dt).round();
+    if steps > MAX_STEPS as f64 {
+        return Err(Error::invalid(
+            "dynamics",
+            format!(
+                "{duration} s at a time step of {dt} s is {steps:e} steps, more than the cap of {MAX_STEPS}; use a longer --dt or a shorter duration"
+            ),
+        ));
+    }
+    Ok(steps as usize)
 }
 
 #[allow(dead_code)]

@@ -73,7 +73,11 @@ impl IvdParams {
 
     /// Read a template file.
     pub fn read(path: &Path) -> Result<IvdParams> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::util::read_text_capped(
+            path,
+            crate::util::input::MAX_TABLE_BYTES,
+            "template files",
+        )?;
         IvdParams::from_toml(&text, path)
     }
 

@@ -668,8 +668,10 @@ pub fn generate(
         Vec::new()
     };
     let report = GenerateReport {
-        base_model: bfile,
-        landmarks: set_name.to_string(),
+        // File names only: the report is the same wherever the inputs lie
+        // and whatever the working directory (determinism).
+        base_model: file_name_of(&bfile),
+        landmarks: file_name_of(set_name),
         detection: set.detection.as_ref().map(|d| d.summary()),
         method: opts.method,
         levels_from_landmarks: vert_levels.iter().map(|l| l.to_string()).collect(),
@@ -1035,4 +1037,12 @@ fn write_joint(
         }
     }
     Ok(())
+}
+
+/// The file name of `path` (the whole string when it has none).
+fn file_name_of(path: &str) -> String {
+    std::path::Path::new(path)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.to_string())
 }
