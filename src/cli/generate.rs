@@ -7,11 +7,12 @@
 //! `<stem>_frontal.svg` / `<stem>_sagittal.svg` are written, each
 //! atomically. Nothing is written on error.
 
-use crate::build::base::DirMeshSource;
 use crate::build::generate::{generate, GenerateOptions, Method};
+pub use crate::embedded::base_file;
+use crate::embedded::BaseModel;
 use crate::error::Error;
 use crate::landmarks::check::{check_raw, Severity};
-use crate::osim::geometry::{check_relative, resolve, MeshLookup};
+use crate::osim::geometry::check_relative;
 use crate::osim::model::Geometry;
 use crate::osim::Document;
 use std::path::{Path, PathBuf};
@@ -21,9 +22,10 @@ pub use crate::landmarks::check::GENERATE_BLOCKING as BLOCKING;
 /// Arguments of `generate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Base model: a folder holding one .osim (and its meshes), or an .osim file.
-    #[arg(long, value_name = "DIR", default_value = "base_model")]
-    pub base: PathBuf,
+    /// Base model: a folder holding one .osim (and its meshes), or an .osim
+    /// file (default: the base model compiled into the binary).
+    #[arg(long, value_name = "DIR")]
+    pub base: Option<PathBuf>,
     /// Patient landmark set (.csv, .trc, .json; see ../shared/formats/landmarks.md).
     #[arg(long, value_name = "FILE")]
     pub landmarks: PathBuf,
@@ -41,49 +43,21 @@ pub struct Args {
     /// (independent fits).
     #[arg(long, default_value = "chain")]
     pub smooth: String,
+    /// Levels above the landmarks' field of view: balance (a compensatory
+    /// frontal curve so that T1 sits over S1_SEC, level) or keep (the base
+    /// model's joint angles above the top measured vertebra).
+    #[arg(long, value_name = "balance|keep", default_value = "balance")]
+    pub above_fov: String,
     /// Skip the self-check (bushings, muscles through bone, equilibrium).
     #[arg(long)]
     pub no_self_check: bool,
-}
-
-/// The base model file of `--base`.
-pub fn base_file(base: &Path) -> crate::Result<PathBuf> {
-    if base.is_file() {
-        return Ok(base.to_path_buf());
-    }
-    let rd = std::fs::read_dir(base).map_err(|e| Error::io(base, e))?;
-    let mut osims: Vec<PathBuf> = rd
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().map(|e| e == "osim").unwrap_or(false))
-        .collect();
-    osims.sort();
-    match osims.len() {
-        1 => Ok(osims.remove(0)),
-        0 => Err(Error::invalid(
-            base.display().to_string(),
-            "no .osim model in the base folder",
-        )),
-        _ => {
-            let pick = base.join("base.osim");
-            if pick.is_file() {
-                Ok(pick)
-            } else {
-                Err(Error::invalid(
-                    base.display().to_string(),
-                    format!(
-                        "{} .osim files and no base.osim: give the file",
-                        osims.len()
-                    ),
-                ))
-            }
-        }
-    }
 }
 
 /// Run `generate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let method: Method = args.method.parse()?;
     let smooth: crate::build::generate::Smooth = args.smooth.parse()?;
+    let above_fov: crate::build::generate::AboveFov = args.above_fov.parse()?;
     if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
@@ -126,17 +100,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if let Some(d) = &set.detection {
         println!("landmarks: {}", d.summary());
     }
-    let base_path = base_file(&args.base)?;
-    let base = Document::read(&base_path)?;
-    let source = DirMeshSource {
-        model_path: base_path.clone(),
-        extra: vec![],
-    };
+    let base_model = BaseModel::locate(args.base.as_deref())?;
+    let base = base_model.read()?;
     let opts = GenerateOptions {
         method,
         smooth,
         self_check: !args.no_self_check,
         views: true,
+        above_fov,
         ..GenerateOptions::default()
     };
     let g = generate(
@@ -144,7 +115,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         &set,
         &args.landmarks.display().to_string(),
         &opts,
-        Some(&source),
+        Some(&base_model),
     )?;
     // Everything computed: gather the bytes, then write.
     let dir = match args.out.parent() {
@@ -156,7 +127,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "model".into());
-    let mut files = model_files(&base_path, &g.doc, &args.out)?;
+    let mut files = model_files(&base_model, &g.doc, &args.out)?;
     files.push((
         dir.join(format!("{stem}_report.json")),
         serde_json::to_string_pretty(&g.report)?.into_bytes(),
@@ -191,6 +162,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         println!("outlier landmarks (rejected): {}", r.outliers.join(", "));
     }
     println!("orientation smoothing: {}", r.smoothing.note);
+    print_above_fov(r.above_fov.as_ref());
     if let Some(sc) = &r.self_check {
         println!(
             "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {:.1} mm ({}){}",
@@ -210,11 +182,37 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     Ok(0)
 }
 
+/// Levels above the field of view: which were not measured, what was
+/// done, where T1 ended.
+fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
+    let Some(a) = a else {
+        println!("above the field of view: none (the landmarks reach T1)");
+        return;
+    };
+    let done = if a.balanced.is_empty() {
+        "kept at the base model's joint angles (--above-fov keep)".to_string()
+    } else {
+        let max = a.bend_deg.iter().fold(0.0f64, |m, b| m.max(b.abs()));
+        format!(
+            "balanced {} by a compensatory frontal curve (largest bend {max:.1} deg per joint)",
+            a.balanced.join(" ")
+        )
+    };
+    println!(
+        "above the field of view: {} not measured; {done}; T1 ends {:.1} mm {} of the vertical through S1_SEC, {:.1} mm anterior, coronal tilt {:.1} deg",
+        a.unmeasured.join(" "),
+        a.t1_lateral_offset_mm.abs(),
+        if a.t1_lateral_offset_mm >= 0.0 { "right" } else { "left" },
+        a.t1_anterior_offset_mm,
+        a.t1_coronal_tilt_deg
+    );
+}
+
 /// The bytes of a generated model written to `out` (.osim): the model,
-/// then each mesh it references (read beside the base model at
-/// `base_path`) under `Geometry/` beside `out`.
+/// then each mesh it references (taken from the base model) under
+/// `Geometry/` beside `out`.
 pub fn model_files(
-    base_path: &Path,
+    base: &BaseModel,
     doc: &Document,
     out: &Path,
 ) -> crate::Result<Vec<(PathBuf, Vec<u8>)>> {
@@ -234,30 +232,19 @@ pub fn model_files(
             if mesh_file.is_empty() || !seen.insert(mesh_file.clone()) {
                 continue;
             }
-            let rel = check_relative(mesh_file).map_err(|why| {
+            let label = base.label().display().to_string();
+            let rel = check_relative(mesh_file)
+                .map_err(|why| Error::invalid(&label, format!("mesh_file '{mesh_file}' {why}")))?;
+            let bytes = base.mesh_bytes(mesh_file)?.ok_or_else(|| {
                 Error::invalid(
-                    base_path.display().to_string(),
-                    format!("mesh_file '{mesh_file}' {why}"),
+                    &label,
+                    format!(
+                        "mesh file '{mesh_file}' of body {} not found beside the base model",
+                        b.name
+                    ),
                 )
             })?;
-            match resolve(base_path, mesh_file, &[]) {
-                MeshLookup::Found(p) => {
-                    let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
-                    files.push((dir.join("Geometry").join(rel), bytes));
-                }
-                MeshLookup::Missing => {
-                    return Err(Error::invalid(
-                        base_path.display().to_string(),
-                        format!(
-                            "mesh file '{mesh_file}' of body {} not found beside the base model",
-                            b.name
-                        ),
-                    ))
-                }
-                MeshLookup::Escapes(why) => {
-                    return Err(Error::invalid(base_path.display().to_string(), why))
-                }
-            }
+            files.push((dir.join("Geometry").join(rel), bytes));
         }
     }
     Ok(files)
