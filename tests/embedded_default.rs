@@ -46,6 +46,19 @@ fn generate_runs_outside_the_repository_without_base() {
         .filter(|(n, _)| n.ends_with(".vtp"))
         .count();
     assert_eq!(n_meshes, n_base);
+    // The model is named after the patient's landmark file; the console
+    // states the self-check and the levels above the field of view.
+    let osim = std::fs::read_to_string(out.join("patient.osim")).unwrap();
+    assert!(osim.contains("<Model name=\"example-scoliosis\""));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("self-check: bushing deflection"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("T8 T7 T6 T5 T4 T3 T2 T1 not measured"),
+        "{stdout}"
+    );
     // The report names the embedded base.
     let rep = std::fs::read_to_string(out.join("patient_report.json")).unwrap();
     assert!(

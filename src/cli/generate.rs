@@ -117,6 +117,16 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         &opts,
         Some(&base_model),
     )?;
+    // The model is named after the patient's landmark file.
+    let mut g = g;
+    let patient = args
+        .landmarks
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "patient".into());
+    g.doc
+        .model_element_mut()
+        .set_attr("name", patient_model_name(&patient));
     // Everything computed: gather the bytes, then write.
     let dir = match args.out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
@@ -163,23 +173,70 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     }
     println!("orientation smoothing: {}", r.smoothing.note);
     print_above_fov(r.above_fov.as_ref());
-    if let Some(sc) = &r.self_check {
-        println!(
-            "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {:.1} mm ({}){}",
-            sc.bushing_max_rotation,
-            sc.bushing_max_translation,
-            sc.muscle_segments_through_vertebrae.len(),
-            sc.equilibrium.max_displacement * 1e3,
-            sc.equilibrium.max_displacement_body,
-            match sc.equilibrium.stable {
-                Some(true) => ", stable",
-                Some(false) => ", unstable (a ligamentous spine without muscles buckles under body weight)",
-                None => "",
-            }
-        );
+    match &r.self_check {
+        Some(sc) => print_self_check(sc),
+        None => println!("self-check: skipped (--no-self-check)"),
     }
     println!("wrote {} files to {}", files.len(), dir.display());
     Ok(0)
+}
+
+/// Above this displacement (m) under gravity a "stable" equilibrium is
+/// not the model's posture but where the spine sagged to.
+const SAGGED_M: f64 = 0.02;
+
+/// The self-check, every result stated; muscles through bone are warned.
+fn print_self_check(sc: &crate::build::base::check::SelfCheck) {
+    let eq = &sc.equilibrium;
+    let disp = eq.max_displacement * 1e3;
+    let verdict = match eq.stable {
+        Some(true) if eq.max_displacement > SAGGED_M => "stable only after the spine sagged this far from its default posture (a ligamentous spine without muscles does not hold its posture under body weight)",
+        Some(true) => "stable",
+        Some(false) => "unstable (a ligamentous spine without muscles buckles under body weight)",
+        None => "stability not assessed",
+    };
+    println!(
+        "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {disp:.1} mm ({}), {verdict}",
+        sc.bushing_max_rotation,
+        sc.bushing_max_translation,
+        sc.muscle_segments_through_vertebrae.len(),
+        eq.max_displacement_body,
+    );
+    let through = &sc.muscle_segments_through_vertebrae;
+    if !through.is_empty() {
+        let deepest = through.iter().fold(0.0f64, |m, t| m.max(t.depth_mm));
+        let first: Vec<String> = through
+            .iter()
+            .take(5)
+            .map(|t| format!("{} in {} ({:.1} mm)", t.muscle, t.vertebra, t.depth_mm))
+            .collect();
+        eprintln!(
+            "warning: {} muscle segment(s) pass through a vertebra, up to {deepest:.1} mm deep: {}{}",
+            through.len(),
+            first.join(", "),
+            if through.len() > 5 { ", ..." } else { "" }
+        );
+    }
+    if !sc.spheres_without_muscles.is_empty() {
+        println!(
+            "self-check: {} wrap sphere(s) with no muscle over them",
+            sc.spheres_without_muscles.len()
+        );
+    }
+}
+
+/// A model name from a file stem: letters, digits, `_` and `-` kept,
+/// others `_` (OpenSim object names allow no spaces or slashes).
+fn patient_model_name(stem: &str) -> String {
+    stem.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
 }
 
 /// Levels above the field of view: which were not measured, what was

@@ -142,6 +142,13 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
         crate::util::write_atomic(p, b)?;
     }
     let r = &c.report;
+    if r.operators.len() == 1 && args.files.len() > 1 {
+        println!(
+            "note: one operator: without `# operator:` comments or an operator column the {} files are \
+             treated as repetitions of one operator (no inter-operator statistics)",
+            args.files.len()
+        );
+    }
     println!(
         "{} palpations, {} operators, {} landmarks; wrote {} files to {}",
         r.palpations,
