@@ -21,6 +21,7 @@ pub mod build;
 pub mod calibrate;
 pub mod cli;
 pub mod diagnose;
+pub mod embedded;
 pub mod error;
 pub mod evaluate;
 pub mod landmarks;

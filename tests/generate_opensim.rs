@@ -562,6 +562,7 @@ fn one_run(
             .ok()
             .and_then(|v| v.parse().ok())
             .unwrap_or(osim_spine::build::generate::pose::OUTLIER_SIGMAS),
+        ..GenerateOptions::default()
     };
     let g = generate(base, &set, "noisy.csv", &opts, None).unwrap();
     let shape = ModelShape::from_document(

@@ -13,7 +13,7 @@ use std::path::PathBuf;
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Model(s) to evaluate (several: one per palpation -> median and IQR).
-    #[arg(long, value_name = "MODEL.osim", required = true)]
+    #[arg(long, value_name = "MODEL.osim", required = true, num_args = 1..)]
     pub model: Vec<PathBuf>,
     /// Truth: a centres CSV (`level,x,y,z`, `# units:`, `# frame:`) or a
     /// folder of vertebral-body meshes `<LEVEL>*.stl|obj|vtp|ply`.

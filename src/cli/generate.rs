@@ -7,11 +7,12 @@
 //! `<stem>_frontal.svg` / `<stem>_sagittal.svg` are written, each
 //! atomically. Nothing is written on error.
 
-use crate::build::base::DirMeshSource;
 use crate::build::generate::{generate, GenerateOptions, Method};
+pub use crate::embedded::base_file;
+use crate::embedded::BaseModel;
 use crate::error::Error;
 use crate::landmarks::check::{check_raw, Severity};
-use crate::osim::geometry::{check_relative, resolve, MeshLookup};
+use crate::osim::geometry::check_relative;
 use crate::osim::model::Geometry;
 use crate::osim::Document;
 use std::path::{Path, PathBuf};
@@ -21,9 +22,10 @@ pub use crate::landmarks::check::GENERATE_BLOCKING as BLOCKING;
 /// Arguments of `generate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Base model: a folder holding one .osim (and its meshes), or an .osim file.
-    #[arg(long, value_name = "DIR", default_value = "base_model")]
-    pub base: PathBuf,
+    /// Base model: a folder holding one .osim (and its meshes), or an .osim
+    /// file (default: the base model compiled into the binary).
+    #[arg(long, value_name = "DIR")]
+    pub base: Option<PathBuf>,
     /// Patient landmark set (.csv, .trc, .json; see ../shared/formats/landmarks.md).
     #[arg(long, value_name = "FILE")]
     pub landmarks: PathBuf,
@@ -41,6 +43,11 @@ pub struct Args {
     /// (independent fits).
     #[arg(long, default_value = "chain")]
     pub smooth: String,
+    /// Levels above the landmarks' field of view: balance (a compensatory
+    /// frontal curve so that T1 sits over S1_SEC, level) or keep (the base
+    /// model's joint angles above the top measured vertebra).
+    #[arg(long, value_name = "balance|keep", default_value = "balance")]
+    pub above_fov: String,
     /// Skip the self-check (bushings, muscles through bone, equilibrium).
     #[arg(long)]
     pub no_self_check: bool,
@@ -52,56 +59,24 @@ pub struct Args {
 /// `--out` may not be an input (after symlinks) nor go into the base
 /// model's folder (its Geometry/ would be overwritten), unless `--force`.
 fn refuse_overwriting_inputs(args: &Args) -> crate::Result<()> {
-    let base = base_file(&args.base)?;
-    let folder = match base.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let protected = crate::util::guard::Protected::default()
-        .file(&base)
-        .file(&args.landmarks)
-        .folder(&folder);
+    let mut protected = crate::util::guard::Protected::default().file(&args.landmarks);
+    // an embedded base has no folder to protect
+    if let Some(arg) = &args.base {
+        let base = base_file(arg)?;
+        let folder = match base.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        protected = protected.file(&base).folder(&folder);
+    }
     crate::util::guard::check_outputs(&[&args.out], &protected, args.force)
-}
-
-/// The base model file of `--base`.
-pub fn base_file(base: &Path) -> crate::Result<PathBuf> {
-    if base.is_file() {
-        return Ok(base.to_path_buf());
-    }
-    let rd = std::fs::read_dir(base).map_err(|e| Error::io(base, e))?;
-    let mut osims: Vec<PathBuf> = rd
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().map(|e| e == "osim").unwrap_or(false))
-        .collect();
-    osims.sort();
-    match osims.len() {
-        1 => Ok(osims.remove(0)),
-        0 => Err(Error::invalid(
-            base.display().to_string(),
-            "no .osim model in the base folder",
-        )),
-        _ => {
-            let pick = base.join("base.osim");
-            if pick.is_file() {
-                Ok(pick)
-            } else {
-                Err(Error::invalid(
-                    base.display().to_string(),
-                    format!(
-                        "{} .osim files and no base.osim: give the file",
-                        osims.len()
-                    ),
-                ))
-            }
-        }
-    }
 }
 
 /// Run `generate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let method: Method = args.method.parse()?;
     let smooth: crate::build::generate::Smooth = args.smooth.parse()?;
+    let above_fov: crate::build::generate::AboveFov = args.above_fov.parse()?;
     if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
@@ -145,17 +120,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if let Some(d) = &set.detection {
         println!("landmarks: {}", d.summary());
     }
-    let base_path = base_file(&args.base)?;
-    let base = Document::read(&base_path)?;
-    let source = DirMeshSource {
-        model_path: base_path.clone(),
-        extra: vec![],
-    };
+    let base_model = BaseModel::locate(args.base.as_deref())?;
+    let base = base_model.read()?;
     let opts = GenerateOptions {
         method,
         smooth,
         self_check: !args.no_self_check,
         views: true,
+        above_fov,
         ..GenerateOptions::default()
     };
     let g = generate(
@@ -163,8 +135,18 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         &set,
         &args.landmarks.display().to_string(),
         &opts,
-        Some(&source),
+        Some(&base_model),
     )?;
+    // The model is named after the patient's landmark file.
+    let mut g = g;
+    let patient = args
+        .landmarks
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "patient".into());
+    g.doc
+        .model_element_mut()
+        .set_attr("name", patient_model_name(&patient));
     // Everything computed: gather the bytes, then write.
     let dir = match args.out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
@@ -175,7 +157,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "model".into());
-    let mut files = model_files(&base_path, &g.doc, &args.out)?;
+    let mut files = model_files(&base_model, &g.doc, &args.out)?;
     files.push((
         dir.join(format!("{stem}_report.json")),
         serde_json::to_string_pretty(&g.report)?.into_bytes(),
@@ -210,30 +192,104 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         println!("outlier landmarks (rejected): {}", r.outliers.join(", "));
     }
     println!("orientation smoothing: {}", r.smoothing.note);
-    if let Some(sc) = &r.self_check {
-        println!(
-            "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {:.1} mm ({}){}",
-            sc.bushing_max_rotation,
-            sc.bushing_max_translation,
-            sc.muscle_segments_through_vertebrae.len(),
-            sc.equilibrium.max_displacement * 1e3,
-            sc.equilibrium.max_displacement_body,
-            match sc.equilibrium.stable {
-                Some(true) => ", stable",
-                Some(false) => ", unstable (a ligamentous spine without muscles buckles under body weight)",
-                None => "",
-            }
-        );
+    print_above_fov(r.above_fov.as_ref());
+    match &r.self_check {
+        Some(sc) => print_self_check(sc),
+        None => println!("self-check: skipped (--no-self-check)"),
     }
     println!("wrote {} files to {}", files.len(), dir.display());
     Ok(0)
 }
 
+/// Above this displacement (m) under gravity a "stable" equilibrium is
+/// not the model's posture but where the spine sagged to.
+const SAGGED_M: f64 = 0.02;
+
+/// The self-check, every result stated; muscles through bone are warned.
+fn print_self_check(sc: &crate::build::base::check::SelfCheck) {
+    let eq = &sc.equilibrium;
+    let disp = eq.max_displacement * 1e3;
+    let verdict = match eq.stable {
+        Some(true) if eq.max_displacement > SAGGED_M => "stable only after the spine sagged this far from its default posture (a ligamentous spine without muscles does not hold its posture under body weight)",
+        Some(true) => "stable",
+        Some(false) => "unstable (a ligamentous spine without muscles buckles under body weight)",
+        None => "stability not assessed",
+    };
+    println!(
+        "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {disp:.1} mm ({}), {verdict}",
+        sc.bushing_max_rotation,
+        sc.bushing_max_translation,
+        sc.muscle_segments_through_vertebrae.len(),
+        eq.max_displacement_body,
+    );
+    let through = &sc.muscle_segments_through_vertebrae;
+    if !through.is_empty() {
+        let deepest = through.iter().fold(0.0f64, |m, t| m.max(t.depth_mm));
+        let first: Vec<String> = through
+            .iter()
+            .take(5)
+            .map(|t| format!("{} in {} ({:.1} mm)", t.muscle, t.vertebra, t.depth_mm))
+            .collect();
+        eprintln!(
+            "warning: {} muscle segment(s) pass through a vertebra, up to {deepest:.1} mm deep: {}{}",
+            through.len(),
+            first.join(", "),
+            if through.len() > 5 { ", ..." } else { "" }
+        );
+    }
+    if !sc.spheres_without_muscles.is_empty() {
+        println!(
+            "self-check: {} wrap sphere(s) with no muscle over them",
+            sc.spheres_without_muscles.len()
+        );
+    }
+}
+
+/// A model name from a file stem: letters, digits, `_` and `-` kept,
+/// others `_` (OpenSim object names allow no spaces or slashes).
+fn patient_model_name(stem: &str) -> String {
+    stem.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+/// Levels above the field of view: which were not measured, what was
+/// done, where T1 ended.
+fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
+    let Some(a) = a else {
+        println!("above the field of view: none (the landmarks reach T1)");
+        return;
+    };
+    let done = if a.balanced.is_empty() {
+        "kept at the base model's joint angles (--above-fov keep)".to_string()
+    } else {
+        let max = a.bend_deg.iter().fold(0.0f64, |m, b| m.max(b.abs()));
+        format!(
+            "balanced {} by a compensatory frontal curve (largest bend {max:.1} deg per joint)",
+            a.balanced.join(" ")
+        )
+    };
+    println!(
+        "above the field of view: {} not measured; {done}; T1 ends {:.1} mm {} of the vertical through S1_SEC, {:.1} mm anterior, coronal tilt {:.1} deg",
+        a.unmeasured.join(" "),
+        a.t1_lateral_offset_mm.abs(),
+        if a.t1_lateral_offset_mm >= 0.0 { "right" } else { "left" },
+        a.t1_anterior_offset_mm,
+        a.t1_coronal_tilt_deg
+    );
+}
+
 /// The bytes of a generated model written to `out` (.osim): the model,
-/// then each mesh it references (read beside the base model at
-/// `base_path`) under `Geometry/` beside `out`.
+/// then each mesh it references (taken from the base model) under
+/// `Geometry/` beside `out`.
 pub fn model_files(
-    base_path: &Path,
+    base: &BaseModel,
     doc: &Document,
     out: &Path,
 ) -> crate::Result<Vec<(PathBuf, Vec<u8>)>> {
@@ -253,30 +309,19 @@ pub fn model_files(
             if mesh_file.is_empty() || !seen.insert(mesh_file.clone()) {
                 continue;
             }
-            let rel = check_relative(mesh_file).map_err(|why| {
+            let label = base.label().display().to_string();
+            let rel = check_relative(mesh_file)
+                .map_err(|why| Error::invalid(&label, format!("mesh_file '{mesh_file}' {why}")))?;
+            let bytes = base.mesh_bytes(mesh_file)?.ok_or_else(|| {
                 Error::invalid(
-                    base_path.display().to_string(),
-                    format!("mesh_file '{mesh_file}' {why}"),
+                    &label,
+                    format!(
+                        "mesh file '{mesh_file}' of body {} not found beside the base model",
+                        b.name
+                    ),
                 )
             })?;
-            match resolve(base_path, mesh_file, &[]) {
-                MeshLookup::Found(p) => {
-                    let bytes = crate::mesh::read_file_bytes(&p)?;
-                    files.push((dir.join("Geometry").join(rel), bytes));
-                }
-                MeshLookup::Missing => {
-                    return Err(Error::invalid(
-                        base_path.display().to_string(),
-                        format!(
-                            "mesh file '{mesh_file}' of body {} not found beside the base model",
-                            b.name
-                        ),
-                    ))
-                }
-                MeshLookup::Escapes(why) => {
-                    return Err(Error::invalid(base_path.display().to_string(), why))
-                }
-            }
+            files.push((dir.join("Geometry").join(rel), bytes));
         }
     }
     Ok(files)

@@ -16,6 +16,9 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::sync::Arc;
 
+/// Default landmark SD per coordinate (mm): the source thesis's value.
+pub const THESIS_LANDMARK_SD_MM: f64 = 2.9;
+
 /// Arguments of `sensitivity`.
 #[derive(Debug, ClapArgs)]
 pub struct Args {
@@ -33,8 +36,9 @@ pub struct Args {
     /// Number of landmark sets (joint-pose samples).
     #[arg(long, default_value_t = 500)]
     pub samples: usize,
-    /// Landmark SD per coordinate, millimetres.
-    #[arg(long, default_value_t = 1.0, value_name = "MM")]
+    /// Landmark SD per coordinate, millimetres (default 2.9 mm, the
+    /// palpation SD the source thesis used).
+    #[arg(long, default_value_t = THESIS_LANDMARK_SD_MM, value_name = "MM")]
     pub landmark_sd: f64,
     /// Seed of the Latin hypercube.
     #[arg(long, default_value_t = 1)]
@@ -71,8 +75,13 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         convention: Convention::Composed,
     };
     let exp = Arc::new(Experiment::read(&a.experiment)?);
+    let sd_note = if a.landmark_sd == THESIS_LANDMARK_SD_MM {
+        " (default: the source thesis's palpation SD; --landmark-sd sets it)"
+    } else {
+        ""
+    };
     eprintln!(
-        "sensitivity: {} samples, landmark SD {} mm, {}",
+        "sensitivity: {} samples, landmark SD {} mm{sd_note}, {}",
         a.samples, a.landmark_sd, a.params
     );
     let rep = sensitivity::run(

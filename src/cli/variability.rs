@@ -11,7 +11,6 @@
 use crate::build::generate::Method;
 use crate::evaluate::propagation::PropagationOptions;
 use crate::landmarks::variability;
-use crate::osim::Document;
 use anyhow::Context;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -31,9 +30,10 @@ pub struct Args {
     #[arg(long)]
     pub no_models: bool,
     /// Base model for the models: a folder holding one .osim (and its
-    /// meshes), or an .osim file.
-    #[arg(long, value_name = "DIR", default_value = "base_model")]
-    pub base: PathBuf,
+    /// meshes), or an .osim file (default: the base model compiled into
+    /// the binary).
+    #[arg(long, value_name = "DIR")]
+    pub base: Option<PathBuf>,
     /// Vertebra pose fit of the generator: lsq or thesis.
     #[arg(long, default_value = "lsq")]
     pub method: String,
@@ -85,36 +85,38 @@ pub fn run(args: &Args) -> anyhow::Result<i32> {
 
 fn run_inner(args: &Args) -> anyhow::Result<i32> {
     let mut base_path = None;
-    let models = if args.no_models {
-        None
-    } else {
-        let method: Method = args.method.parse()?;
-        let truth = match &args.truth {
-            Some(t) => Some(args.metrics.load_truth(t)?),
-            None => None,
-        };
-        let cobb_ends = args.metrics.cobb_ends()?;
-        let bp = super::generate::base_file(&args.base).with_context(|| {
-            format!(
+    let models =
+        if args.no_models {
+            None
+        } else {
+            let method: Method = args.method.parse()?;
+            let truth = match &args.truth {
+                Some(t) => Some(args.metrics.load_truth(t)?),
+                None => None,
+            };
+            let cobb_ends = args.metrics.cobb_ends()?;
+            let bp =
+                crate::embedded::BaseModel::locate(args.base.as_deref()).with_context(|| {
+                    format!(
                 "base model for the per-palpation models (--base {}; --no-models skips them)",
-                args.base.display()
+                args.base.as_deref().unwrap_or(std::path::Path::new("")).display()
             )
-        })?;
-        let base = Document::read(&bp)?;
-        base_path = Some(bp);
-        Some((
-            base,
-            PropagationOptions {
-                method,
-                truth,
-                align: args.metrics.align,
-                centre: args.metrics.centre,
-                cobb_ends,
-                progress: true,
-                keep_models: args.write_models,
-            },
-        ))
-    };
+                })?;
+            let base = bp.read()?;
+            base_path = Some(bp);
+            Some((
+                base,
+                PropagationOptions {
+                    method,
+                    truth,
+                    align: args.metrics.align,
+                    centre: args.metrics.centre,
+                    cobb_ends,
+                    progress: true,
+                    keep_models: args.write_models,
+                },
+            ))
+        };
     let c = variability::compute(&args.files, models.as_ref().map(|(b, o)| (b, o)))?;
     // Everything computed: gather the bytes, then write.
     let mut files: BTreeMap<PathBuf, Vec<u8>> = BTreeMap::new();
@@ -140,6 +142,13 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
         crate::util::write_atomic(p, b)?;
     }
     let r = &c.report;
+    if r.operators.len() == 1 && args.files.len() > 1 {
+        println!(
+            "note: one operator: without `# operator:` comments or an operator column the {} files are \
+             treated as repetitions of one operator (no inter-operator statistics)",
+            args.files.len()
+        );
+    }
     println!(
         "{} palpations, {} operators, {} landmarks; wrote {} files to {}",
         r.palpations,

@@ -591,6 +591,24 @@ pub fn truth_transform(m: &ModelShape, truth: &Truth, align: Align) -> Isometry3
     x_align * x_reg
 }
 
+/// The landmarks of `set` at the levels the truth covers (its landmark
+/// set's levels, else its centres' levels), S1 always kept.
+fn at_truth_levels(set: &LandmarkSet, truth: &Truth) -> LandmarkSet {
+    let levels: std::collections::BTreeSet<Level> = match &truth.landmarks {
+        Some(t) => t.levels().into_iter().collect(),
+        None => truth.centres.keys().copied().collect(),
+    };
+    LandmarkSet {
+        points: set
+            .points
+            .iter()
+            .filter(|(id, _)| id.level.is_sacrum() || levels.contains(&id.level))
+            .map(|(id, p)| (*id, *p))
+            .collect(),
+        detection: set.detection.clone(),
+    }
+}
+
 /// Evaluate one model against the truth. `cobb_ends` fixes the end
 /// vertebrae of the model's (and truth's) Cobb angle.
 pub fn evaluate_model(
@@ -639,14 +657,18 @@ pub fn evaluate_model(
      -> Vec<(f64, f64)> { common.iter().map(|l| (c[l].y, f(&c[l]))).collect() };
     let sagittal = metrics::curve_compare(&samples(&tc, |p| p.x), &samples(&m.centres, |p| p.x));
     let frontal = metrics::curve_compare(&samples(&tc, |p| p.z), &samples(&m.centres, |p| p.z));
-    let cobb = metrics::cobb(&m.landmarks, cobb_ends);
-    let tl = truth.landmarks.as_ref().map(|s| {
-        s.transformed(
-            x_t.rotation.to_rotation_matrix().matrix(),
-            &x_t.translation.vector,
-        )
-    });
-    let truth_cobb = tl.as_ref().and_then(|s| metrics::cobb(s, cobb_ends));
+    // The model's angles over the truth's levels only (levels above a
+    // field of view are not compared); the truth's from the truth alone,
+    // in its own frame (the same for every model).
+    // Model landmarks carried into the truth's frame (inverse alignment).
+    let xi = x_t.inverse();
+    let ml = at_truth_levels(&m.landmarks, truth).transformed(
+        xi.rotation.to_rotation_matrix().matrix(),
+        &xi.translation.vector,
+    );
+    let cobb = metrics::cobb(&ml, cobb_ends);
+    let tl = truth.landmarks.as_ref();
+    let truth_cobb = tl.and_then(|s| metrics::cobb(s, cobb_ends));
     let lvl = |s: &str| s.parse::<Level>().ok();
     let apex = cobb
         .as_ref()
@@ -672,8 +694,8 @@ pub fn evaluate_model(
         truth_cobb,
         apex: apex.map(|l| l.to_string()),
         truth_apex: truth_apex.map(|l| l.to_string()),
-        lordosis_deg: metrics::lordosis(&m.landmarks),
-        truth_lordosis_deg: tl.as_ref().and_then(metrics::lordosis),
+        lordosis_deg: metrics::lordosis(&ml),
+        truth_lordosis_deg: tl.and_then(metrics::lordosis),
         sacral_slope_deg: metrics::sacral_slope(&m.landmarks),
     })
 }
@@ -799,11 +821,32 @@ pub fn summarise(all: &[ModelMetrics]) -> Summary {
     }
 }
 
+/// Sign conventions and levels of the reported angles and errors.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Conventions {
+    pub axes: &'static str,
+    pub errors: &'static str,
+    pub cobb: &'static str,
+    pub lordosis: &'static str,
+    pub truth_metrics: &'static str,
+}
+
+/// The conventions written into every evaluation report.
+pub const CONVENTIONS: Conventions = Conventions {
+    axes: "OpenSim ground: X anterior, Y cranial, Z right (m internally, mm in the report)",
+    errors: "model minus truth (ap_mm along X, is_mm along Y, rl_mm along Z; cobb_error_deg = model - truth)",
+    cobb: "frontal-plane angle between the most tilted endplates (S1 excluded), signed: positive convex to the right; the model's over the truth's levels only",
+    lordosis: "L1 superior endplate to S1 superior endplate, sagittal tilt of L1 minus that of S1 (deg); negative = lordosis",
+    truth_metrics: "computed from the truth landmarks alone, in the truth's own frame (the same for every model); model landmarks are carried into that frame by the inverse alignment",
+};
+
 /// The full evaluation report.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct EvaluateReport {
     pub truth: String,
     pub vertebral_centre: &'static str,
+    /// Sign conventions and levels of the angles ([`CONVENTIONS`]).
+    pub conventions: Conventions,
     pub models: Vec<ModelMetrics>,
     pub summary: Summary,
 }
@@ -834,6 +877,7 @@ pub fn evaluate(
     Ok((
         EvaluateReport {
             truth: truth.source.clone(),
+            conventions: CONVENTIONS,
             vertebral_centre: centre_definition(def),
             models: all,
             summary,

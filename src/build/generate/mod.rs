@@ -40,6 +40,7 @@
 //! the disc below, X anterior, Y cranial, Z right; see
 //! [`crate::build::base`]); only the poses change.
 
+pub mod balance;
 pub mod chain;
 pub mod clear;
 pub mod example;
@@ -57,6 +58,7 @@ use crate::mesh::{umeyama, MeshQuery};
 use crate::osim::document::{set_f64, set_vec3};
 use crate::osim::model::Model;
 use crate::osim::Document;
+pub use balance::{AboveFov, AboveFovReport};
 use nalgebra::{Isometry3, Point3, Rotation3, UnitQuaternion, Vector3};
 pub use pose::Method;
 use pose::Points;
@@ -77,6 +79,8 @@ pub struct GenerateOptions {
     /// How the per-vertebra fits are combined along the spine (lsq only):
     /// [`Smooth::Chain`] by default ([`chain`]), [`smooth`], or off.
     pub smooth: Smooth,
+    /// Levels above the field of view: balanced (default) or kept ([`balance`]).
+    pub above_fov: AboveFov,
 }
 
 impl Default for GenerateOptions {
@@ -87,6 +91,7 @@ impl Default for GenerateOptions {
             views: true,
             outlier_sigmas: pose::OUTLIER_SIGMAS,
             smooth: Smooth::Chain,
+            above_fov: AboveFov::Balance,
         }
     }
 }
@@ -186,6 +191,9 @@ pub struct GenerateReport {
     /// ground at the default pose (m).
     pub centres: BTreeMap<String, [f64; 3]>,
     pub self_check: Option<crate::build::base::check::SelfCheck>,
+    /// Levels above the landmarks' field of view and where T1 ended
+    /// (`None` when the landmarks reach T1).
+    pub above_fov: Option<AboveFovReport>,
 }
 
 /// What the orientation smoothing did ([`smooth`]).
@@ -539,6 +547,18 @@ pub fn generate(
         rewritten.push(jf.joint.clone());
     }
     let prefixes: Vec<String> = prefixes;
+    // ---- 4b. levels above the field of view ([`balance`])
+    let above_fov = match vert_levels.first() {
+        Some(top) => balance::place_above_fov(
+            &mut doc,
+            &model,
+            *top,
+            patient[&Level::S1][&Code::SEC],
+            markers.get(&Level::T1).map(|(_, m)| m),
+            opts.above_fov,
+        )?,
+        None => None,
+    };
 
     // ---- 5. wrap spheres
     let base_radii: BTreeMap<String, f64> = model
@@ -691,6 +711,7 @@ pub fn generate(
             .map(|(l, p)| (l.to_string(), [p.x, p.y, p.z]))
             .collect(),
         self_check,
+        above_fov,
     };
     Ok(Generated { doc, report, views })
 }
