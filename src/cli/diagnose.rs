@@ -28,7 +28,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     };
     let o = diagnose::run(&a.experiment, &a.out, &opts)?;
     let (b, au) = o.heldout_rmse();
-    eprintln!(
+    crate::errln!(
         "verdict: {} (confidence {:.2}); held-out rotation RMSE {:.4} -> {:.4} deg; wrote {}",
         o.verdict,
         o.confidence,

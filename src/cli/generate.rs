@@ -136,14 +136,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .iter()
         .filter(|f| f.severity != Severity::Info && !blocking(f))
     {
-        eprintln!("warning: {} {}", f.code, f.message);
+        crate::errln!("warning: {} {}", f.code, f.message);
     }
     let set = raw.to_set()?;
     for n in &raw.notes {
-        println!("landmarks: {n}");
+        crate::outln!("landmarks: {n}");
     }
     if let Some(d) = &set.detection {
-        println!("landmarks: {}", d.summary());
+        crate::outln!("landmarks: {}", d.summary());
     }
     let base_path = base_file(&args.base)?;
     let base = Document::read(&base_path)?;
@@ -190,7 +190,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         crate::util::write_atomic(p, bytes)?;
     }
     let r = &g.report;
-    println!(
+    crate::outln!(
         "generated {} ({} method): {} vertebrae from landmarks ({}), {} kept from the base model",
         args.out.display(),
         r.method,
@@ -198,20 +198,20 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         r.levels_from_landmarks.join(" "),
         r.levels_from_base.len()
     );
-    println!(
+    crate::outln!(
         "sacral registration: {} landmarks, RMS {:.2} mm; landmark-to-model RMS {:.2} mm",
         r.registration.landmarks.len(),
         r.registration.rms_mm,
         r.landmark_rms_mm
     );
     if r.outliers.is_empty() {
-        println!("outlier landmarks: none");
+        crate::outln!("outlier landmarks: none");
     } else {
-        println!("outlier landmarks (rejected): {}", r.outliers.join(", "));
+        crate::outln!("outlier landmarks (rejected): {}", r.outliers.join(", "));
     }
-    println!("orientation smoothing: {}", r.smoothing.note);
+    crate::outln!("orientation smoothing: {}", r.smoothing.note);
     if let Some(sc) = &r.self_check {
-        println!(
+        crate::outln!(
             "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {:.1} mm ({}){}",
             sc.bushing_max_rotation,
             sc.bushing_max_translation,
@@ -225,7 +225,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
             }
         );
     }
-    println!("wrote {} files to {}", files.len(), dir.display());
+    crate::outln!("wrote {} files to {}", files.len(), dir.display());
     Ok(0)
 }
 

@@ -151,7 +151,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let doc = Document::read(&a.model)?;
     let model = doc.model()?;
     for w in crate::osim::physics::warnings(&model) {
-        eprintln!("warning: {}: {w}", a.model.display());
+        crate::errln!("warning: {}: {w}", a.model.display());
     }
     if a.dynamic.is_some() {
         refuse_impossible_inertia(&model)?;
@@ -268,9 +268,13 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             })
             .collect::<Vec<_>>();
         for v in &clamped_range_violations {
-            eprintln!(
+            crate::errln!(
                 "warning: case '{}': clamped coordinate '{}' = {} is outside its range [{}, {}]",
-                case.id, v.coordinate, v.value, v.range[0], v.range[1]
+                case.id,
+                v.coordinate,
+                v.value,
+                v.range[0],
+                v.range[1]
             );
         }
         let g = sys.gravity();
@@ -296,7 +300,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         ));
     }
     write_all(&a.out, &outputs)?;
-    eprintln!(
+    crate::errln!(
         "simulate: {} case(s) written to {}",
         cases.len(),
         a.out.display()
