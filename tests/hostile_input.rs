@@ -634,3 +634,38 @@ fn stiffness_list_does_not_overwrite_the_model() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
 }
+
+// ---------------------------------------------------------------------------
+// Panics (2): a closed stdout ends the command quietly.
+
+/// Run `args` with stdout closed by the reader before anything is read.
+fn run_with_closed_stdout(args: &[&str]) -> Output {
+    let mut child = Command::new(common::bin())
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    child.wait_with_output().unwrap()
+}
+
+#[test]
+fn closed_stdout_is_not_a_panic() {
+    let d = tempfile::tempdir().unwrap();
+    let bad = d.path().join("bad.csv");
+    std::fs::write(&bad, "x\n").unwrap();
+    // check: > 64 KB of findings
+    let many: Vec<&str> = std::iter::once("check")
+        .chain(std::iter::repeat_n(s(&bad), 2000))
+        .collect();
+    let o = run_with_closed_stdout(&many);
+    assert!(!text(&o).contains("panicked"), "{}", text(&o));
+    assert_ne!(o.status.code(), Some(101), "{}", text(&o));
+    // info --json of a 2,000-body chain (> 64 KB)
+    let m = d.path().join("chain.osim");
+    std::fs::write(&m, chain(2_000)).unwrap();
+    let o = run_with_closed_stdout(&["info", "--json", s(&m)]);
+    assert!(!text(&o).contains("panicked"), "{}", text(&o));
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+}

@@ -201,7 +201,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         crate::util::write_atomic(p, bytes)?;
     }
     let r = &built.report;
-    println!(
+    crate::outln!(
         "base model: {} bodies, {} joints ({} rebuilt 6-DoF), {} muscles kept ({} dropped), {} bushings",
         r.prune.bodies_kept.len(),
         r.joints.len(),
@@ -211,18 +211,20 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         r.joints.iter().filter(|j| j.bushing.is_some()).count(),
     );
     if let Some(s) = &r.sacrum {
-        println!(
+        crate::outln!(
             "sacrum: {} registered, RMS surface distance {:.2} mm (max {:.2} mm)",
-            s.source, s.residual_to_generic.rms_mm, s.residual_to_generic.max_mm
+            s.source,
+            s.residual_to_generic.rms_mm,
+            s.residual_to_generic.max_mm
         );
     }
-    println!(
+    crate::outln!(
         "wrap spheres: {}, path wraps: {} on {} muscles; markers: {}",
         r.spheres.len(),
         r.path_wraps_added,
         r.muscles_with_wraps,
         r.markers.len()
     );
-    println!("wrote {} files to {}", files.len(), args.out.display());
+    crate::outln!("wrote {} files to {}", files.len(), args.out.display());
     Ok(0)
 }

@@ -203,7 +203,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     let setup = setup_from(a)?;
     let exp = Arc::new(Experiment::read(&a.experiment)?);
     for w in &exp.warnings {
-        eprintln!("warning: {w}");
+        crate::errln!("warning: {w}");
     }
     let (pb, fam) = setup::build_problem(exp.clone(), &setup)?;
     let fopts = FitOptions {
@@ -212,7 +212,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         progress: true,
         ..FitOptions::default()
     };
-    eprintln!(
+    crate::errln!(
         "calibrate: {} ({} cases, {} residuals), {} parameters ({}), {} starts",
         exp.name,
         exp.cases.len(),
@@ -228,7 +228,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         .predict(&pb, &nominal)
         .context("solving the nominal model")?;
     let loco = if a.loco {
-        eprintln!("calibrate: leave-one-case-out ...");
+        crate::errln!("calibrate: leave-one-case-out ...");
         Some(validate::leave_one_case_out(&pb, &cal.best, &fopts)?)
     } else {
         None
@@ -239,7 +239,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     } else {
         let mut items: Vec<(Problem, Vec<f64>)> = vec![(pb.clone(), cal.best.clone())];
         for dir in &a.loso {
-            eprintln!(
+            crate::errln!(
                 "calibrate: leave-one-specimen-out: calibrating {} ...",
                 dir.display()
             );
@@ -335,7 +335,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     write_atomic(&a.out.join("fit.svg"), fit_svg.as_bytes())?;
     write_atomic(&a.out.join("params.svg"), params_svg.as_bytes())?;
     let unit = exp.units.angle;
-    eprintln!(
+    crate::errln!(
         "calibrate: rotation RMSE {:.4} {unit} (nominal model {:.4} {unit}); {} local minim{} from {} starts{}; condition number {:.3e}",
         rep.fit.rotation_rmse,
         rep.nominal_fit.rotation_rmse,
@@ -349,7 +349,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         cal.identifiability.condition_number
     );
     for e in &cal.estimates {
-        eprintln!(
+        crate::errln!(
             "  {:<14} {:>12.4} {}  95% CI [{:.4}, {:.4}]{}",
             e.name,
             e.value,
@@ -360,12 +360,13 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         );
     }
     for p in &cal.identifiability.poorly_determined {
-        eprintln!(
+        crate::errln!(
             "warning: parameter {} is poorly determined: {}",
-            p.name, p.reason
+            p.name,
+            p.reason
         );
     }
-    eprintln!("calibrate: written to {}", a.out.display());
+    crate::errln!("calibrate: written to {}", a.out.display());
     Ok(0)
 }
 

@@ -35,9 +35,9 @@ pub fn run(args: &Args) -> anyhow::Result<i32> {
         Format::Json => format_json(&reports),
         Format::Github => format_github(&reports),
     };
-    print!("{out}");
+    crate::out!("{out}");
     if args.format == Format::Json {
-        println!();
+        crate::outln!();
     }
     Ok(exit_code(&reports, args.strict))
 }

@@ -77,7 +77,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         }
         let mesh = crate::mesh::read(&args.input)?;
         crate::mesh::write(&args.output, &mesh)?;
-        eprintln!(
+        crate::errln!(
             "wrote {} ({} vertices, {} triangles)",
             args.output.display(),
             mesh.vertices.len(),
@@ -98,7 +98,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         );
     }
     let (doc, s) = convert_checked(&args)?;
-    eprintln!(
+    crate::errln!(
         "wrote {} (version {} -> {}; {} bodies, {} joints, {} forces, {} markers)",
         args.output.display(),
         doc.original_version(),
@@ -109,14 +109,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         s.markers
     );
     if !s.meshes_missing.is_empty() {
-        eprintln!(
+        crate::errln!(
             "note: {} of {} mesh files not found beside the model (see `osim-spine info`)",
             s.meshes_missing.len(),
             s.mesh_files
         );
     }
     for m in &s.meshes_refused {
-        eprintln!("warning: mesh {m}");
+        crate::errln!("warning: mesh {m}");
     }
     Ok(0)
 }

@@ -28,7 +28,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     };
     let o = diagnose::run(&a.experiment, &a.out, &opts)?;
     let (b, au) = o.heldout_rmse();
-    eprintln!(
+    crate::errln!(
         "verdict: {} (confidence {:.2}); held-out rotation RMSE {:.4} -> {:.4} deg; wrote {}",
         o.verdict,
         o.confidence,
@@ -36,8 +36,8 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         au,
         a.out.join("diagnosis.json").display()
     );
-    eprintln!("{}", diagnose::report::noise_line(&o));
-    eprintln!("{}", diagnose::report::params_line(&o));
-    eprintln!("{}", diagnose::report::separable_line(&o));
+    crate::errln!("{}", diagnose::report::noise_line(&o));
+    crate::errln!("{}", diagnose::report::params_line(&o));
+    crate::errln!("{}", diagnose::report::separable_line(&o));
     Ok(0)
 }

@@ -104,7 +104,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
             .as_ref()
             .map(|c| format!(" (truth {:.1} deg, {}-{})", c.angle_deg, c.upper, c.lower))
             .unwrap_or_default();
-        println!(
+        crate::outln!(
             "{}: centre RMSE {:.2} mm ({} align{}); Cobb {cobb}{tcobb}; apex {}; lordosis {}",
             m.model,
             m.centre_rmse_mm,
@@ -121,18 +121,23 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if report.models.len() > 1 {
         let s = &report.summary;
         if let Some(r) = &s.centre_rmse_mm {
-            println!(
+            crate::outln!(
                 "{} models: median centre RMSE {:.2} mm (IQR {:.2})",
-                s.models, r.median, r.iqr
+                s.models,
+                r.median,
+                r.iqr
             );
         }
         if let Some(c) = &s.cobb_deg {
-            println!(
+            crate::outln!(
                 "Cobb angle mean {:.1} deg (SD {:.1}, min {:.1}, max {:.1})",
-                c.mean, c.sd, c.min, c.max
+                c.mean,
+                c.sd,
+                c.min,
+                c.max
             );
         }
     }
-    println!("wrote {} files to {}", files.len(), args.out.display());
+    crate::outln!("wrote {} files to {}", files.len(), args.out.display());
     Ok(0)
 }

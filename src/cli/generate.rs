@@ -111,14 +111,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .iter()
         .filter(|f| f.severity != Severity::Info && !blocking(f))
     {
-        eprintln!("warning: {} {}", f.code, f.message);
+        crate::errln!("warning: {} {}", f.code, f.message);
     }
     let set = raw.to_set()?;
     for n in &raw.notes {
-        println!("landmarks: {n}");
+        crate::outln!("landmarks: {n}");
     }
     if let Some(d) = &set.detection {
-        println!("landmarks: {}", d.summary());
+        crate::outln!("landmarks: {}", d.summary());
     }
     let base_model = BaseModel::locate(args.base.as_deref())?;
     let base = base_model.read()?;
@@ -172,7 +172,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         crate::util::write_atomic(p, bytes)?;
     }
     let r = &g.report;
-    println!(
+    crate::outln!(
         "generated {} ({} method): {} vertebrae from landmarks ({}), {} kept from the base model",
         args.out.display(),
         r.method,
@@ -180,24 +180,24 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         r.levels_from_landmarks.join(" "),
         r.levels_from_base.len()
     );
-    println!(
+    crate::outln!(
         "sacral registration: {} landmarks, RMS {:.2} mm; landmark-to-model RMS {:.2} mm",
         r.registration.landmarks.len(),
         r.registration.rms_mm,
         r.landmark_rms_mm
     );
     if r.outliers.is_empty() {
-        println!("outlier landmarks: none");
+        crate::outln!("outlier landmarks: none");
     } else {
-        println!("outlier landmarks (rejected): {}", r.outliers.join(", "));
+        crate::outln!("outlier landmarks (rejected): {}", r.outliers.join(", "));
     }
-    println!("orientation smoothing: {}", r.smoothing.note);
+    crate::outln!("orientation smoothing: {}", r.smoothing.note);
     print_above_fov(r.above_fov.as_ref());
     match &r.self_check {
         Some(sc) => print_self_check(sc),
-        None => println!("self-check: skipped (--no-self-check)"),
+        None => crate::outln!("self-check: skipped (--no-self-check)"),
     }
-    println!("wrote {} files to {}", files.len(), dir.display());
+    crate::outln!("wrote {} files to {}", files.len(), dir.display());
     Ok(0)
 }
 
@@ -215,7 +215,7 @@ fn print_self_check(sc: &crate::build::base::check::SelfCheck) {
         Some(false) => "unstable (a ligamentous spine without muscles buckles under body weight)",
         None => "stability not assessed",
     };
-    println!(
+    crate::outln!(
         "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {disp:.1} mm ({}), {verdict}",
         sc.bushing_max_rotation,
         sc.bushing_max_translation,
@@ -230,7 +230,7 @@ fn print_self_check(sc: &crate::build::base::check::SelfCheck) {
             .take(5)
             .map(|t| format!("{} in {} ({:.1} mm)", t.muscle, t.vertebra, t.depth_mm))
             .collect();
-        eprintln!(
+        crate::errln!(
             "warning: {} muscle segment(s) pass through a vertebra, up to {deepest:.1} mm deep: {}{}",
             through.len(),
             first.join(", "),
@@ -238,7 +238,7 @@ fn print_self_check(sc: &crate::build::base::check::SelfCheck) {
         );
     }
     if !sc.spheres_without_muscles.is_empty() {
-        println!(
+        crate::outln!(
             "self-check: {} wrap sphere(s) with no muscle over them",
             sc.spheres_without_muscles.len()
         );
@@ -263,7 +263,7 @@ fn patient_model_name(stem: &str) -> String {
 /// done, where T1 ended.
 fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
     let Some(a) = a else {
-        println!("above the field of view: none (the landmarks reach T1)");
+        crate::outln!("above the field of view: none (the landmarks reach T1)");
         return;
     };
     let done = if a.balanced.is_empty() {
@@ -275,7 +275,7 @@ fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
             a.balanced.join(" ")
         )
     };
-    println!(
+    crate::outln!(
         "above the field of view: {} not measured; {done}; T1 ends {:.1} mm {} of the vertical through S1_SEC, {:.1} mm anterior, coronal tilt {:.1} deg",
         a.unmeasured.join(" "),
         a.t1_lateral_offset_mm.abs(),

@@ -182,12 +182,12 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     let s = summarize(&doc, &model, &args.geometry)?;
     refuse_escaping_meshes(&s)?;
     for w in crate::osim::physics::warnings(&model) {
-        eprintln!("warning: {}: {w}", args.model.display());
+        crate::errln!("warning: {}: {w}", args.model.display());
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&s)?);
+        crate::outln!("{}", serde_json::to_string_pretty(&s)?);
     } else {
-        print!("{}", render(&s));
+        crate::out!("{}", render(&s));
     }
     Ok(0)
 }

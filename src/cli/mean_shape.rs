@@ -43,7 +43,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         )
     })?;
     crate::util::write_atomic(&args.out, &crate::mesh::to_bytes(fmt, &mean))?;
-    println!(
+    crate::outln!(
         "mean of {} meshes ({} vertices): RMS distance to the mean {:.3} mm after {} iterations; wrote {}",
         meshes.len(),
         mean.vertices.len(),

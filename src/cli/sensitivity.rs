@@ -80,9 +80,11 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     } else {
         ""
     };
-    eprintln!(
+    crate::errln!(
         "sensitivity: {} samples, landmark SD {} mm{sd_note}, {}",
-        a.samples, a.landmark_sd, a.params
+        a.samples,
+        a.landmark_sd,
+        a.params
     );
     let rep = sensitivity::run(
         exp.clone(),
@@ -106,25 +108,29 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     write_atomic(&a.out.join("sensitivity.json"), json.as_bytes())?;
     write_atomic(&a.out.join("spread.svg"), svg.as_bytes())?;
-    eprintln!(
+    crate::errln!(
         "sensitivity: {} of {} samples in the reduced dataset; rotation RMSE median {:.4} (reference {:.4})",
         rep.reduced, rep.samples, rep.rmse.median, rep.reference_rmse
     );
     for s in &rep.params {
-        eprintln!(
+        crate::errln!(
             "  {:<14} reference {:>10.3}  median {:>10.3}  95% range [{:.3}, {:.3}]",
-            s.name, s.reference, s.median, s.p2_5, s.p97_5
+            s.name,
+            s.reference,
+            s.median,
+            s.p2_5,
+            s.p97_5
         );
     }
     if let Some(t) = &rep.two_factor {
-        eprintln!(
+        crate::errln!(
             "  two-factor (RMSE): pose {:.1}%, stiffness {:.1}%, interaction {:.1}%",
             100.0 * t.share_pose,
             100.0 * t.share_stiffness,
             100.0 * t.share_interaction
         );
     }
-    eprintln!("sensitivity: written to {}", a.out.display());
+    crate::errln!("sensitivity: written to {}", a.out.display());
     Ok(0)
 }
 

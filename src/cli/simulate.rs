@@ -183,7 +183,7 @@ fn setup(a: &Args, specimen: Option<&Specimen>) -> anyhow::Result<Setup> {
     let doc = Document::read(&a.model)?;
     let model = doc.model()?;
     for w in crate::osim::physics::warnings(&model) {
-        eprintln!("warning: {}: {w}", a.model.display());
+        crate::errln!("warning: {}: {w}", a.model.display());
     }
     if a.dynamic.is_some() {
         refuse_impossible_inertia(&model)?;
@@ -261,11 +261,19 @@ fn solve_case(
     let u0 = vec![0.0; sys.n_dofs()];
     let bar = step_bar(&case.id, t, a.dt);
     let traj = integ
-        .run_observed(sys, &loads, ws, (q0.as_slice(), &u0), t, every, &mut |s, _| {
-            if s % 1000 == 0 {
-                bar.set_position(s as u64)
-            }
-        })
+        .run_observed(
+            sys,
+            &loads,
+            ws,
+            (q0.as_slice(), &u0),
+            t,
+            every,
+            &mut |s, _| {
+                if s % 1000 == 0 {
+                    bar.set_position(s as u64)
+                }
+            },
+        )
         .with_context(ctx)?;
     bar.finish_and_clear();
     let Some(last) = traj.last() else {
@@ -323,9 +331,13 @@ fn case_record(
         })
         .collect::<Vec<_>>();
     for v in &clamped_range_violations {
-        eprintln!(
+        crate::errln!(
             "warning: case '{}': clamped coordinate '{}' = {} is outside its range [{}, {}]",
-            case.id, v.coordinate, v.value, v.range[0], v.range[1]
+            case.id,
+            v.coordinate,
+            v.value,
+            v.range[0],
+            v.range[1]
         );
     }
     let g = sys.gravity();
@@ -439,7 +451,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     let (cases, specimen) = read_load_file(&a.load)?;
     let st = setup(&a, specimen.as_ref())?;
     let g = st.sys.gravity();
-    println!(
+    crate::outln!(
         "simulate: gravity {}, fixed body {}{}",
         if g.norm() > 0.0 { "on" } else { "off" },
         st.fixed.as_deref().unwrap_or("none"),
@@ -460,7 +472,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     ) {
         Ok(sol) => Some(poses(&st.sys, sol.q.as_slice())?),
         Err(e) => {
-            eprintln!("warning: no unloaded equilibrium ({e}): displacements from the default pose, no kinematics.csv");
+            crate::errln!("warning: no unloaded equilibrium ({e}): displacements from the default pose, no kinematics.csv");
             None
         }
     };
@@ -487,7 +499,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             Some(p) => (p, "the unloaded equilibrium"),
             None => (&p_default, "the default pose"),
         };
-        println!(
+        crate::outln!(
             "{}",
             case_line(case, &out, largest_displacement(from, &p1), from_name)
         );
@@ -512,7 +524,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
         outputs.push((a.out.join("kinematics.csv"), kin.into_bytes()));
     }
     write_all(&a.out, &outputs)?;
-    println!(
+    crate::outln!(
         "simulate: {} case(s) written to {}",
         cases.len(),
         a.out.display()

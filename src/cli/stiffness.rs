@@ -87,7 +87,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         };
         match &args.out {
             Some(p) => write_atomic(p, text.as_bytes())?,
-            None => print!("{text}"),
+            None => crate::out!("{text}"),
         }
         return Ok(0);
     }
@@ -104,7 +104,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     let model = new.model()?;
     crate::solver::SystemSpec::from_model(&model)?;
     new.write(out)?;
-    eprintln!(
+    crate::errln!(
         "{} of {} levels set from {}, {} bushing(s) rewritten -> {}",
         laws.len(),
         personalise::levels(&doc)?.len(),

@@ -143,13 +143,13 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
     }
     let r = &c.report;
     if r.operators.len() == 1 && args.files.len() > 1 {
-        println!(
+        crate::outln!(
             "note: one operator: without `# operator:` comments or an operator column the {} files are \
              treated as repetitions of one operator (no inter-operator statistics)",
             args.files.len()
         );
     }
-    println!(
+    crate::outln!(
         "{} palpations, {} operators, {} landmarks; wrote {} files to {}",
         r.palpations,
         r.operators.len(),
@@ -158,22 +158,30 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
         args.out.display()
     );
     for s in r.summary.iter().filter(|s| s.group == "all") {
-        println!(
+        crate::outln!(
             "  IQR {:<9} median {:.2} mm, IQR of IQRs {:.2} mm, max {:.2} mm",
-            s.axis, s.median_mm, s.iqr_mm, s.max_mm
+            s.axis,
+            s.median_mm,
+            s.iqr_mm,
+            s.max_mm
         );
     }
     if let Some(p) = &r.model_propagation {
-        println!(
+        crate::outln!(
             "  models: {} of {} palpations ({} method), reference: {} ({}); Cobb ends {}",
-            p.models, p.palpations, p.method, p.reference.kind, p.reference.source, p.cobb_ends
+            p.models,
+            p.palpations,
+            p.method,
+            p.reference.kind,
+            p.reference.source,
+            p.cobb_ends
         );
         let mi = |m: &Option<crate::evaluate::MedIqr>| {
             m.as_ref()
                 .map(|m| format!("{:.2} ({:.2})", m.median, m.iqr))
                 .unwrap_or_else(|| "-".into())
         };
-        println!(
+        crate::outln!(
             "  {:<22} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}",
             "group (median (IQR))",
             "centre RMSE mm",
@@ -185,7 +193,7 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
             "lordosis deg"
         );
         for g in &p.groups {
-            println!(
+            crate::outln!(
                 "  {:<22} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}",
                 format!("{} {}", g.kind, g.within),
                 mi(&g.centre_rmse_mm),
@@ -198,7 +206,7 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
             );
         }
         for row in p.rows.iter().filter(|r| !r.ok) {
-            println!(
+            crate::outln!(
                 "  no model for {}: {}",
                 row.source,
                 row.error.as_deref().unwrap_or("")
@@ -206,7 +214,7 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
         }
     }
     for n in &r.notes {
-        println!("  note: {n}");
+        crate::outln!("  note: {n}");
     }
     Ok(0)
 }

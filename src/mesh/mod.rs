@@ -226,10 +226,11 @@ pub const MAX_COORDINATE: f64 = 1e9;
 /// Refuse a mesh with a coordinate that is not finite or beyond
 /// [`MAX_COORDINATE`], naming the vertex.
 pub fn check_coordinates(mesh: &TriMesh, name: &Path) -> Result<()> {
-    let bad = mesh
-        .vertices
-        .iter()
-        .position(|p| p.coords.iter().any(|x| !(x.abs() <= MAX_COORDINATE)));
+    let bad = mesh.vertices.iter().position(|p| {
+        p.coords
+            .iter()
+            .any(|x| !x.is_finite() || x.abs() > MAX_COORDINATE)
+    });
     match bad {
         None => Ok(()),
         Some(i) => Err(Error::parse(

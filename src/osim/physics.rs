@@ -73,7 +73,7 @@ pub fn breaks_triangle(inertia: &[f64; 6]) -> bool {
 
 /// Why a coordinate default is refused, if it is.
 pub fn default_error(value: f64) -> Option<String> {
-    (!(value.abs() <= MAX_COORDINATE_DEFAULT)).then(|| {
+    (!value.is_finite() || value.abs() > MAX_COORDINATE_DEFAULT).then(|| {
         format!(
             "default_value {value:e} is not finite or beyond +-{MAX_COORDINATE_DEFAULT:e} (rad or m)"
         )
@@ -83,7 +83,7 @@ pub fn default_error(value: f64) -> Option<String> {
 /// Why a bushing stiffness or damping vector is refused, if it is.
 pub fn stiffness_error(prop: &str, v: &[f64]) -> Option<String> {
     v.iter()
-        .any(|x| !(x.abs() <= MAX_STIFFNESS))
+        .any(|x| !x.is_finite() || x.abs() > MAX_STIFFNESS)
         .then(|| format!("{prop} {v:?} is not finite or beyond +-{MAX_STIFFNESS:e}"))
 }
 

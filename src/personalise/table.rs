@@ -285,7 +285,7 @@ fn dof_map(
                 )
             })?;
             let si = v * factor.map(|f| f[i]).unwrap_or(1.0);
-            if !(si.abs() <= MAX_STIFFNESS) {
+            if !si.is_finite() || si.abs() > MAX_STIFFNESS {
                 return Err(Error::parse(
                     path,
                     loc,
@@ -459,7 +459,7 @@ fn toml_row(path: &Path, loc: String, r: &TomlRow, units: &Units) -> Result<Row>
         let mut k = [[0.0; 6]; 6];
         for (i, rr) in m.iter().enumerate() {
             for (j, v) in rr.iter().enumerate() {
-                if !(v.abs() <= MAX_STIFFNESS) {
+                if !v.is_finite() || v.abs() > MAX_STIFFNESS {
                     return Err(Error::parse(
                         path,
                         &loc,
@@ -734,7 +734,7 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
                     format!("column {}: '{cell}' is not a number", ci + 1),
                 )
             })?;
-            if !(v.abs() <= MAX_STIFFNESS) {
+            if !v.is_finite() || v.abs() > MAX_STIFFNESS {
                 return Err(Error::parse(
                     path,
                     &loc,
