@@ -26,6 +26,7 @@ pub mod evaluate;
 pub mod landmarks;
 pub mod mesh;
 pub mod osim;
+pub mod palpation;
 pub mod personalise;
 pub mod solver;
 pub mod util;
