@@ -28,6 +28,7 @@ pub mod mesh;
 pub mod osim;
 pub mod palpation;
 pub mod personalise;
+pub mod segmentation;
 pub mod solver;
 pub mod util;
 
