@@ -225,25 +225,51 @@ fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
 /// Palpate every level: vertebrae cranial to caudal with
 /// [`palpation::palpate_vertebra`], the sacrum with
 /// [`palpation::palpate_sacrum`] facing the palpated L5. The one place the
-/// engine is called.
+/// engine is called. A level whose palpation reports errors is palpated
+/// once more with the vertebra frame the engine found as the hint (the
+/// hints from the anatomy are rough; the engine's frame is closer), and
+/// the better of the two kept.
 pub fn palpate_levels(
     levels: &[LevelInput],
     hints: &[FrameHint],
 ) -> Vec<(Level, Result<VertebraPalpation>)> {
     let mut out: Vec<(Level, Result<VertebraPalpation>)> = Vec::new();
     for (input, hint) in levels.iter().zip(hints) {
-        let r = if input.level.is_sacrum() {
-            let l5 = out
-                .iter()
-                .find(|(l, _)| *l == Level::L5)
-                .and_then(|(_, r)| r.as_ref().ok());
-            palpation::palpate_sacrum(&input.mesh, hint, l5)
-        } else {
-            palpation::palpate_vertebra(&input.mesh, input.level, hint)
+        let l5 = out
+            .iter()
+            .find(|(l, _)| *l == Level::L5)
+            .and_then(|(_, r)| r.as_ref().ok())
+            .cloned();
+        let run = |h: &FrameHint| {
+            if input.level.is_sacrum() {
+                palpation::palpate_sacrum(&input.mesh, h, l5.as_ref())
+            } else {
+                palpation::palpate_vertebra(&input.mesh, input.level, h)
+            }
         };
+        let mut r = run(hint);
+        if let Ok(p) = &r {
+            if has_errors(p) {
+                let again = FrameHint {
+                    anterior: p.frame.rotation * nalgebra::Vector3::x(),
+                    cranial: p.frame.rotation * nalgebra::Vector3::y(),
+                };
+                let r2 = run(&again);
+                if r2.as_ref().is_ok_and(|p2| !has_errors(p2)) {
+                    r = r2;
+                }
+            }
+        }
         out.push((input.level, r));
     }
     out
+}
+
+/// `true` when the engine reported an error finding.
+fn has_errors(p: &VertebraPalpation) -> bool {
+    p.findings
+        .iter()
+        .any(|f| f.severity == palpation::Severity::Error)
 }
 
 /// Read, screen, palpate and assemble (see the module documentation).
