@@ -22,6 +22,7 @@ pub const MAX_MESH_BYTES: u64 = 512 * 1024 * 1024;
 
 /// The level files of a folder, by level (one or, for TotalSegmentator's
 /// sacrum, two files), and notes on the files ignored.
+#[allow(clippy::type_complexity)]
 pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<String>)> {
     let rd = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
     let mut paths: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();

@@ -30,6 +30,7 @@ impl LabelStats {
 }
 
 /// Statistics of every non-zero label present, by label.
+#[allow(clippy::needless_range_loop)]
 pub fn label_stats(map: &LabelMap) -> std::collections::BTreeMap<u16, LabelStats> {
     let mut stats: Vec<Option<LabelStats>> = vec![None; 65536];
     let [nx, ny, _] = map.dims;
