@@ -27,7 +27,9 @@ pub mod evaluate;
 pub mod landmarks;
 pub mod mesh;
 pub mod osim;
+pub mod palpation;
 pub mod personalise;
+pub mod segmentation;
 pub mod solver;
 pub mod util;
 

@@ -27,8 +27,19 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     pub base: Option<PathBuf>,
     /// Patient landmark set (.csv, .trc, .json; see ../shared/formats/landmarks.md).
-    #[arg(long, value_name = "FILE")]
-    pub landmarks: PathBuf,
+    #[arg(
+        long,
+        value_name = "FILE",
+        required_unless_present = "segmentation",
+        conflicts_with = "segmentation"
+    )]
+    pub landmarks: Option<PathBuf>,
+    /// Palpate these vertebra segmentations first (see `osim-spine palpate`):
+    /// the landmarks are written beside the model as `<stem>_landmarks.csv`.
+    #[arg(long, value_name = "SEGMENTATION")]
+    pub segmentation: Option<PathBuf>,
+    #[command(flatten)]
+    pub seg: super::palpate::SegArgs,
     /// Output model (.osim); meshes go to Geometry/ beside it.
     #[arg(long, value_name = "MODEL.osim")]
     pub out: PathBuf,
@@ -59,7 +70,10 @@ pub struct Args {
 /// `--out` may not be an input (after symlinks) nor go into the base
 /// model's folder (its Geometry/ would be overwritten), unless `--force`.
 fn refuse_overwriting_inputs(args: &Args) -> crate::Result<()> {
-    let mut protected = crate::util::guard::Protected::default().file(&args.landmarks);
+    let mut protected = crate::util::guard::Protected::default();
+    for input in args.landmarks.iter().chain(&args.segmentation) {
+        protected = protected.file(input);
+    }
     // an embedded base has no folder to protect
     if let Some(arg) = &args.base {
         let base = base_file(arg)?;
@@ -81,8 +95,8 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
     refuse_overwriting_inputs(&args)?;
-    // Landmarks: check, then load strictly.
-    let raw = crate::landmarks::read_path(&args.landmarks)?;
+    // Landmarks (read, or palpated on the segmentation): check, then load strictly.
+    let (raw, landmarks_name, mut palpated) = landmark_source(&args)?;
     let rep = check_raw(&raw);
     let blocking = |f: &crate::landmarks::check::Finding| {
         f.severity == Severity::Error && BLOCKING.contains(&f.code.as_str())
@@ -98,7 +112,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .collect();
     if !errors.is_empty() {
         return Err(Error::invalid(
-            args.landmarks.display().to_string(),
+            landmarks_name.clone(),
             format!(
                 "the landmark set fails its checks (see `osim-spine check`):\n  {}",
                 errors.join("\n  ")
@@ -130,18 +144,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         above_fov,
         ..GenerateOptions::default()
     };
-    let g = generate(
-        &base,
-        &set,
-        &args.landmarks.display().to_string(),
-        &opts,
-        Some(&base_model),
-    )?;
-    // The model is named after the patient's landmark file.
+    let g = generate(&base, &set, &landmarks_name, &opts, Some(&base_model))?;
+    // The model is named after the patient's landmark file (or segmentation).
     let mut g = g;
     let patient = args
         .landmarks
-        .file_stem()
+        .as_ref()
+        .or(args.segmentation.as_ref())
+        .and_then(|p| p.file_stem())
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "patient".into());
     g.doc
@@ -158,6 +168,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "model".into());
     let mut files = model_files(&base_model, &g.doc, &args.out)?;
+    files.append(&mut palpated);
     files.push((
         dir.join(format!("{stem}_report.json")),
         serde_json::to_string_pretty(&g.report)?.into_bytes(),
@@ -283,6 +294,49 @@ fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
         a.t1_anterior_offset_mm,
         a.t1_coronal_tilt_deg
     );
+}
+
+/// The raw landmarks, their name for messages and reports, and the files
+/// of a palpation to write beside the model (`--segmentation`).
+#[allow(clippy::type_complexity)]
+fn landmark_source(
+    args: &Args,
+) -> anyhow::Result<(
+    crate::landmarks::RawLandmarks,
+    String,
+    Vec<(PathBuf, Vec<u8>)>,
+)> {
+    if let Some(path) = &args.landmarks {
+        return Ok((
+            crate::landmarks::read_path(path)?,
+            path.display().to_string(),
+            vec![],
+        ));
+    }
+    let seg = args
+        .segmentation
+        .as_ref()
+        .ok_or_else(|| Error::invalid("generate", "give --landmarks or --segmentation"))?;
+    let p = crate::segmentation::palpate(seg, &args.seg.options()?)?;
+    super::palpate::print_summary(&p);
+    let stem = args
+        .out
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "model".into());
+    let csv_path = args.out.with_file_name(format!("{stem}_landmarks.csv"));
+    let files = super::palpate::output_files(&p, &csv_path);
+    let text = String::from_utf8_lossy(&files[0].1).to_string();
+    let raw = crate::landmarks::io::parse_csv(&text, &csv_path)?
+        .into_iter()
+        .next()
+        .ok_or_else(|| Error::invalid(seg.display().to_string(), "no landmark palpated"))?
+        .raw;
+    Ok((
+        raw,
+        format!("{} (palpated)", crate::segmentation::source_name(seg)),
+        files,
+    ))
 }
 
 /// The bytes of a generated model written to `out` (.osim): the model,

@@ -12,6 +12,7 @@ pub mod evaluate;
 pub mod generate;
 pub mod info;
 pub mod mean_shape;
+pub mod palpate;
 pub mod sensitivity;
 pub mod simulate;
 pub mod stiffness;
@@ -64,6 +65,10 @@ pub enum Command {
     /// (sacral registration, per-vertebra anisotropic scaling and pose,
     /// joints placed so that every bushing is undeflected at the default pose).
     Generate(generate::Args),
+    /// Landmarks palpated with no operator on vertebra segmentations (a
+    /// folder of per-level meshes or a NIfTI label map): landmark CSV,
+    /// JSON report per landmark, SVG of the palpated levels.
+    Palpate(palpate::Args),
     /// Accuracy of model(s) against truth vertebral centres: centre RMSE,
     /// per-axis errors, curve fits, Cobb angle, apex, lordosis; JSON + SVG.
     Evaluate(evaluate::Args),
@@ -89,6 +94,7 @@ pub fn main() -> i32 {
         Command::Variability(a) => variability::run(&a),
         Command::Generate(a) => generate::run(a),
         Command::Evaluate(a) => evaluate::run(a),
+        Command::Palpate(a) => palpate::run(a),
         Command::Stiffness(a) => stiffness::run(a),
     };
     match result {

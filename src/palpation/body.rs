@@ -1,0 +1,223 @@
+//! The vertebral body in the vertebra's local frame (X anterior, Y cranial,
+//! Z right, the mid-sagittal plane is `z = 0`): its walls, its endplate
+//! regions and the endplate landmarks (centre, mid-sagittal ends, lateral
+//! extremes).
+
+use super::local::LocalMesh;
+use crate::mesh::{MeshQuery, TriMesh};
+use nalgebra::{Point3, Vector3};
+
+/// Walls of the vertebral body (local coordinates, m).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Walls {
+    pub x_ant: f64,
+    pub x_post: f64,
+    pub z_right: f64,
+    pub z_left: f64,
+    /// Height range of the anterior part of the mesh.
+    pub y_lo: f64,
+    pub y_hi: f64,
+}
+
+impl Walls {
+    pub fn depth(&self) -> f64 {
+        self.x_ant - self.x_post
+    }
+    pub fn half_width(&self) -> f64 {
+        0.5 * (self.z_right - self.z_left)
+    }
+    pub fn height(&self) -> f64 {
+        self.y_hi - self.y_lo
+    }
+    pub fn y_mid(&self) -> f64 {
+        0.5 * (self.y_hi + self.y_lo)
+    }
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(v[v.len() / 2])
+}
+
+/// Anterior and posterior walls by rays along -X through the body on and
+/// beside the midline; lateral walls by rays along -Z/+Z from outside.
+pub(crate) fn find_walls(lm: &LocalMesh, q: &MeshQuery) -> Option<Walls> {
+    let x_max = lm.verts.iter().map(|p| p.x).fold(f64::MIN, f64::max);
+    let x_min = lm.verts.iter().map(|p| p.x).fold(f64::MAX, f64::min);
+    let span = x_max - x_min;
+    // Height of the anterior quarter of the mesh (the body's front).
+    let front: Vec<f64> = lm
+        .verts
+        .iter()
+        .filter(|p| p.x > x_max - 0.25 * span)
+        .map(|p| p.y)
+        .collect();
+    let y_lo = front.iter().copied().fold(f64::MAX, f64::min);
+    let y_hi = front.iter().copied().fold(f64::MIN, f64::max);
+    let h = y_hi - y_lo;
+    if !(h > 0.0) {
+        return None;
+    }
+    let y0 = 0.5 * (y_lo + y_hi);
+    let (mut xa, mut xp) = (Vec::new(), Vec::new());
+    for dy in [-0.25, -0.125, 0.0, 0.125, 0.25] {
+        for z in [0.0, 0.12 * h, -0.12 * h] {
+            let o = Point3::new(x_max + 0.1 * span, y0 + dy * h, z);
+            let hits = q.ray_hits(&o, &(-Vector3::x()), f64::MAX);
+            if hits.len() >= 2 {
+                xa.push(hits[0].point.x);
+                xp.push(hits[1].point.x);
+            }
+        }
+    }
+    let (x_ant, x_post) = (median(xa)?, median(xp)?);
+    let xc = 0.5 * (x_ant + x_post);
+    let side = |dir: f64| {
+        let zs: Vec<f64> = [-0.15, 0.0, 0.15]
+            .iter()
+            .filter_map(|dy| {
+                let o = Point3::new(xc, y0 + dy * h, dir * 2.0 * span);
+                q.ray_hits(&o, &Vector3::new(0.0, 0.0, -dir), f64::MAX)
+                    .first()
+                    .map(|hit| hit.point.z)
+            })
+            .collect();
+        median(zs)
+    };
+    Some(Walls {
+        x_ant,
+        x_post,
+        z_right: side(1.0)?,
+        z_left: side(-1.0)?,
+        y_lo,
+        y_hi,
+    })
+}
+
+/// One endplate region.
+#[derive(Debug, Clone)]
+pub(crate) struct Endplate {
+    /// Faces of the region.
+    pub faces: Vec<usize>,
+    /// Outward unit normal (local; cranial for the superior endplate).
+    pub normal: Vector3<f64>,
+    /// Plane offset: `normal . p = offset`.
+    pub offset: f64,
+    /// Region area (m^2).
+    pub area: f64,
+}
+
+/// The endplate region by the protocol: body faces within 40 deg of the
+/// endplate normal, within a few mm of its plane, between the walls.
+pub(crate) fn find_endplate(lm: &LocalMesh, w: &Walls, superior: bool) -> Option<Endplate> {
+    let s = if superior { 1.0 } else { -1.0 };
+    let cos40 = 40f64.to_radians().cos();
+    let margin = 0.04 * w.depth();
+    let tol = (0.1 * w.height()).max(0.003);
+    let in_column = |c: &Point3<f64>| {
+        c.x >= w.x_post - margin
+            && c.x <= w.x_ant + margin
+            && c.z <= w.z_right + margin
+            && c.z >= w.z_left - margin
+            && s * (c.y - w.y_mid()) > 0.0
+    };
+    let mut normal = Vector3::y() * s;
+    let mut plane: Option<f64> = None;
+    let mut faces = Vec::new();
+    for _ in 0..3 {
+        faces = (0..lm.tris.len())
+            .filter(|&f| {
+                let c = &lm.centroids[f];
+                lm.normals[f].dot(&normal) >= cos40
+                    && in_column(c)
+                    && plane.is_none_or(|d| (normal.dot(&c.coords) - d).abs() <= tol)
+            })
+            .collect();
+        let area: f64 = faces.iter().map(|&f| lm.areas[f]).sum();
+        if faces.is_empty() || !(area > 0.0) {
+            return None;
+        }
+        let n = faces
+            .iter()
+            .fold(Vector3::zeros(), |a, &f| a + lm.normals[f] * lm.areas[f]);
+        normal = n.try_normalize(1e-12)?;
+        // Plane offset: the area-weighted median height of the faces, but
+        // on the first pass the outermost faces (the endplate is the cap).
+        let mut hs: Vec<(f64, f64)> = faces
+            .iter()
+            .map(|&f| (normal.dot(&lm.centroids[f].coords), lm.areas[f]))
+            .collect();
+        hs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let target = if plane.is_none() { 0.5 + 0.25 } else { 0.5 };
+        let mut acc = 0.0;
+        let d = hs.iter().find(|(_, a)| {
+            acc += a;
+            acc >= target * area
+        });
+        plane = d.map(|x| x.0);
+    }
+    let area = faces.iter().map(|&f| lm.areas[f]).sum();
+    Some(Endplate {
+        faces,
+        normal,
+        offset: plane?,
+        area,
+    })
+}
+
+/// Landmarks of one endplate (local): centre, anterior, posterior, right,
+/// left, and whether the mid-sagittal section was found.
+pub(crate) struct EndplatePoints {
+    pub centre: Point3<f64>,
+    pub front: Point3<f64>,
+    pub back: Point3<f64>,
+    pub right: Point3<f64>,
+    pub left: Point3<f64>,
+    pub midline_section: bool,
+}
+
+/// SEC/IEC (area centroid projected onto the region), SA/SP (ends of the
+/// region's mid-sagittal section), SR/SL (extreme region points along Z).
+pub(crate) fn endplate_points(lm: &LocalMesh, ep: &Endplate) -> Option<EndplatePoints> {
+    let region: TriMesh = lm.submesh(&ep.faces);
+    let rq = MeshQuery::new(&region).ok()?;
+    let c = ep.faces.iter().fold(Vector3::zeros(), |a, &f| {
+        a + lm.centroids[f].coords * lm.areas[f]
+    }) / ep.area;
+    let centre = rq.closest_point(&Point3::from(c)).point;
+    let corners: Vec<Point3<f64>> = region.vertices.clone();
+    let ext = |key: &dyn Fn(&Point3<f64>) -> f64| {
+        corners
+            .iter()
+            .copied()
+            .max_by(|a, b| key(a).total_cmp(&key(b)))
+    };
+    let right = ext(&|p| p.z)?;
+    let left = ext(&|p| -p.z)?;
+    let section = lm.cut(ep.faces.iter().copied(), 2, 0.0);
+    let midline_section = section.len() >= 2;
+    let pts = if midline_section {
+        section
+    } else {
+        corners.clone()
+    };
+    let front = pts
+        .iter()
+        .copied()
+        .max_by(|a, b| (a.x - a.z.abs()).total_cmp(&(b.x - b.z.abs())))?;
+    let back = pts
+        .iter()
+        .copied()
+        .max_by(|a, b| (-a.x - a.z.abs()).total_cmp(&(-b.x - b.z.abs())))?;
+    Some(EndplatePoints {
+        centre,
+        front,
+        back,
+        right,
+        left,
+        midline_section,
+    })
+}

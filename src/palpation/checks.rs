@@ -1,0 +1,151 @@
+//! Findings: the protocol's invariants on a palpated vertebra (14 distinct
+//! points, midline codes on the mid-sagittal plane, right/left and
+//! superior/inferior order) and anatomical plausibility of the mesh
+//! (left-right symmetry, pedicles on the upper body, centre in the body).
+
+use super::{BodyState, Finding, Severity, VertebraPalpation};
+use crate::landmarks::Code;
+use nalgebra::Point3;
+
+/// Two landmarks closer than this are "the same point" (m).
+pub const DISTINCT_M: f64 = 0.001;
+/// Midline codes must lie this close to the mid-sagittal plane (m).
+pub const MIDLINE_M: f64 = 0.002;
+/// Relative mirror cost above which a mesh is not left-right symmetric.
+const ASYMMETRY_WARN: f64 = 0.02;
+const ASYMMETRY_ERROR: f64 = 0.04;
+
+fn finding(
+    p: &VertebraPalpation,
+    code: Option<Code>,
+    severity: Severity,
+    message: String,
+) -> Finding {
+    Finding {
+        level: p.level,
+        code,
+        severity,
+        message,
+    }
+}
+
+/// The protocol invariants, checked in the palpation's own frame.
+pub fn protocol_findings(p: &VertebraPalpation) -> Vec<Finding> {
+    use Code::*;
+    let mut out = Vec::new();
+    let local: Vec<(Code, Point3<f64>)> = p
+        .landmarks
+        .keys()
+        .filter_map(|c| p.local(*c).map(|q| (*c, q)))
+        .collect();
+    for (i, (a, pa)) in local.iter().enumerate() {
+        for (b, pb) in &local[i + 1..] {
+            let d = (pa - pb).norm();
+            if d < DISTINCT_M {
+                let msg = format!(
+                    "{a} and {b} are {:.2} mm apart: two codes on one point",
+                    d * 1e3
+                );
+                out.push(finding(p, Some(*b), Severity::Error, msg));
+            }
+        }
+    }
+    for (c, q) in &local {
+        if matches!(c, SA | SP | SEC | IEC | IA | IP) && q.z.abs() > MIDLINE_M {
+            let msg = format!(
+                "{:.1} mm off the mid-sagittal plane (limit {:.0} mm)",
+                q.z.abs() * 1e3,
+                MIDLINE_M * 1e3
+            );
+            out.push(finding(p, Some(*c), Severity::Error, msg));
+        }
+    }
+    let get = |c: Code| local.iter().find(|(k, _)| *k == c).map(|(_, q)| *q);
+    let mut order = |a: Code, b: Code, axis: usize, what: &str| {
+        if let (Some(pa), Some(pb)) = (get(a), get(b)) {
+            if pa[axis] <= pb[axis] {
+                let msg = format!(
+                    "{a} is not {what} of {b} ({:.1} mm the wrong way)",
+                    (pb[axis] - pa[axis]) * 1e3
+                );
+                out.push(finding(p, Some(a), Severity::Error, msg));
+            }
+        }
+    };
+    for (a, b) in [(SR, SL), (IR, IL), (PTR, PTL), (PBR, PBL)] {
+        order(a, b, 2, "right");
+    }
+    for (a, b) in [(SEC, IEC), (SA, IA), (SP, IP), (PTR, PBR), (PTL, PBL)] {
+        order(a, b, 1, "superior");
+    }
+    for (a, b) in [(SA, SP), (IA, IP)] {
+        order(a, b, 0, "anterior");
+    }
+    out
+}
+
+/// Plausibility of the mesh as a vertebra (local coordinates of `st`).
+pub(crate) fn anatomy_findings(st: &BodyState, sym_cost: f64, p: &mut VertebraPalpation) {
+    let mut out = Vec::new();
+    if sym_cost > ASYMMETRY_WARN {
+        let sev = if sym_cost > ASYMMETRY_ERROR {
+            Severity::Error
+        } else {
+            Severity::Warning
+        };
+        let msg = format!(
+            "the mesh is not left-right symmetric (mirror mismatch {:.1} % of its size): half a vertebra or not a vertebra? SEC..IL are placed on a doubtful mid-sagittal plane",
+            sym_cost * 100.0
+        );
+        out.push(finding(p, None, sev, msg));
+    }
+    // Pedicles leave the upper half of the body: below it, the mesh is upside-down.
+    let w = &st.walls;
+    let ped_mid = [Code::PTR, Code::PBR, Code::PTL, Code::PBL]
+        .iter()
+        .filter_map(|c| p.local(*c).map(|q| q.y))
+        .sum::<f64>()
+        / 4.0;
+    let body_mid = p
+        .local(Code::SEC)
+        .zip(p.local(Code::IEC))
+        .map(|(a, b)| 0.5 * (a.y + b.y))
+        .unwrap_or(0.0);
+    if ped_mid < body_mid - 0.1 * w.height() {
+        let msg = format!(
+            "the pedicles join the lower half of the body ({:.1} mm below its mid-height): is the mesh upside-down or the hint's cranial reversed?",
+            (body_mid - ped_mid) * 1e3
+        );
+        out.push(finding(p, Some(Code::PTR), Severity::Error, msg));
+    }
+    out.extend(centre_findings(st, p));
+    p.findings.extend(out);
+}
+
+/// The vertebral centre must lie between the walls and the endplates.
+fn centre_findings(st: &BodyState, p: &VertebraPalpation) -> Vec<Finding> {
+    let c = st.lm.to_mesh.inverse() * p.centre;
+    let w = &st.walls;
+    let mut why = Vec::new();
+    if c.x < w.x_post || c.x > w.x_ant {
+        why.push(format!(
+            "x = {:.1} mm outside the walls {:.1}..{:.1} mm",
+            c.x * 1e3,
+            w.x_post * 1e3,
+            w.x_ant * 1e3
+        ));
+    }
+    if st.sup.normal.dot(&c.coords) > st.sup.offset || st.inf.normal.dot(&c.coords) > st.inf.offset
+    {
+        why.push("not between the endplate planes".to_string());
+    }
+    if c.z.abs() > 0.003 {
+        why.push(format!(
+            "{:.1} mm off the mid-sagittal plane",
+            c.z.abs() * 1e3
+        ));
+    }
+    why.into_iter()
+        .map(|m| finding(p, None, Severity::Error, format!("vertebral centre {m}")))
+        .collect()
+}

@@ -1,0 +1,122 @@
+//! The mid-sagittal plane of a vertebra mesh: its plane of left-right
+//! symmetry, found by mirroring surface samples through a trial plane and
+//! minimising their mean distance to the surface (pattern search over the
+//! plane's two tilt angles and its offset), started from the hint's right
+//! axis and from every principal axis within 50 deg of it.
+
+use crate::mesh::{sample_surface, MeshQuery, TriMesh};
+use nalgebra::{Point3, Rotation3, Unit, Vector3};
+
+/// A fitted symmetry plane `{p : normal . p = offset}`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SymmetryPlane {
+    /// Unit normal, pointing to the vertebra's right (same side as the hint).
+    pub normal: Vector3<f64>,
+    pub offset: f64,
+    /// Mean mirrored-sample distance divided by the mesh's size.
+    pub relative_cost: f64,
+}
+
+/// Number of surface samples mirrored per trial plane.
+const SAMPLES: usize = 300;
+
+/// Mean distance of the mirrored samples to the surface, each capped.
+fn mirror_cost(q: &MeshQuery, pts: &[Point3<f64>], n: &Vector3<f64>, d: f64, cap: f64) -> f64 {
+    let sum: f64 = pts
+        .iter()
+        .map(|p| {
+            let m = p - n * (2.0 * (n.dot(&p.coords) - d));
+            q.distance(&m).min(cap)
+        })
+        .sum();
+    sum / pts.len() as f64
+}
+
+/// The normal obtained by tilting `n0` by `a` about `u` and `b` about `v`.
+fn tilted(n0: &Vector3<f64>, u: &Vector3<f64>, v: &Vector3<f64>, a: f64, b: f64) -> Vector3<f64> {
+    let ra = Rotation3::from_axis_angle(&Unit::new_normalize(*u), a);
+    let rb = Rotation3::from_axis_angle(&Unit::new_normalize(*v), b);
+    (rb * ra * n0).normalize()
+}
+
+/// Pattern search from one starting normal; returns (normal, offset, cost).
+fn refine(
+    q: &MeshQuery,
+    pts: &[Point3<f64>],
+    n0: Vector3<f64>,
+    size: f64,
+) -> (Vector3<f64>, f64, f64) {
+    let u = n0
+        .cross(&Vector3::x())
+        .try_normalize(1e-6)
+        .unwrap_or_else(|| n0.cross(&Vector3::y()).normalize());
+    let v = n0.cross(&u);
+    let mean = pts.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / pts.len() as f64;
+    let cap = 0.1 * size;
+    let mut x = [0.0, 0.0, n0.dot(&mean)];
+    let eval = |x: &[f64; 3]| mirror_cost(q, pts, &tilted(&n0, &u, &v, x[0], x[1]), x[2], cap);
+    let mut f = eval(&x);
+    let mut step = [8f64.to_radians(), 8f64.to_radians(), 0.04 * size];
+    for _ in 0..300 {
+        let mut improved = false;
+        for k in 0..3 {
+            for s in [1.0, -1.0] {
+                let mut y = x;
+                y[k] += s * step[k];
+                let fy = eval(&y);
+                if fy < f {
+                    (x, f, improved) = (y, fy, true);
+                    break;
+                }
+            }
+        }
+        if !improved {
+            step.iter_mut().for_each(|s| *s *= 0.5);
+            if step[0] < 0.1f64.to_radians() {
+                break;
+            }
+        }
+    }
+    (tilted(&n0, &u, &v, x[0], x[1]), x[2], f)
+}
+
+/// The symmetry plane nearest the hint's right direction.
+pub(crate) fn symmetry_plane(
+    mesh: &TriMesh,
+    q: &MeshQuery,
+    right_hint: &Vector3<f64>,
+) -> Option<SymmetryPlane> {
+    let (lo, hi) = mesh.bounds()?;
+    let size = (hi - lo).norm();
+    let pts: Vec<Point3<f64>> = sample_surface(mesh, SAMPLES, 7)
+        .into_iter()
+        .map(|(p, _)| p)
+        .collect();
+    if pts.len() < 10 {
+        return None;
+    }
+    let hint = right_hint.try_normalize(1e-12)?;
+    // Starting normals: the hint and principal axes within 50 deg of it.
+    let mut starts = vec![hint];
+    if let Some(axes) = crate::mesh::geom::point_principal_axes(&pts) {
+        for c in 0..3 {
+            let a: Vector3<f64> = axes.axes.column(c).into_owned();
+            if a.dot(&hint).abs() >= 50f64.to_radians().cos() {
+                starts.push(a * a.dot(&hint).signum());
+            }
+        }
+    }
+    let best = starts
+        .into_iter()
+        .map(|n0| refine(q, &pts, n0, size))
+        .min_by(|a, b| a.2.total_cmp(&b.2))?;
+    let (mut n, mut d) = (best.0, best.1);
+    if n.dot(&hint) < 0.0 {
+        (n, d) = (-n, -d);
+    }
+    Some(SymmetryPlane {
+        normal: n,
+        offset: d,
+        relative_cost: best.2 / size,
+    })
+}

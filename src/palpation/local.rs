@@ -1,0 +1,138 @@
+//! A vertebra mesh prepared for palpation: welded, consistently wound,
+//! and expressed in a trial vertebra frame (X anterior, Y cranial, Z
+//! right), with per-face normals, areas and centroids, plus plane cuts.
+
+use crate::error::{Error, Result};
+use crate::mesh::{MeshQuery, TriMesh};
+use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use std::collections::BTreeMap;
+
+/// The mesh in a trial frame.
+pub(crate) struct LocalMesh {
+    /// Local -> mesh coordinates.
+    pub to_mesh: Isometry3<f64>,
+    /// Vertices in local coordinates.
+    pub verts: Vec<Point3<f64>>,
+    /// Triangles (welded, consistently wound).
+    pub tris: Vec<[u32; 3]>,
+    /// Outward unit normal, area and centroid of each triangle (local).
+    pub normals: Vec<Vector3<f64>>,
+    pub areas: Vec<f64>,
+    pub centroids: Vec<Point3<f64>>,
+}
+
+/// Weld and orient a mesh once (shared by every trial frame).
+pub(crate) fn prepare(mesh: &TriMesh, ctx: &str) -> Result<TriMesh> {
+    mesh.validate()?;
+    let (lo, hi) = mesh
+        .bounds()
+        .ok_or_else(|| Error::invalid(ctx, "the mesh has no vertices"))?;
+    let size = (hi - lo).norm();
+    if !(size > 0.0) || mesh.triangles.len() < 4 {
+        return Err(Error::invalid(ctx, "the mesh is empty or degenerate"));
+    }
+    let (mut welded, _) = mesh.welded(1e-7 * size);
+    welded.orient_consistently();
+    Ok(welded)
+}
+
+/// A right-handed rotation whose columns are (anterior, cranial, right),
+/// from an anterior direction and a normal of the mid-sagittal plane.
+pub(crate) fn frame_rotation(anterior: &Vector3<f64>, right: &Vector3<f64>) -> Rotation3<f64> {
+    let z = right.normalize();
+    let x = (anterior - z * z.dot(anterior)).normalize();
+    let y = z.cross(&x);
+    Rotation3::from_basis_unchecked(&[x, y, z])
+}
+
+impl LocalMesh {
+    /// Express `mesh` (prepared) in the frame `to_mesh` (local -> mesh).
+    pub fn new(mesh: &TriMesh, rot: Rotation3<f64>, origin: Point3<f64>) -> LocalMesh {
+        let to_mesh = Isometry3::from_parts(
+            Translation3::from(origin.coords),
+            UnitQuaternion::from_rotation_matrix(&rot),
+        );
+        let inv = to_mesh.inverse();
+        let verts: Vec<Point3<f64>> = mesh.vertices.iter().map(|p| inv * p).collect();
+        let mut normals = Vec::with_capacity(mesh.triangles.len());
+        let mut areas = Vec::with_capacity(mesh.triangles.len());
+        let mut centroids = Vec::with_capacity(mesh.triangles.len());
+        for t in &mesh.triangles {
+            let [a, b, c] = t.map(|k| verts[k as usize]);
+            let w = (b - a).cross(&(c - a));
+            let area = 0.5 * w.norm();
+            normals.push(w.try_normalize(0.0).unwrap_or_else(Vector3::zeros));
+            areas.push(area);
+            centroids.push(Point3::from((a.coords + b.coords + c.coords) / 3.0));
+        }
+        LocalMesh {
+            to_mesh,
+            verts,
+            tris: mesh.triangles.clone(),
+            normals,
+            areas,
+            centroids,
+        }
+    }
+
+    /// Map a local point to mesh coordinates.
+    pub fn to_mesh_point(&self, p: &Point3<f64>) -> Point3<f64> {
+        self.to_mesh * p
+    }
+
+    /// The sub-mesh of the given triangles (local coordinates).
+    pub fn submesh(&self, faces: &[usize]) -> TriMesh {
+        let mut map: BTreeMap<u32, u32> = BTreeMap::new();
+        let mut vertices = Vec::new();
+        let mut triangles = Vec::new();
+        for &f in faces {
+            let t = self.tris[f].map(|k| {
+                *map.entry(k).or_insert_with(|| {
+                    vertices.push(self.verts[k as usize]);
+                    (vertices.len() - 1) as u32
+                })
+            });
+            triangles.push(t);
+        }
+        TriMesh {
+            vertices,
+            triangles,
+        }
+    }
+
+    /// Query structure on the whole local mesh.
+    pub fn query(&self) -> Result<MeshQuery> {
+        MeshQuery::new(&TriMesh {
+            vertices: self.verts.clone(),
+            triangles: self.tris.clone(),
+        })
+    }
+
+    /// Points where the edges of the given faces cross the plane
+    /// `p[axis] = value` (exactly on the plane, on the surface).
+    pub fn cut(
+        &self,
+        faces: impl Iterator<Item = usize>,
+        axis: usize,
+        value: f64,
+    ) -> Vec<Point3<f64>> {
+        let mut out = Vec::new();
+        for f in faces {
+            let t = self.tris[f];
+            for j in 0..3 {
+                let (a, b) = (
+                    self.verts[t[j] as usize],
+                    self.verts[t[(j + 1) % 3] as usize],
+                );
+                let (da, db) = (a[axis] - value, b[axis] - value);
+                if (da < 0.0) != (db < 0.0) && da != db {
+                    let s = da / (da - db);
+                    let mut p = a + (b - a) * s;
+                    p[axis] = value;
+                    out.push(p);
+                }
+            }
+        }
+        out
+    }
+}

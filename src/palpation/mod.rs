@@ -1,0 +1,366 @@
+//! The palpation engine: the 14 landmarks of `../shared/formats/landmarks.md`
+//! ("How each landmark is placed") and the thesis's vertebral centre,
+//! found on one vertebra mesh in any pose, given a rough anatomical hint.
+//!
+//! Steps of [`palpate_vertebra`] (each a named function):
+//! 1. [`local::prepare`]: weld and orient the mesh;
+//! 2. [`frame::symmetry_plane`]: the mid-sagittal plane (left-right symmetry);
+//! 3. iterate the vertebra frame: [`body::find_walls`] (anterior/posterior
+//!    walls by rays along -X, lateral walls), [`body::find_endplate`]
+//!    (faces within 40 deg of the endplate normal, within a few mm of its
+//!    plane, between the walls), Y = IEC -> SEC in the mid-sagittal plane;
+//! 4. [`body::endplate_points`]: SEC/IEC area centroids on the surface,
+//!    SA/SP/IA/IP ends of the mid-sagittal section, SR/SL/IR/IL extremes;
+//! 5. [`pedicle::pedicle_section`]: the frontal cut a fifth of the body
+//!    depth behind the posterior wall, PT/PB its highest/lowest points;
+//! 6. [`pedicle::vertebral_centre`]: the least-squares sphere through the
+//!    body's anterior-surface nodes;
+//! 7. [`checks`]: protocol invariants and anatomy (upside-down, not a
+//!    vertebra) as findings; confidence per landmark.
+//!
+//! The sacrum ([`palpate_sacrum`]) uses the same plane and endplate steps
+//! on the S1 plateau, with the coarse-mesh fallback of the protocol.
+
+mod body;
+mod checks;
+mod frame;
+mod local;
+mod pedicle;
+mod sacrum;
+
+use crate::error::{Error, Result};
+use crate::landmarks::{Code, Level};
+use crate::mesh::{MeshQuery, TriMesh};
+use nalgebra::{Isometry3, Point3, Rotation3, Translation3, Vector3};
+use std::collections::BTreeMap;
+
+pub use checks::protocol_findings;
+pub use sacrum::palpate_sacrum;
+
+/// Rough anatomical directions in the mesh's coordinates (may be off by up
+/// to ~45 deg); the engine refines them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameHint {
+    pub anterior: Vector3<f64>,
+    pub cranial: Vector3<f64>,
+}
+
+impl FrameHint {
+    /// The hint of a mesh already in an OpenSim body frame (X anterior, Y cranial).
+    pub fn body_frame() -> FrameHint {
+        FrameHint {
+            anterior: Vector3::x(),
+            cranial: Vector3::y(),
+        }
+    }
+
+    /// The hint's right direction (anterior x cranial).
+    pub fn right(&self) -> Vector3<f64> {
+        self.anterior.cross(&self.cranial)
+    }
+}
+
+/// One palpated landmark.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PalpatedLandmark {
+    /// Position in mesh coordinates.
+    pub point: Point3<f64>,
+    /// 0..1: 1 = placed by the protocol's rule on a well-resolved region.
+    pub confidence: f64,
+    /// Why the confidence is reduced, if it is.
+    pub note: Option<String>,
+}
+
+/// How serious a finding is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Severity {
+    Warning,
+    Error,
+}
+
+/// Something the engine noticed about a landmark or the mesh.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Finding {
+    pub level: Level,
+    /// The landmark concerned (None: the mesh as a whole).
+    pub code: Option<Code>,
+    pub severity: Severity,
+    pub message: String,
+}
+
+impl std::fmt::Display for Finding {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let sev = match self.severity {
+            Severity::Warning => "warning",
+            Severity::Error => "error",
+        };
+        match self.code {
+            Some(c) => write!(f, "{sev}: {}_{c}: {}", self.level, self.message),
+            None => write!(f, "{sev}: {}: {}", self.level, self.message),
+        }
+    }
+}
+
+/// The palpation of one vertebra (or the sacrum).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VertebraPalpation {
+    pub level: Level,
+    /// The vertebra's own frame (X anterior, Y cranial, Z right) in mesh
+    /// coordinates; origin midway between SEC and IEC, on the mid-sagittal plane.
+    pub frame: Isometry3<f64>,
+    /// Landmarks in mesh coordinates (same units as the mesh, metres).
+    pub landmarks: BTreeMap<Code, PalpatedLandmark>,
+    /// Vertebral centre (thesis sphere rule), mesh coordinates.
+    pub centre: Point3<f64>,
+    /// Radius of that least-squares sphere.
+    pub centre_radius: f64,
+    pub findings: Vec<Finding>,
+}
+
+impl VertebraPalpation {
+    /// Landmark positions only.
+    pub fn points(&self) -> BTreeMap<Code, Point3<f64>> {
+        self.landmarks.iter().map(|(c, l)| (*c, l.point)).collect()
+    }
+
+    /// Does any finding have error severity?
+    pub fn has_errors(&self) -> bool {
+        self.findings.iter().any(|f| f.severity == Severity::Error)
+    }
+
+    /// A landmark expressed in the vertebra's own frame.
+    pub fn local(&self, code: Code) -> Option<Point3<f64>> {
+        self.landmarks
+            .get(&code)
+            .map(|l| self.frame.inverse() * l.point)
+    }
+}
+
+/// The state of one frame iteration (local coordinates).
+pub(crate) struct BodyState {
+    pub lm: local::LocalMesh,
+    pub walls: body::Walls,
+    pub sup: body::Endplate,
+    pub inf: body::Endplate,
+    pub sup_pts: body::EndplatePoints,
+    pub inf_pts: body::EndplatePoints,
+}
+
+/// Walls, endplates and endplate landmarks in the trial frame `rot`.
+fn body_in_frame(
+    ctx: &str,
+    mesh: &TriMesh,
+    rot: Rotation3<f64>,
+    origin: Point3<f64>,
+) -> Result<BodyState> {
+    let lm = local::LocalMesh::new(mesh, rot, origin);
+    let q: MeshQuery = lm.query()?;
+    let walls = body::find_walls(&lm, &q).ok_or_else(|| {
+        Error::invalid(
+            ctx,
+            "no vertebral body: rays along the anterior axis do not cross two walls",
+        )
+    })?;
+    if !(walls.depth() > 0.0 && walls.half_width() > 0.0) {
+        return Err(Error::invalid(
+            ctx,
+            "no vertebral body: the walls have no depth or width",
+        ));
+    }
+    let ep = |sup: bool, code: Code| {
+        body::find_endplate(&lm, &walls, sup).ok_or_else(|| {
+            Error::invalid(ctx, format!("{code}: no endplate faces between the walls"))
+        })
+    };
+    let sup = ep(true, Code::SEC)?;
+    let inf = ep(false, Code::IEC)?;
+    let pts = |e: &body::Endplate, code: Code| {
+        body::endplate_points(&lm, e).ok_or_else(|| {
+            Error::invalid(ctx, format!("{code}: the endplate region is degenerate"))
+        })
+    };
+    let sup_pts = pts(&sup, Code::SEC)?;
+    let inf_pts = pts(&inf, Code::IEC)?;
+    Ok(BodyState {
+        lm,
+        walls,
+        sup,
+        inf,
+        sup_pts,
+        inf_pts,
+    })
+}
+
+/// The mid-sagittal plane, then the in-plane rotation refined until Y is
+/// the IEC -> SEC direction.
+fn estimate_frame(ctx: &str, mesh: &TriMesh, hint: &FrameHint) -> Result<(BodyState, f64)> {
+    let q = MeshQuery::new(mesh)?;
+    let plane = frame::symmetry_plane(mesh, &q, &hint.right())
+        .ok_or_else(|| Error::invalid(ctx, "cannot estimate the mid-sagittal plane"))?;
+    let n = plane.normal;
+    let c = mesh.area_centroid().unwrap_or(mesh.vertices[0]);
+    let origin = c - n * (n.dot(&c.coords) - plane.offset);
+    let mut rot = local::frame_rotation(&hint.anterior, &n);
+    let mut state = body_in_frame(ctx, mesh, rot, origin)?;
+    for _ in 0..3 {
+        let y_local = state.sup_pts.centre - state.inf_pts.centre;
+        let y = rot * Vector3::new(y_local.x, y_local.y, 0.0);
+        let Some(y) = y.try_normalize(1e-12) else {
+            break;
+        };
+        let anterior = y.cross(&n);
+        let new_rot = local::frame_rotation(&anterior, &n);
+        let change = (new_rot * rot.inverse()).angle();
+        rot = new_rot;
+        state = body_in_frame(ctx, mesh, rot, origin)?;
+        if change < 0.2f64.to_radians() {
+            break;
+        }
+    }
+    Ok((state, plane.relative_cost))
+}
+
+/// Palpate one vertebra mesh (T1..L5) by the protocol.
+pub fn palpate_vertebra(
+    mesh: &TriMesh,
+    level: Level,
+    hint: &FrameHint,
+) -> Result<VertebraPalpation> {
+    let ctx = format!("palpation of {level}");
+    if level.is_sacrum() {
+        return palpate_sacrum(mesh, hint, None);
+    }
+    let prepared = local::prepare(mesh, &ctx)?;
+    let (st, sym_cost) = estimate_frame(&ctx, &prepared, hint)?;
+    let mut landmarks = BTreeMap::new();
+    let mut findings = Vec::new();
+    place_endplate_landmarks(&st, level, &mut landmarks, &mut findings);
+    place_pedicles(&ctx, &st, level, &mut landmarks)?;
+    let (centre, radius) = centre_of(&ctx, &st)?;
+    let lm = &st.lm;
+    let sec = landmarks[&Code::SEC].point;
+    let iec = landmarks[&Code::IEC].point;
+    // Origin: the SEC-IEC midpoint, on the mid-sagittal plane (z = 0).
+    let mid = (sec.coords + iec.coords) * 0.5;
+    let origin = Point3::new(mid.x, mid.y, 0.0);
+    let frame = Isometry3::from_parts(
+        Translation3::from(lm.to_mesh.transform_point(&origin).coords),
+        lm.to_mesh.rotation,
+    );
+    let mut out = VertebraPalpation {
+        level,
+        frame,
+        landmarks: landmarks
+            .into_iter()
+            .map(|(c, mut l)| {
+                l.point = lm.to_mesh_point(&l.point);
+                (c, l)
+            })
+            .collect(),
+        centre: lm.to_mesh_point(&centre),
+        centre_radius: radius,
+        findings,
+    };
+    checks::anatomy_findings(&st, sym_cost, &mut out);
+    out.findings.extend(protocol_findings(&out));
+    Ok(out)
+}
+
+fn landmark(point: Point3<f64>, confidence: f64, note: Option<String>) -> PalpatedLandmark {
+    PalpatedLandmark {
+        point,
+        confidence,
+        note,
+    }
+}
+
+/// SEC..IL from the two endplate regions (local coordinates).
+fn place_endplate_landmarks(
+    st: &BodyState,
+    level: Level,
+    out: &mut BTreeMap<Code, PalpatedLandmark>,
+    findings: &mut Vec<Finding>,
+) {
+    use Code::*;
+    for (e, p, codes) in [
+        (&st.sup, &st.sup_pts, [SEC, SA, SP, SR, SL]),
+        (&st.inf, &st.inf_pts, [IEC, IA, IP, IR, IL]),
+    ] {
+        let coarse = e.faces.len() < 4;
+        let base = if coarse { 0.7 } else { 1.0 };
+        let note = coarse.then(|| format!("endplate region of only {} faces", e.faces.len()));
+        out.insert(codes[0], landmark(p.centre, base, note.clone()));
+        let (mid_conf, mid_note) = if p.midline_section {
+            (base, note.clone())
+        } else {
+            findings.push(Finding {
+                level,
+                code: Some(codes[1]),
+                severity: Severity::Warning,
+                message: format!(
+                    "the endplate region does not cross the mid-sagittal plane (a hole?): {} and {} are its nearest points, not its mid-sagittal section",
+                    codes[1], codes[2]
+                ),
+            });
+            (
+                0.4,
+                Some("no mid-sagittal section of the endplate".to_string()),
+            )
+        };
+        out.insert(codes[1], landmark(p.front, mid_conf, mid_note.clone()));
+        out.insert(codes[2], landmark(p.back, mid_conf, mid_note));
+        out.insert(codes[3], landmark(p.right, base, note.clone()));
+        out.insert(codes[4], landmark(p.left, base, note));
+    }
+}
+
+/// PTR/PBR/PTL/PBL from the pedicle cuts (local coordinates).
+fn place_pedicles(
+    ctx: &str,
+    st: &BodyState,
+    _level: Level,
+    out: &mut BTreeMap<Code, PalpatedLandmark>,
+) -> Result<()> {
+    for (side, top, bot) in [(1.0, Code::PTR, Code::PBR), (-1.0, Code::PTL, Code::PBL)] {
+        let p = pedicle::pedicle_section(&st.lm, &st.walls, side).ok_or_else(|| {
+            Error::invalid(
+                ctx,
+                format!(
+                    "{top}/{bot}: the frontal cut a fifth of the body depth behind the posterior wall meets no {} pedicle (not a vertebra, or the hint's anterior points the wrong way?)",
+                    if side > 0.0 { "right" } else { "left" }
+                ),
+            )
+        })?;
+        let conf = if p.points < 4 { 0.7 } else { 1.0 };
+        out.insert(top, landmark(p.top, conf, None));
+        out.insert(bot, landmark(p.base, conf, None));
+    }
+    Ok(())
+}
+
+/// The vertebral centre and sphere radius (local coordinates).
+fn centre_of(ctx: &str, st: &BodyState) -> Result<(Point3<f64>, f64)> {
+    let (s, e) = (&st.sup_pts, &st.inf_pts);
+    let rim = 0.25
+        * ((s.front - s.back).norm()
+            + (s.right - s.left).norm()
+            + (e.front - e.back).norm()
+            + (e.right - e.left).norm())
+        * 0.5;
+    let (sphere, _n) = pedicle::vertebral_centre(
+        &st.lm, &st.walls, &st.sup, &st.inf, &s.centre, &e.centre, rim,
+    )
+    .ok_or_else(|| {
+        Error::invalid(
+            ctx,
+            "vertebral centre: too few anterior-surface nodes of the body for a sphere fit",
+        )
+    })?;
+    Ok((sphere.centre, sphere.radius))
+}
+
+/// A rotation's columns, for tests and callers wanting the axes.
+pub fn frame_axes(frame: &Isometry3<f64>) -> [Vector3<f64>; 3] {
+    let r: Rotation3<f64> = frame.rotation.to_rotation_matrix();
+    [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()]
+}

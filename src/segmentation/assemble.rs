@@ -1,0 +1,312 @@
+//! From level surfaces to a landmark set: level selection, screening
+//! ([`super::checks`]), the frame of the segmentation, and the palpated
+//! levels assembled into a contiguous run ending at the sacrum, with every
+//! level left out and every uncertain landmark named.
+
+use super::checks::{self, Verdict};
+use super::hints::frame_axes;
+use super::{Finding, Kind, LevelInput, LevelResult, Loaded, Options, Palpated, Severity};
+use crate::error::{Error, Result};
+use crate::landmarks::{Frame, LandmarkSet, Level};
+use crate::mesh::MeshQuery;
+use crate::palpation::{self, FrameHint, VertebraPalpation};
+use nalgebra::Vector3;
+
+/// Confidence below which a landmark is flagged as uncertain.
+pub const UNCERTAIN: f64 = 0.5;
+
+/// Keep the levels of `range` (inclusive); an error when none is left.
+pub fn select_levels(loaded: &mut Loaded, range: Option<(Level, Level)>) -> Result<()> {
+    let Some((a, b)) = range else { return Ok(()) };
+    let (lo, hi) = (a.min(b), a.max(b));
+    loaded.levels.retain(|l| (lo..=hi).contains(&l.level));
+    if loaded.levels.is_empty() {
+        return Err(Error::invalid(
+            "--levels",
+            format!("no level of {lo}..{hi} in the segmentation"),
+        ));
+    }
+    Ok(())
+}
+
+/// Leave out the levels whose surface is not a single plausible vertebra.
+pub fn screen(loaded: &mut Loaded) {
+    let mut kept: Vec<LevelInput> = Vec::new();
+    for mut input in std::mem::take(&mut loaded.levels) {
+        match checks::check_shape(input.level, &input.mesh) {
+            Verdict::Reject(why) => loaded.findings.push(Finding::new(
+                Some(input.level),
+                Severity::Warning,
+                format!("{} ({}): {why}; level left out", input.level, input.origin),
+            )),
+            Verdict::Ok {
+                mesh,
+                dropped_pieces,
+            } => {
+                if dropped_pieces > 0 {
+                    loaded.findings.push(Finding::new(
+                        Some(input.level),
+                        Severity::Info,
+                        format!("{dropped_pieces} small separate piece(s) of the surface ignored"),
+                    ));
+                }
+                input.mesh = mesh;
+                kept.push(input);
+            }
+        }
+    }
+    let levels: Vec<Level> = kept.iter().map(|l| l.level).collect();
+    let volumes: Vec<f64> = kept.iter().map(|l| l.mesh.signed_volume()).collect();
+    let big = checks::oversized(&levels, &volumes);
+    for (i, ratio) in &big {
+        loaded.findings.push(Finding::new(
+            Some(levels[*i]),
+            Severity::Warning,
+            format!(
+                "{} ({}): volume {ratio:.1} times its neighbours': two vertebrae in one label (merged labels)?; level left out",
+                levels[*i], kept[*i].origin
+            ),
+        ));
+    }
+    loaded.levels = kept
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !big.iter().any(|(j, _)| j == i))
+        .map(|(_, l)| l)
+        .collect();
+}
+
+/// The axes of the segmentation: as known (NIfTI world, declared
+/// `--frame`), checked against the anatomy; else detected from it.
+pub fn world_frame(loaded: &mut Loaded, hints: &[FrameHint]) -> Result<Frame> {
+    let ant: Vector3<f64> = hints.iter().map(|h| h.anterior).sum();
+    let cra: Vector3<f64> = hints.iter().map(|h| h.cranial).sum();
+    let score = |f: Frame| {
+        let (a, c) = frame_axes(f);
+        (ant.normalize().dot(&a) + cra.normalize().dot(&c)) / 2.0
+    };
+    let best = Frame::ALL
+        .into_iter()
+        .max_by(|a, b| score(*a).total_cmp(&score(*b)))
+        .unwrap_or(Frame::Lps);
+    if hints.is_empty() {
+        return loaded
+            .frame
+            .ok_or_else(|| Error::invalid(&loaded.source, "no level left to palpate"));
+    }
+    match loaded.frame {
+        Some(f) => {
+            if best != f && score(f) < 0.5 {
+                loaded.findings.push(Finding::new(None, Severity::Warning, format!(
+                    "the anatomy (mean anterior and cranial directions) fits the {best} frame better than the {f} frame the segmentation is in (agreement {:.2} vs {:.2})",
+                    score(best), score(f)
+                )));
+            }
+            Ok(f)
+        }
+        None => {
+            loaded.findings.push(Finding::new(None, Severity::Info, format!(
+                "frame not declared: {best} detected from the anatomy (agreement {:.2}; 1 = axes exactly anatomical)",
+                score(best)
+            )));
+            Ok(best)
+        }
+    }
+}
+
+/// The palpated levels, the contiguous run ending at the most caudal one,
+/// and the landmark set (OpenSim frame, metres).
+pub fn assemble(
+    mut loaded: Loaded,
+    world: Frame,
+    results: Vec<(Level, Result<VertebraPalpation>)>,
+    opts: &Options,
+) -> Result<Palpated> {
+    let mut levels = Vec::new();
+    for (input, (_, r)) in loaded.levels.iter().zip(results) {
+        if let Some(p) = accept(input, r, &mut loaded.findings) {
+            levels.push(p);
+        }
+    }
+    keep_contiguous(&mut levels, &mut loaded.findings);
+    name_missing(&levels, opts, &mut loaded.findings);
+    require_sacrum(&levels, opts, &loaded)?;
+    let to_os = world.to_opensim();
+    let mut set = LandmarkSet::new();
+    for r in &levels {
+        for (code, lm) in &r.palpation.landmarks {
+            set.insert(r.level, *code, (to_os * lm.point.coords).into());
+        }
+    }
+    let frame = match loaded.kind {
+        Kind::LabelMap => opts.frame.unwrap_or(Frame::Ras),
+        Kind::MeshFolder => world,
+    };
+    Ok(Palpated {
+        kind: loaded.kind,
+        source: loaded.source,
+        label_table: loaded.label_table,
+        set,
+        world,
+        units: loaded.units,
+        frame,
+        levels,
+        findings: loaded.findings,
+    })
+}
+
+/// One level's engine result, or `None` (finding pushed) when it is left out.
+fn accept(
+    input: &LevelInput,
+    r: Result<VertebraPalpation>,
+    findings: &mut Vec<Finding>,
+) -> Option<LevelResult> {
+    let level = input.level;
+    let p = match r {
+        Ok(p) => p,
+        Err(e) => {
+            findings.push(Finding::new(
+                Some(level),
+                Severity::Warning,
+                format!("palpation failed ({e}); level left out"),
+            ));
+            return None;
+        }
+    };
+    let mut errors = false;
+    for f in &p.findings {
+        let severity = match f.severity {
+            palpation::Severity::Warning => Severity::Warning,
+            palpation::Severity::Error => {
+                errors = true;
+                Severity::Warning
+            }
+        };
+        findings.push(Finding {
+            level: Some(f.level),
+            code: f.code,
+            severity,
+            message: f.message.clone(),
+        });
+    }
+    let missing: Vec<String> = level
+        .required_codes()
+        .iter()
+        .filter(|c| !p.landmarks.contains_key(c))
+        .map(|c| c.to_string())
+        .collect();
+    if errors || !missing.is_empty() {
+        let why = if errors {
+            "the engine reported errors".to_string()
+        } else {
+            format!("no {}", missing.join(", "))
+        };
+        findings.push(Finding::new(
+            Some(level),
+            Severity::Warning,
+            format!("{level}: {why}; level left out"),
+        ));
+        return None;
+    }
+    Some(with_distances(input, p, findings))
+}
+
+/// Distance of each landmark to the surface; low confidence flagged.
+fn with_distances(
+    input: &LevelInput,
+    p: VertebraPalpation,
+    findings: &mut Vec<Finding>,
+) -> LevelResult {
+    let query = MeshQuery::new(&input.mesh).ok();
+    let mut distance = std::collections::BTreeMap::new();
+    for (code, lm) in &p.landmarks {
+        if let Some(q) = &query {
+            distance.insert(*code, q.distance(&lm.point));
+        }
+        if lm.confidence < UNCERTAIN {
+            findings.push(Finding {
+                level: Some(input.level),
+                code: Some(*code),
+                severity: Severity::Warning,
+                message: format!(
+                    "{}_{code} uncertain (confidence {:.2}){}",
+                    input.level,
+                    lm.confidence,
+                    lm.note
+                        .as_deref()
+                        .map(|n| format!(": {n}"))
+                        .unwrap_or_default()
+                ),
+            });
+        }
+    }
+    LevelResult {
+        level: input.level,
+        origin: input.origin.clone(),
+        mesh: input.mesh.clone(),
+        palpation: p,
+        distance,
+    }
+}
+
+/// Keep the run of consecutive levels that ends at the most caudal one
+/// (a landmark set is a contiguous run); name the levels dropped.
+fn keep_contiguous(levels: &mut Vec<LevelResult>, findings: &mut Vec<Finding>) {
+    let mut start = levels.len().saturating_sub(1);
+    while start > 0 && levels[start - 1].level.caudal() == Some(levels[start].level) {
+        start -= 1;
+    }
+    if start > 0 {
+        let gap_below = levels[start - 1].level;
+        for r in levels.drain(..start) {
+            findings.push(Finding::new(Some(r.level), Severity::Warning, format!(
+                "{}: left out: a landmark set is a contiguous run of levels and the level below {gap_below} is missing",
+                r.level
+            )));
+        }
+    }
+}
+
+/// A warning naming the levels of the wanted range that are not in the set.
+fn name_missing(levels: &[LevelResult], opts: &Options, findings: &mut Vec<Finding>) {
+    let (lo, hi) = opts
+        .levels
+        .map(|(a, b)| (a.min(b), a.max(b)))
+        .unwrap_or((Level::T1, Level::S1));
+    let missing: Vec<String> = Level::ALL
+        .into_iter()
+        .filter(|l| (lo..=hi).contains(l) && !levels.iter().any(|r| r.level == *l))
+        .map(|l| l.to_string())
+        .collect();
+    if !missing.is_empty() {
+        findings.push(Finding::new(
+            None,
+            Severity::Warning,
+            format!("levels not in the landmark set: {}", missing.join(" ")),
+        ));
+    }
+}
+
+/// The sacrum must be palpated when the wanted range includes it.
+fn require_sacrum(levels: &[LevelResult], opts: &Options, loaded: &Loaded) -> Result<()> {
+    let wants = opts
+        .levels
+        .map(|(a, b)| a.max(b) == Level::S1)
+        .unwrap_or(true);
+    if wants && !levels.iter().any(|r| r.level == Level::S1) {
+        let why: Vec<String> = loaded
+            .findings
+            .iter()
+            .filter(|f| f.level == Some(Level::S1))
+            .map(|f| f.message.clone())
+            .collect();
+        return Err(Error::invalid(
+            &loaded.source,
+            format!(
+                "no sacrum palpated{}: a landmark set ends at S1 (give --levels ..L5 to palpate without it)",
+                if why.is_empty() { " (none in the segmentation)".to_string() } else { format!(" ({})", why.join("; ")) }
+            ),
+        ));
+    }
+    Ok(())
+}

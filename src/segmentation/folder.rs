@@ -1,0 +1,123 @@
+//! A folder of per-level surface meshes: one file per level named by the
+//! level (`T1.stl` .. `L5.stl`, `S1.*` or `sacrum.*`; also the names
+//! TotalSegmentator writes, `vertebrae_L3.*`, `sacrum.*`), in `.stl`,
+//! `.obj`, `.vtp` or `.ply`, all in the same length units. Two files for
+//! one level are refused, except TotalSegmentator's `sacrum` plus
+//! `vertebrae_S1`, which together are the sacrum (merged). Other files are
+//! named in the notes and ignored. Each mesh must be non-empty and closed
+//! (after welding coincident vertices).
+
+use super::labels::{class_of_name, LabelClass};
+use crate::error::{Error, Result};
+use crate::landmarks::Level;
+use crate::mesh::{self, TriMesh};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Mesh file extensions read.
+const EXTENSIONS: [&str; 4] = ["stl", "obj", "vtp", "ply"];
+
+/// Largest mesh file read (bytes).
+pub const MAX_MESH_BYTES: u64 = 512 * 1024 * 1024;
+
+/// The level files of a folder, by level (one or, for TotalSegmentator's
+/// sacrum, two files), and notes on the files ignored.
+#[allow(clippy::type_complexity)]
+pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<String>)> {
+    let rd = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
+    let mut paths: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    paths.sort();
+    let mut by_level: BTreeMap<Level, Vec<PathBuf>> = BTreeMap::new();
+    let mut notes = Vec::new();
+    for p in paths {
+        let Some(stem) = mesh_stem(&p) else { continue };
+        match class_of_name(&stem) {
+            LabelClass::Level(l) => by_level.entry(l).or_default().push(p),
+            _ => notes.push(format!(
+                "{}: not a T1..L5 vertebra or the sacrum: ignored",
+                p.display()
+            )),
+        }
+    }
+    for (level, files) in &by_level {
+        if files.len() > 1 && !is_ts_sacrum_pair(*level, files) {
+            let names: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
+            return Err(Error::invalid(
+                dir.display().to_string(),
+                format!("two meshes for {level}: {} (keep one)", names.join(" and ")),
+            ));
+        }
+    }
+    Ok((by_level, notes))
+}
+
+/// The stem of a mesh file (`vertebrae_L3` of `vertebrae_L3.stl`), `None`
+/// for other files.
+fn mesh_stem(p: &Path) -> Option<String> {
+    let ext = p.extension()?.to_str()?.to_ascii_lowercase();
+    if !p.is_file() || !EXTENSIONS.contains(&ext.as_str()) {
+        return None;
+    }
+    Some(p.file_stem()?.to_str()?.to_string())
+}
+
+/// TotalSegmentator's `sacrum.*` + `vertebrae_S1.*`.
+fn is_ts_sacrum_pair(level: Level, files: &[PathBuf]) -> bool {
+    let stems: Vec<String> = files
+        .iter()
+        .filter_map(|f| mesh_stem(f).map(|s| s.to_ascii_lowercase()))
+        .collect();
+    level == Level::S1
+        && files.len() == 2
+        && stems.contains(&"sacrum".to_string())
+        && stems.contains(&"vertebrae_s1".to_string())
+}
+
+/// Read one level's mesh (file units times `to_metres` -> metres),
+/// merging TotalSegmentator's sacrum pair; refuses empty and open meshes.
+pub fn read_level(files: &[PathBuf], to_metres: f64) -> Result<TriMesh> {
+    let mut parts = Vec::new();
+    for f in files {
+        let len = std::fs::metadata(f).map_err(|e| Error::io(f, e))?.len();
+        if len > MAX_MESH_BYTES {
+            return Err(Error::invalid(
+                f.display().to_string(),
+                format!("{len} bytes: mesh files are limited to {MAX_MESH_BYTES}"),
+            ));
+        }
+        let m = mesh::read(f)?;
+        let m = m.scaled(&nalgebra::Vector3::repeat(to_metres));
+        parts.push(closed(m, f)?);
+    }
+    let refs: Vec<&TriMesh> = parts.iter().collect();
+    TriMesh::merge(&refs)
+}
+
+/// The mesh welded (coincident vertices of STL-like files joined) and
+/// checked: triangles present, no boundary edge.
+fn closed(m: TriMesh, f: &Path) -> Result<TriMesh> {
+    let what = f.display().to_string();
+    if m.triangles.is_empty() || m.vertices.is_empty() {
+        return Err(Error::invalid(what, "the mesh is empty (no triangles)"));
+    }
+    let diag = m.bounds().map(|(lo, hi)| (hi - lo).norm()).unwrap_or(0.0);
+    let (w, _) = m.welded(diag * 1e-7);
+    let rep = w.edge_report();
+    if !rep.boundary_edges.is_empty() {
+        return Err(Error::invalid(
+            what,
+            format!(
+                "the mesh is not closed: {} boundary edge(s); a vertebra surface must be closed (export the segmentation as a closed surface)",
+                rep.boundary_edges.len()
+            ),
+        ));
+    }
+    if w.signed_volume() < 0.0 {
+        let mut w = w;
+        for t in w.triangles.iter_mut() {
+            t.swap(1, 2);
+        }
+        return Ok(w);
+    }
+    Ok(w)
+}

@@ -1,0 +1,290 @@
+//! Patient landmarks from vertebra segmentations, with no operator
+//! (`osim-spine palpate`): per-level surfaces from a folder of meshes
+//! ([`folder`]) or a NIfTI label map ([`nifti`], [`labels`],
+//! [`surface`]), screened ([`checks`]), given rough anatomical directions
+//! ([`hints`]) and palpated by the crate's palpation engine
+//! ([`crate::palpation`], the same that places the base model's markers),
+//! all in [`palpate_levels`]. [`palpate`] runs the whole chain and gives a
+//! [`LandmarkSet`], a per-landmark report and findings; [`report`] renders
+//! the CSV, JSON and SVG.
+//!
+//! Units and frames: meshes are read in metres in the segmentation's own
+//! axes (mesh folders: `--units`, default mm; NIfTI: the header's spatial
+//! units, world RAS+ by the NIfTI standard). A folder's axes are LPS, RAS
+//! or OpenSim as declared by `--frame`, or detected from the anatomy
+//! (anterior and cranial directions of the palpated vertebrae).
+
+pub mod assemble;
+pub mod checks;
+pub mod folder;
+pub mod hints;
+pub mod labelmap;
+pub mod labels;
+pub mod nifti;
+pub mod report;
+pub mod surface;
+pub mod voxelise;
+
+use crate::error::{Error, Result};
+use crate::landmarks::{Code, Frame, LandmarkSet, Level, Units};
+use crate::mesh::TriMesh;
+use crate::palpation::{self, FrameHint, VertebraPalpation};
+use std::path::{Path, PathBuf};
+
+/// How serious a finding is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Severity {
+    Info,
+    Warning,
+    Error,
+}
+
+/// A remark on the segmentation or a landmark.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Finding {
+    pub level: Option<Level>,
+    pub code: Option<Code>,
+    pub severity: Severity,
+    pub message: String,
+}
+
+impl Finding {
+    fn new(level: Option<Level>, severity: Severity, message: impl Into<String>) -> Finding {
+        Finding {
+            level,
+            code: None,
+            severity,
+            message: message.into(),
+        }
+    }
+}
+
+/// What the segmentation is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum Kind {
+    #[serde(rename = "mesh folder")]
+    MeshFolder,
+    #[serde(rename = "NIfTI label map")]
+    LabelMap,
+}
+
+/// Options of [`palpate`].
+#[derive(Debug, Clone, Default)]
+pub struct Options {
+    /// Mesh folders: units of the files (default mm). Label maps: units of
+    /// the landmarks written (default mm).
+    pub units: Option<Units>,
+    /// Mesh folders: frame of the files (default: detected). Label maps:
+    /// frame of the landmarks written (default RAS, the NIfTI world).
+    pub frame: Option<Frame>,
+    /// Levels to palpate (inclusive range, cranial first); default all.
+    pub levels: Option<(Level, Level)>,
+    /// Label table file for label maps (default: the built-in tables).
+    pub labels: Option<PathBuf>,
+    /// Show a progress bar on label maps.
+    pub progress: bool,
+}
+
+/// One level's surface, metres, in the segmentation's axes.
+#[derive(Debug, Clone)]
+pub struct LevelInput {
+    pub level: Level,
+    pub mesh: TriMesh,
+    /// File or label it came from.
+    pub origin: String,
+}
+
+/// A segmentation read: its level surfaces and what was noticed.
+#[derive(Debug, Clone)]
+pub struct Loaded {
+    pub kind: Kind,
+    /// The segmentation's file or folder name.
+    pub source: String,
+    /// Axes of the coordinates, when known before looking at the anatomy.
+    pub frame: Option<Frame>,
+    /// Length units the coordinates were given in.
+    pub units: Units,
+    /// Label table used (label maps).
+    pub label_table: Option<String>,
+    pub levels: Vec<LevelInput>,
+    pub findings: Vec<Finding>,
+}
+
+/// One palpated level.
+#[derive(Debug, Clone)]
+pub struct LevelResult {
+    pub level: Level,
+    pub origin: String,
+    /// The surface palpated (metres, the segmentation's axes).
+    pub mesh: TriMesh,
+    pub palpation: VertebraPalpation,
+    /// Distance of each landmark to the level's surface (m).
+    pub distance: std::collections::BTreeMap<Code, f64>,
+}
+
+/// The outcome of [`palpate`].
+#[derive(Debug, Clone)]
+pub struct Palpated {
+    pub kind: Kind,
+    pub source: String,
+    pub label_table: Option<String>,
+    /// The landmarks (metres, OpenSim frame), a contiguous run of levels.
+    pub set: LandmarkSet,
+    /// Axes of the segmentation (declared, the NIfTI world or detected).
+    pub world: Frame,
+    /// Units and frame to write the landmarks in.
+    pub units: Units,
+    pub frame: Frame,
+    pub levels: Vec<LevelResult>,
+    pub findings: Vec<Finding>,
+}
+
+/// Read a segmentation: a folder of meshes or a NIfTI label map.
+pub fn load(path: &Path, opts: &Options) -> Result<Loaded> {
+    if path.is_dir() {
+        load_folder(path, opts)
+    } else if is_nifti(path) {
+        labelmap::load(path, opts)
+    } else if !path.exists() {
+        Err(Error::invalid(
+            path.display().to_string(),
+            "no such file or folder",
+        ))
+    } else {
+        Err(Error::invalid(
+            path.display().to_string(),
+            "expected a folder of per-level meshes or a NIfTI label map (.nii, .nii.gz)",
+        ))
+    }
+}
+
+/// `.nii` or `.nii.gz`.
+pub fn is_nifti(path: &Path) -> bool {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    name.ends_with(".nii") || name.ends_with(".nii.gz")
+}
+
+/// The name of a path for reports (its last component: the same whatever
+/// the working directory).
+pub fn source_name(path: &Path) -> String {
+    path.file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_else(|| path.display().to_string())
+}
+
+/// A folder of per-level meshes.
+fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
+    let (files, notes) = folder::level_files(dir)?;
+    if files.is_empty() {
+        return Err(Error::invalid(
+            dir.display().to_string(),
+            "no mesh named by a level (T1..L5, S1/sacrum, vertebrae_L3, ...; .stl .obj .vtp .ply)",
+        ));
+    }
+    let units = opts.units.unwrap_or(Units::Millimetre);
+    let mut findings: Vec<Finding> = notes
+        .into_iter()
+        .map(|n| Finding::new(None, Severity::Info, n))
+        .collect();
+    let mut levels = Vec::new();
+    for (level, paths) in files {
+        let mesh = folder::read_level(&paths, units.to_metres())?;
+        if paths.len() > 1 {
+            findings.push(Finding::new(
+                Some(level),
+                Severity::Info,
+                "sacrum.* and vertebrae_S1.* merged into the sacrum",
+            ));
+        }
+        let origin = paths
+            .iter()
+            .map(|p| source_name(p))
+            .collect::<Vec<_>>()
+            .join("+");
+        levels.push(LevelInput {
+            level,
+            mesh,
+            origin,
+        });
+    }
+    Ok(Loaded {
+        kind: Kind::MeshFolder,
+        source: source_name(dir),
+        frame: opts.frame,
+        units,
+        label_table: None,
+        levels,
+        findings,
+    })
+}
+
+/// Palpate every level: vertebrae cranial to caudal with
+/// [`palpation::palpate_vertebra`], the sacrum with
+/// [`palpation::palpate_sacrum`] facing the palpated L5. The one place the
+/// engine is called. A level whose palpation reports errors is palpated
+/// once more with the vertebra frame the engine found as the hint (the
+/// hints from the anatomy are rough; the engine's frame is closer), and
+/// the better of the two kept.
+pub fn palpate_levels(
+    levels: &[LevelInput],
+    hints: &[FrameHint],
+) -> Vec<(Level, Result<VertebraPalpation>)> {
+    let mut out: Vec<(Level, Result<VertebraPalpation>)> = Vec::new();
+    for (input, hint) in levels.iter().zip(hints) {
+        let l5 = out
+            .iter()
+            .find(|(l, _)| *l == Level::L5)
+            .and_then(|(_, r)| r.as_ref().ok())
+            .cloned();
+        let run = |h: &FrameHint| {
+            if input.level.is_sacrum() {
+                palpation::palpate_sacrum(&input.mesh, h, l5.as_ref())
+            } else {
+                palpation::palpate_vertebra(&input.mesh, input.level, h)
+            }
+        };
+        let mut r = run(hint);
+        if let Ok(p) = &r {
+            if has_errors(p) {
+                let again = FrameHint {
+                    anterior: p.frame.rotation * nalgebra::Vector3::x(),
+                    cranial: p.frame.rotation * nalgebra::Vector3::y(),
+                };
+                let r2 = run(&again);
+                if r2.as_ref().is_ok_and(|p2| !has_errors(p2)) {
+                    r = r2;
+                }
+            }
+        }
+        out.push((input.level, r));
+    }
+    out
+}
+
+/// `true` when the engine reported an error finding.
+fn has_errors(p: &VertebraPalpation) -> bool {
+    p.findings
+        .iter()
+        .any(|f| f.severity == palpation::Severity::Error)
+}
+
+/// Read, screen, palpate and assemble (see the module documentation).
+pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
+    let mut loaded = load(path, opts)?;
+    assemble::select_levels(&mut loaded, opts.levels)?;
+    assemble::screen(&mut loaded);
+    let pairs: Vec<(Level, &TriMesh)> = loaded.levels.iter().map(|l| (l.level, &l.mesh)).collect();
+    let (hints, notes) = hints::frame_hints(&pairs, loaded.frame);
+    for n in notes {
+        loaded
+            .findings
+            .push(Finding::new(None, Severity::Warning, n));
+    }
+    let world = assemble::world_frame(&mut loaded, &hints)?;
+    let results = palpate_levels(&loaded.levels, &hints);
+    assemble::assemble(loaded, world, results, opts)
+}
