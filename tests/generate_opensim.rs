@@ -486,6 +486,10 @@ fn partial_set_keeps_the_base_alignment_above() {
         lm.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
+        // the levels above the field of view keep the base alignment (the
+        // default, balance, bends them over the sacrum instead)
+        "--above-fov",
+        "keep",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let rep: serde_json::Value =

@@ -59,7 +59,7 @@ fn corpus_model() -> String {
 
 fn load_file(dir: &Path) -> PathBuf {
     let p = dir.join("load.toml");
-    std::fs::write(&p, "[[case]]\nid = \"rest\"\n").unwrap();
+    std::fs::write(&p, "[[case]]\nid = \"rest\"\nbody = \"L5\"\n").unwrap();
     p
 }
 

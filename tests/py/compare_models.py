@@ -103,7 +103,11 @@ def force_flags(m):
         flags[f.getName()] = bool(f.get_appliesForce())
         act = osim.ScalarActuator.safeDownCast(f)
         if act is not None:
-            controls[f.getName()] = [act.getMinControl(), act.getMaxControl()]
+            # JSON has no infinity: an unbounded control is null
+            controls[f.getName()] = [
+                v if math.isfinite(v) else None
+                for v in (act.getMinControl(), act.getMaxControl())
+            ]
     return flags, controls
 
 

@@ -1062,6 +1062,10 @@ fn write_joint(
 
 /// The file name of `path` (the whole string when it has none).
 fn file_name_of(path: &str) -> String {
+    // the embedded base is named by its label, not a path
+    if path == crate::embedded::EMBEDDED_BASE_LABEL {
+        return path.to_string();
+    }
     std::path::Path::new(path)
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
