@@ -95,9 +95,9 @@ pub fn print_summary(p: &Palpated) {
     for f in &p.findings {
         let at = f.level.map(|l| format!("{l}: ")).unwrap_or_default();
         match f.severity {
-            Severity::Info => println!("palpate: {at}{}", f.message),
-            Severity::Warning => eprintln!("warning: {at}{}", f.message),
-            Severity::Error => eprintln!("error: {at}{}", f.message),
+            Severity::Info => crate::outln!("palpate: {at}{}", f.message),
+            Severity::Warning => crate::errln!("warning: {at}{}", f.message),
+            Severity::Error => crate::errln!("error: {at}{}", f.message),
         }
     }
     let levels: Vec<String> = p.levels.iter().map(|l| l.level.to_string()).collect();
@@ -106,7 +106,7 @@ pub fn print_summary(p: &Palpated) {
         .iter()
         .filter(|f| f.code.is_some() && f.severity == Severity::Warning)
         .count();
-    println!(
+    crate::outln!(
         "palpated {} levels ({}) of {}: {} landmarks, {} uncertain; segmentation frame {}, landmarks written in {} {}",
         levels.len(),
         levels.join(" "),
@@ -162,7 +162,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     for (f, bytes) in &files {
         crate::util::write_atomic(f, bytes)?;
     }
-    println!("wrote {} files: {}", files.len(), args.out.display());
+    crate::outln!("wrote {} files: {}", files.len(), args.out.display());
     Ok(0)
 }
 
