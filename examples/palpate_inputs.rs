@@ -21,7 +21,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .ok_or("usage: palpate_inputs OUT_DIR")?,
     );
     let base = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("base_model");
-    let doc = Document::read(&base.join("base.osim"))?;
+    let doc = Document::read(base.join("base.osim"))?;
     let model = doc.model()?;
     let kin = Kinematics::new(&model)?;
     let poses = kin.body_poses(&kin.default_values())?;

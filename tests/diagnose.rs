@@ -486,7 +486,7 @@ fn primary_rotations_only(dir: &Path) {
                 .iter()
                 .position(|a| f[0].starts_with(a))
                 .unwrap();
-            let mut v = vec![""; 3];
+            let mut v = [""; 3];
             v[d] = f[3 + d];
             out.push_str(&format!("{},{},,,", f[..3].join(","), v.join(",")));
         }

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 
 /// The default base model.
 fn base_doc() -> Document {
-    Document::read(&common::repo_root().join("base_model/base.osim")).expect("base model")
+    Document::read(common::repo_root().join("base_model/base.osim")).expect("base model")
 }
 
 /// Three scoliotic shapes: (lateral bending, axial rotation, flexion) in

@@ -118,7 +118,7 @@ pub struct Spread {
 pub struct TwoFactor {
     pub poses: Vec<usize>,
     pub stiffness_sets: Vec<usize>,
-    /// rmse[pose][stiffness] (experiment units).
+    /// `rmse[pose][stiffness]` (experiment units).
     pub rmse: Vec<Vec<f64>>,
     pub ss_pose: f64,
     pub ss_stiffness: f64,

@@ -13,7 +13,7 @@
 //! | [`register`] | Kabsch/Umeyama, ICP with PCA initialisation, residual statistics, generalised Procrustes |
 //! | [`sample`] | seeded uniform surface sampling |
 //!
-//! [`read`] and [`write`] dispatch on the file extension.
+//! [`read`] and [`write()`] dispatch on the file extension.
 
 pub mod geom;
 pub mod obj;
@@ -156,7 +156,7 @@ impl TriMesh {
     }
 }
 
-/// Mesh file formats known to [`read`] and [`write`].
+/// Mesh file formats known to [`read`] and [`write()`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
     /// VTK XML PolyData (`.vtp`).
@@ -255,7 +255,7 @@ pub fn write(path: &Path, mesh: &TriMesh) -> Result<()> {
     crate::util::write_atomic(path, &bytes)
 }
 
-/// Serialise a mesh in `format` with the defaults of [`write`].
+/// Serialise a mesh in `format` with the defaults of [`write()`].
 pub fn to_bytes(format: Format, mesh: &TriMesh) -> Vec<u8> {
     match format {
         Format::Vtp => vtp::to_ascii(mesh).into_bytes(),

@@ -987,9 +987,9 @@ pub fn apply(doc: &mut Document, laws: &[(Level, LevelLaw)]) -> Result<Vec<Strin
 
 /// The table law of a solver law (to write a law computed by the solver
 /// side, e.g. a calibrated or diagnosed one, with [`apply`]).
-/// `expressions` are the strings of an [`BushingModel::Expression`] law
+/// `expressions` are the strings of an [`crate::solver::BushingModel::Expression`] law
 /// (the solver keeps only their parsed form). Tabulated curves
-/// ([`Curve::Function`]) are not supported.
+/// (`Curve::Function`) are not supported.
 pub fn law_of_model(
     m: &crate::solver::BushingModel,
     expressions: Option<&[String; 6]>,

@@ -336,7 +336,7 @@ pub(crate) fn cholesky_in_place(a: &mut nalgebra::DMatrix<f64>) -> bool {
         for k in 0..j {
             d -= a[(j, k)] * a[(j, k)];
         }
-        if !(d > 0.0) || !d.is_finite() {
+        if !d.is_finite() || d <= 0.0 {
             return false;
         }
         let d = d.sqrt();
@@ -588,6 +588,7 @@ impl Integrator {
     }
 
     /// Integrate from (q, u) over `duration`, sampling every `every` steps.
+    #[allow(clippy::too_many_arguments)] // system, loads, workspace, start state, duration, sampling
     pub fn run(
         &mut self,
         sys: &System,

@@ -194,6 +194,7 @@ pub const DOF_NAMES: [&str; 6] = ["rx", "ry", "rz", "tx", "ty", "tz"];
 /// the angle-rate map) are the same for every law.
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
+#[allow(clippy::large_enum_variant)] // laws are built once per bushing, never in hot loops
 pub enum BushingModel {
     /// OpenSim BushingForce: `f = -(K q + C q')` element by element.
     Linear {

@@ -335,7 +335,8 @@ fn check_bodies(spec: &SystemSpec, joint_of: &[Option<usize>]) -> Result<()> {
                 ),
             ));
         }
-        if !(b.mass.is_finite() && b.mass >= 0.0)
+        if !b.mass.is_finite()
+            || b.mass < 0.0
             || !b.com.iter().all(|v| v.is_finite())
             || !b.inertia.iter().all(|v| v.is_finite())
         {
@@ -419,6 +420,7 @@ impl Lowered {
     /// The axis source of a transform axis driven by coordinate `c` of the
     /// joint of system body `si` (`local`: the spec coordinates of this
     /// joint's dofs so far), numbering a new dof when `c` is new and free.
+    #[allow(clippy::too_many_arguments)] // the joint, the axis, and the dof numbering state
     fn axis_source(
         &mut self,
         spec: &SystemSpec,
@@ -487,7 +489,7 @@ fn lower_axes(
     let mut axes: Vec<Axis> = Vec::with_capacity(6);
     for (ai, ta) in lower_joint(&js.kind).iter().enumerate() {
         let n = ta.axis.norm();
-        if !(n.is_finite() && n > 1e-12) {
+        if !n.is_finite() || n <= 1e-12 {
             return Err(Error::invalid(
                 CTX,
                 format!(
@@ -1153,10 +1155,10 @@ impl System {
         self.bushings.get(i).is_some_and(|b| b.fast.is_some())
     }
 
-    /// The same system with bushing `i`'s two frames moved to `x1` (in body
-    /// 1) and `x2` (in body 2), together with the joint frames they sit on
-    /// (the joint of body 2), so that the joint centre and axes move with
-    /// the bushing. Only for bushings on their joint's frames
+    /// The same system with bushing `i`'s two frames moved: `x1` in the
+    /// first body, `x2` in the second, together with the joint frames they
+    /// sit on (the joint of the second body), so that the joint centre and
+    /// axes move with the bushing. Only for bushings on their joint's frames
     /// ([`System::bushing_on_joint_frames`]). Loads prepared before keep
     /// their points on the bodies (see [`super::LoadSet`]).
     pub fn with_bushing_joint_frames(

@@ -49,7 +49,7 @@ pub const GRAZE: f64 = 0.0001;
 pub struct PathEdit {
     pub muscle: String,
     pub vertebra: String,
-    /// "via point <name>" or "removed PathWrap over <sphere>".
+    /// "via point `<name>`" or "removed PathWrap over `<sphere>`".
     pub action: String,
     /// Depth of the crossing it removed (mm).
     pub depth_mm: f64,
