@@ -198,12 +198,6 @@ fn procedural_meshes_follow_the_protocol() {
 }
 
 #[test]
-fn dense_meshes_follow_the_protocol() {
-    check_family(&dense_meshes(), &dense_hint());
-}
-
-#[test]
-#[ignore = "with the mesh moved and the frame hint 30 deg off, L1_IEC, L2_IEC and L4_SEC land 2.4-4.1 mm off the mid-sagittal plane (area centroid of an asymmetric endplate region is not projected onto the plane): engine fix pending"]
 fn dense_meshes_follow_the_protocol_in_any_pose() {
     let ps = check_family(&dense_meshes(), &dense_hint());
     // A rigid motion of the mesh (and a hint 30 deg off) moves every landmark with it.

@@ -115,17 +115,6 @@ pub struct VertebraPalpation {
     /// Radius of that least-squares sphere.
     pub centre_radius: f64,
     pub findings: Vec<Finding>,
-    /// How the centre's sphere was fitted.
-    pub centre_fit: CentreFit,
-}
-
-/// The least-squares sphere fit behind the vertebral centre.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct CentreFit {
-    /// Anterior-surface nodes used.
-    pub nodes: usize,
-    /// RMS of the nodes' distances to the sphere (m).
-    pub rms: f64,
 }
 
 impl VertebraPalpation {
@@ -137,17 +126,6 @@ impl VertebraPalpation {
     /// Does any finding have error severity?
     pub fn has_errors(&self) -> bool {
         self.findings.iter().any(|f| f.severity == Severity::Error)
-    }
-
-    /// The same palpation after a rigid motion of the mesh.
-    pub fn transformed(&self, iso: &Isometry3<f64>) -> VertebraPalpation {
-        let mut out = self.clone();
-        out.frame = iso * self.frame;
-        out.centre = iso * self.centre;
-        for l in out.landmarks.values_mut() {
-            l.point = iso * l.point;
-        }
-        out
     }
 
     /// A landmark expressed in the vertebra's own frame.
@@ -258,7 +236,7 @@ pub fn palpate_vertebra(
     let mut findings = Vec::new();
     place_endplate_landmarks(&st, level, &mut landmarks, &mut findings);
     place_pedicles(&ctx, &st, level, &mut landmarks)?;
-    let (centre, radius, centre_fit) = centre_of(&ctx, &st)?;
+    let (centre, radius) = centre_of(&ctx, &st)?;
     let lm = &st.lm;
     let sec = landmarks[&Code::SEC].point;
     let iec = landmarks[&Code::IEC].point;
@@ -282,7 +260,6 @@ pub fn palpate_vertebra(
         centre: lm.to_mesh_point(&centre),
         centre_radius: radius,
         findings,
-        centre_fit,
     };
     checks::anatomy_findings(&st, sym_cost, &mut out);
     out.findings.extend(protocol_findings(&out));
@@ -362,7 +339,7 @@ fn place_pedicles(
 }
 
 /// The vertebral centre and sphere radius (local coordinates).
-fn centre_of(ctx: &str, st: &BodyState) -> Result<(Point3<f64>, f64, CentreFit)> {
+fn centre_of(ctx: &str, st: &BodyState) -> Result<(Point3<f64>, f64)> {
     let (s, e) = (&st.sup_pts, &st.inf_pts);
     let rim = 0.25
         * ((s.front - s.back).norm()
@@ -370,7 +347,7 @@ fn centre_of(ctx: &str, st: &BodyState) -> Result<(Point3<f64>, f64, CentreFit)>
             + (e.front - e.back).norm()
             + (e.right - e.left).norm())
         * 0.5;
-    let (sphere, n) = pedicle::vertebral_centre(
+    let (sphere, _n) = pedicle::vertebral_centre(
         &st.lm, &st.walls, &st.sup, &st.inf, &s.centre, &e.centre, rim,
     )
     .ok_or_else(|| {
@@ -379,14 +356,7 @@ fn centre_of(ctx: &str, st: &BodyState) -> Result<(Point3<f64>, f64, CentreFit)>
             "vertebral centre: too few anterior-surface nodes of the body for a sphere fit",
         )
     })?;
-    Ok((
-        sphere.centre,
-        sphere.radius,
-        CentreFit {
-            nodes: n,
-            rms: sphere.rms,
-        },
-    ))
+    Ok((sphere.centre, sphere.radius))
 }
 
 /// A rotation's columns, for tests and callers wanting the axes.

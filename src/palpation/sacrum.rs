@@ -175,7 +175,6 @@ pub fn palpate_sacrum(
         centre: lm.to_mesh_point(&centre_local),
         centre_radius: 0.25 * (pts.right - pts.left).norm(),
         findings,
-        centre_fit: super::CentreFit::default(),
     };
     out.findings.extend(protocol_findings(&out));
     Ok(out)
