@@ -58,7 +58,7 @@ pub(crate) fn find_walls(lm: &LocalMesh, q: &MeshQuery) -> Option<Walls> {
     let y_lo = front.iter().copied().fold(f64::MAX, f64::min);
     let y_hi = front.iter().copied().fold(f64::MIN, f64::max);
     let h = y_hi - y_lo;
-    if !(h > 0.0) {
+    if h.is_nan() || h <= 0.0 {
         return None;
     }
     let y0 = 0.5 * (y_lo + y_hi);
@@ -137,7 +137,7 @@ pub(crate) fn find_endplate(lm: &LocalMesh, w: &Walls, superior: bool) -> Option
             })
             .collect();
         let area: f64 = faces.iter().map(|&f| lm.areas[f]).sum();
-        if faces.is_empty() || !(area > 0.0) {
+        if faces.is_empty() || area.is_nan() || area <= 0.0 {
             return None;
         }
         let n = faces

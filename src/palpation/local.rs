@@ -28,7 +28,7 @@ pub(crate) fn prepare(mesh: &TriMesh, ctx: &str) -> Result<TriMesh> {
         .bounds()
         .ok_or_else(|| Error::invalid(ctx, "the mesh has no vertices"))?;
     let size = (hi - lo).norm();
-    if !(size > 0.0) || mesh.triangles.len() < 4 {
+    if size.is_nan() || size <= 0.0 || mesh.triangles.len() < 4 {
         return Err(Error::invalid(ctx, "the mesh is empty or degenerate"));
     }
     let (mut welded, _) = mesh.welded(1e-7 * size);
