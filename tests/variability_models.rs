@@ -119,7 +119,13 @@ fn identical_palpations_give_identical_models_equal_to_the_consensus() {
         }
         assert!((g.sagittal_r2.as_ref().unwrap().median - 1.0).abs() < 1e-9);
         // The consensus model is the same model: same Cobb angle.
-        assert!((g.cobb_deg.as_ref().unwrap().median - rc.angle_deg).abs() < 1e-6);
+        let gc = g.cobb_deg.as_ref().unwrap().median;
+        assert!(
+            (gc - rc.angle_deg).abs() < 1e-6,
+            "{} {}: models {gc} deg, consensus {rc:?}",
+            g.kind,
+            g.within
+        );
         // identical values: the SD is zero up to the rounding of their mean
         assert!(g.cobb_mean_sd_deg.as_ref().unwrap().sd < 1e-9, "{g:?}");
     }

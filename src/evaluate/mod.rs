@@ -598,6 +598,11 @@ fn at_truth_levels(set: &LandmarkSet, truth: &Truth) -> LandmarkSet {
         Some(t) => t.levels().into_iter().collect(),
         None => truth.centres.keys().copied().collect(),
     };
+    at_levels(set, &levels)
+}
+
+/// The landmarks of `set` at `levels`, S1 always kept.
+fn at_levels(set: &LandmarkSet, levels: &std::collections::BTreeSet<Level>) -> LandmarkSet {
     LandmarkSet {
         points: set
             .points

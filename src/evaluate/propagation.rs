@@ -260,8 +260,8 @@ fn model_of(
 }
 
 /// The consensus model as a truth in the palpations' frame: its centres
-/// of the landmarked levels and its markers, moved back through its own
-/// registration.
+/// and markers of the landmarked levels (and S1), moved back through its
+/// own registration.
 fn consensus_truth(g: &Generated, shape: &ModelShape, source: String) -> Truth {
     let back = g.report.registration.isometry().inverse();
     let landmarked: Vec<Level> = g
@@ -278,9 +278,14 @@ fn consensus_truth(g: &Generated, shape: &ModelShape, source: String) -> Truth {
             .filter(|(l, _)| landmarked.contains(l))
             .map(|(l, p)| (*l, back * p))
             .collect(),
-        landmarks: Some(shape.landmarks.transformed(
-            back.rotation.to_rotation_matrix().matrix(),
-            &back.translation.vector,
+        // the landmarked levels only: the reference's Cobb and lordosis are
+        // measured where the palpations are, as every model's are
+        landmarks: Some(super::at_levels(
+            &shape.landmarks.transformed(
+                back.rotation.to_rotation_matrix().matrix(),
+                &back.translation.vector,
+            ),
+            &landmarked.iter().copied().collect(),
         )),
     }
 }
@@ -329,19 +334,16 @@ pub fn propagate(
             ))
         }
     };
-    // ---- reference Cobb, apex, lordosis and the Cobb ends, measured in
-    // the consensus model's frame (where the models are) when it exists.
+    // ---- reference Cobb, lordosis and the Cobb ends, measured in the
+    // reference's own frame, as `evaluate` measures every model's (carried
+    // into that frame); the apex on the centres in the consensus model's
+    // frame (where the models are) when it exists.
     let x_ref = consensus
         .as_ref()
         .ok()
         .map(|(_, shape)| truth_transform(shape, &truth, opts.align))
         .unwrap_or_else(nalgebra::Isometry3::identity);
-    let ref_landmarks = truth.landmarks.as_ref().map(|s| {
-        s.transformed(
-            x_ref.rotation.to_rotation_matrix().matrix(),
-            &x_ref.translation.vector,
-        )
-    });
+    let ref_landmarks = truth.landmarks.clone();
     let ref_centres: BTreeMap<Level, Point3<f64>> =
         truth.centres.iter().map(|(l, p)| (*l, x_ref * p)).collect();
     let ref_cobb = ref_landmarks
