@@ -31,14 +31,8 @@ use crate::mesh::TriMesh;
 use crate::palpation::{self, FrameHint, VertebraPalpation};
 use std::path::{Path, PathBuf};
 
-/// How serious a finding is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Severity {
-    Info,
-    Warning,
-    Error,
-}
+/// How serious a finding is: the landmark checker's scale (info, warning, error).
+pub use crate::landmarks::check::Severity;
 
 /// A remark on the segmentation or a landmark.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
