@@ -147,20 +147,8 @@ impl Sim {
             k_nominal.push(k);
             frames.push(fr);
         }
-        let loads = exp
-            .cases
-            .iter()
-            .map(|c| c.loads(Some(&exp.fixed_body)))
-            .collect::<Result<Vec<_>>>()?;
-        let prepared = exp
-            .cases
-            .iter()
-            .zip(&loads)
-            .map(|(c, l)| {
-                base.prepare_loads(l)
-                    .map_err(|e| Error::invalid(format!("{ctx}: case '{}'", c.id), e.to_string()))
-            })
-            .collect::<Result<Vec<_>>>()?;
+        // every case's loads, resolved on the nominal system
+        let (loads, prepared) = case_loads(exp, &base, &ctx)?;
         let mut row_bodies = Vec::new();
         let mut case_rows = vec![Vec::new(); exp.cases.len()];
         let mut cells = Vec::new();
@@ -290,4 +278,27 @@ impl Sim {
         }
         Ok(out)
     }
+}
+
+/// The loads of every case of `exp`, and the same resolved on `base`.
+fn case_loads(
+    exp: &Experiment,
+    base: &System,
+    ctx: &str,
+) -> Result<(Vec<Vec<Load>>, Vec<LoadSet>)> {
+    let loads = exp
+        .cases
+        .iter()
+        .map(|c| c.loads(Some(&exp.fixed_body)))
+        .collect::<Result<Vec<_>>>()?;
+    let prepared = exp
+        .cases
+        .iter()
+        .zip(&loads)
+        .map(|(c, l)| {
+            base.prepare_loads(l)
+                .map_err(|e| Error::invalid(format!("{ctx}: case '{}'", c.id), e.to_string()))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok((loads, prepared))
 }
