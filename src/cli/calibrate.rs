@@ -191,12 +191,7 @@ fn setup_from(a: &Args) -> anyhow::Result<Setup> {
 
 /// Run `calibrate`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
-    let jobs = a.jobs.unwrap_or(0);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(jobs)
-        .build()
-        .context("starting the worker threads")?;
-    pool.install(|| run_inner(&a))
+    super::with_jobs(a.jobs, || run_inner(&a))
 }
 
 fn run_inner(a: &Args) -> anyhow::Result<i32> {

@@ -1,4 +1,4 @@
-//! `osim-spine diagnose EXPERIMENT --out DIR [--quiet]`: sim-to-real gap
+//! `osim-spine diagnose EXPERIMENT --out DIR [--quiet] [--jobs N]`: sim-to-real gap
 //! diagnosis. Writes `diagnosis.json` (format in
 //! `../shared/formats/experiment.md`), `report.md`, `residual_map.svg`,
 //! `curves.svg` and `improved.osim` (the chosen effect added).
@@ -18,10 +18,17 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Worker threads (default: all cores); the results do not depend on it.
+    #[arg(long)]
+    pub jobs: Option<usize>,
 }
 
 /// Run.
 pub fn run(a: Args) -> anyhow::Result<i32> {
+    super::with_jobs(a.jobs, || run_inner(&a))
+}
+
+fn run_inner(a: &Args) -> anyhow::Result<i32> {
     let opts = Options {
         progress: !a.quiet,
         ..Options::default()

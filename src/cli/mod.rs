@@ -79,6 +79,24 @@ pub enum Command {
 }
 
 /// Parse the command line and run; returns the process exit code.
+/// Run `f` on a pool of `jobs` worker threads (`None`: one per core).
+/// Results do not depend on the count: parallel work is collected in input
+/// order.
+pub fn with_jobs<T>(
+    jobs: Option<usize>,
+    f: impl FnOnce() -> anyhow::Result<T> + Send,
+) -> anyhow::Result<T>
+where
+    T: Send,
+{
+    use anyhow::Context;
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(jobs.unwrap_or(0))
+        .build()
+        .context("starting the worker threads")?
+        .install(f)
+}
+
 pub fn main() -> i32 {
     let cli = Cli::parse();
     let result: anyhow::Result<i32> = match cli.command {

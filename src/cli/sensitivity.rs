@@ -53,11 +53,7 @@ pub struct Args {
 
 /// Run `sensitivity`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(a.jobs.unwrap_or(0))
-        .build()
-        .context("starting the worker threads")?;
-    pool.install(|| run_inner(&a))
+    super::with_jobs(a.jobs, || run_inner(&a))
 }
 
 fn run_inner(a: &Args) -> anyhow::Result<i32> {

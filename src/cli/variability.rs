@@ -75,12 +75,7 @@ fn model_stem(label: &str) -> String {
 
 /// Run; returns the exit code.
 pub fn run(args: &Args) -> anyhow::Result<i32> {
-    let jobs = args.jobs.unwrap_or(0);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(jobs)
-        .build()
-        .context("starting the worker threads")?;
-    pool.install(|| run_inner(args))
+    super::with_jobs(args.jobs, || run_inner(args))
 }
 
 fn run_inner(args: &Args) -> anyhow::Result<i32> {

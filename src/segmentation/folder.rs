@@ -95,7 +95,7 @@ pub fn read_level(files: &[PathBuf], to_metres: f64) -> Result<TriMesh> {
 
 /// The mesh welded (coincident vertices of STL-like files joined) and
 /// checked: triangles present, no boundary edge.
-fn closed(m: TriMesh, f: &Path) -> Result<TriMesh> {
+pub fn closed(m: TriMesh, f: &Path) -> Result<TriMesh> {
     let what = f.display().to_string();
     if m.triangles.is_empty() || m.vertices.is_empty() {
         return Err(Error::invalid(what, "the mesh is empty (no triangles)"));

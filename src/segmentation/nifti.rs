@@ -13,7 +13,7 @@
 
 use crate::error::{Error, Result};
 use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
-use nifti::{NiftiHeader, NiftiObject, NiftiType, ReaderOptions};
+use nifti::{NiftiHeader, NiftiObject, NiftiType};
 use std::path::Path;
 
 /// Largest label map read (voxels): 2^29 (e.g. 1024 x 1024 x 512), about
@@ -53,16 +53,53 @@ impl LabelMap {
     }
 }
 
-/// Read and check a label map.
+/// Largest label-map file read (bytes, after gzip decompression): the
+/// header, extensions and [`MAX_VOXELS`] 32-bit labels.
+pub const MAX_FILE_BYTES: u64 = 4 * MAX_VOXELS + (1 << 20);
+
+/// Read and check a label map: the bytes come through the input gate
+/// ([`crate::util::input`]), a `.nii.gz` is decompressed with the same cap
+/// on the bytes it yields, then [`parse`].
 pub fn read(path: &Path) -> Result<LabelMap> {
-    let header = NiftiHeader::from_file(path).map_err(|e| nifti_error(path, "header", e))?;
+    let raw = crate::util::input::read_bytes_capped(path, MAX_FILE_BYTES, "label maps")?;
+    let bytes = if raw.starts_with(&[0x1f, 0x8b]) {
+        gunzip_capped(&raw, path)?
+    } else {
+        raw
+    };
+    parse(&bytes, path)
+}
+
+/// Decompress gzip bytes, refusing more than [`MAX_FILE_BYTES`] of output
+/// (a gzip bomb is refused, not expanded).
+fn gunzip_capped(raw: &[u8], path: &Path) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let mut out = Vec::new();
+    flate2::read::MultiGzDecoder::new(raw)
+        .take(MAX_FILE_BYTES + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| Error::parse(path, "gzip", format!("not a readable gzip stream ({e})")))?;
+    if out.len() as u64 > MAX_FILE_BYTES {
+        return Err(Error::parse(
+            path,
+            "gzip",
+            format!("decompresses to more than {MAX_FILE_BYTES} bytes: refusing to expand it"),
+        ));
+    }
+    Ok(out)
+}
+
+/// Check and read a single-file NIfTI-1 image (`.nii` bytes, already
+/// decompressed); `path` names the file in errors.
+pub fn parse(bytes: &[u8], path: &Path) -> Result<LabelMap> {
+    let header = NiftiHeader::from_reader(bytes).map_err(|e| nifti_error(path, "header", e))?;
     let dims = check_dims(&header, path)?;
     let dtype = check_datatype(&header, path)?;
+    check_length(&header, dims, dtype, bytes.len(), path)?;
     let (affine, transform, mut notes) = header_affine(&header, path)?;
     // The header is sound: now the volume.
-    let obj = ReaderOptions::new()
-        .read_file(path)
-        .map_err(|e| nifti_error(path, "volume", e))?;
+    let obj =
+        nifti::InMemNiftiObject::from_reader(bytes).map_err(|e| nifti_error(path, "volume", e))?;
     let volume = obj.into_volume();
     let labels = to_labels(volume, dtype, path)?;
     if header.scl_slope != 0.0 && (header.scl_slope != 1.0 || header.scl_inter != 0.0) {
@@ -78,6 +115,38 @@ pub fn read(path: &Path) -> Result<LabelMap> {
         transform,
         notes,
     })
+}
+
+/// The file holds the whole volume the header announces (checked before
+/// the volume is allocated): `vox_offset` plus voxels x bytes per voxel.
+fn check_length(
+    h: &NiftiHeader,
+    dims: [usize; 3],
+    t: NiftiType,
+    len: usize,
+    path: &Path,
+) -> Result<()> {
+    let offset = h.vox_offset;
+    if !offset.is_finite() || offset < 0.0 || offset > MAX_FILE_BYTES as f32 {
+        return Err(Error::parse(
+            path,
+            "header vox_offset",
+            format!("{offset}: expected the byte offset of the volume (352 or more)"),
+        ));
+    }
+    let voxels = dims.iter().map(|&d| d as u64).product::<u64>();
+    let need = offset as u64 + voxels * t.size_of() as u64;
+    if (len as u64) < need {
+        return Err(Error::parse(
+            path,
+            "volume",
+            format!(
+                "the file has {len} bytes but its header announces {need} ({}x{}x{} voxels of {} bytes from offset {offset})",
+                dims[0], dims[1], dims[2], t.size_of()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// An error of the `nifti` crate with the file and stage named.
