@@ -669,3 +669,69 @@ fn closed_stdout_is_not_a_panic() {
     assert!(!text(&o).contains("panicked"), "{}", text(&o));
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
 }
+
+#[test]
+fn no_command_writes_where_an_input_is() {
+    let d = tempfile::tempdir().unwrap();
+    let m = d.path().join("m.osim");
+    std::fs::write(&m, corpus_model()).unwrap();
+    let load = load_file(d.path());
+    let exp = d.path().join("exp");
+    std::fs::create_dir(&exp).unwrap();
+    std::fs::write(exp.join("experiment.toml"), "x").unwrap();
+    let seg = d.path().join("seg");
+    std::fs::create_dir(&seg).unwrap();
+    let mesh = d.path().join("a.stl");
+    std::fs::write(&mesh, "solid a\nendsolid a\n").unwrap();
+    let lm = d.path().join("lm.csv");
+    std::fs::write(&lm, "x").unwrap();
+    let snapshot = |p: &Path| std::fs::read(p).unwrap();
+    let before = (snapshot(&m), snapshot(&exp.join("experiment.toml")));
+    let (dir, e) = (s(d.path()), s(&exp));
+    let refusals: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["convert", s(&m), s(&m)], "overwrite the input"),
+        (
+            vec!["simulate", s(&m), "--load", s(&load), "--out", dir],
+            "holds the input",
+        ),
+        (vec!["calibrate", e, "--out", e], "holds the input"),
+        (vec!["diagnose", e, "--out", e], "holds the input"),
+        (vec!["sensitivity", e, "--out", e], "holds the input"),
+        (
+            vec![
+                "evaluate",
+                "--model",
+                s(&m),
+                "--truth",
+                s(&lm),
+                "--out",
+                dir,
+            ],
+            "holds the input",
+        ),
+        (
+            vec!["base", "--generic", s(&m), "--out", dir],
+            "holds the input",
+        ),
+        (
+            vec!["variability", s(&lm), s(&lm), "--out", dir],
+            "holds the input",
+        ),
+        (
+            vec!["mean-shape", s(&mesh), s(&mesh), "--out", s(&mesh)],
+            "overwrite the input",
+        ),
+    ];
+    for (args, fragment) in &refusals {
+        let o = run(args);
+        assert_refused(&o, "--force", fragment);
+    }
+    let into_seg = seg.join("lm.csv");
+    let o = run(&["palpate", s(&seg), "--out", s(&into_seg)]);
+    assert_refused(&o, "seg", "input folder");
+    assert!(!into_seg.exists());
+    assert_eq!(
+        before,
+        (snapshot(&m), snapshot(&exp.join("experiment.toml")))
+    );
+}

@@ -66,6 +66,9 @@ pub struct Args {
     /// Output folder.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// `--fixed` values.
@@ -130,6 +133,16 @@ fn body_meshes(
 
 /// Run `base`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
+    // Never write into a folder that holds an input.
+    let protected = crate::util::guard::Protected::default().inputs(
+        args.generic
+            .iter()
+            .chain(&args.geometry)
+            .chain(&args.sacrum)
+            .chain(&args.body_meshes)
+            .chain(&args.ivd),
+    );
+    crate::util::guard::check_output_dir(&args.out, &protected, args.force)?;
     let top = parse_keep(&args.keep)?;
     let mut opts = BaseOptions {
         top,

@@ -13,6 +13,9 @@ pub struct Args {
     pub input: PathBuf,
     /// Output path (.osim for models; a mesh extension for meshes).
     pub output: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
     /// Extra folder to search for mesh files of the model.
     #[arg(long, value_name = "DIR")]
     pub geometry: Vec<PathBuf>,
@@ -64,6 +67,9 @@ fn convert_checked(args: &Args) -> anyhow::Result<(Document, super::info::Summar
 
 /// Run `convert`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
+    // Never overwrite an input.
+    let protected = crate::util::guard::Protected::default().inputs([&args.input]);
+    crate::util::guard::check_outputs(&[&args.output], &protected, args.force)?;
     let (ein, eout) = (ext(&args.input), ext(&args.output));
     let in_mesh = MESH_EXTENSIONS.contains(&ein.as_str());
     let out_mesh = MESH_EXTENSIONS.contains(&eout.as_str());

@@ -15,6 +15,9 @@ pub struct Args {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -25,6 +28,9 @@ pub struct Args {
 
 /// Run.
 pub fn run(a: Args) -> anyhow::Result<i32> {
+    // Never write into a folder that holds an input.
+    let protected = crate::util::guard::Protected::default().inputs([&a.experiment]);
+    crate::util::guard::check_output_dir(&a.out, &protected, a.force)?;
     super::with_jobs(a.jobs, || run_inner(&a))
 }
 

@@ -24,6 +24,9 @@ pub struct Args {
     /// Output folder.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// How models are compared with a reference (shared by `evaluate` and
@@ -75,6 +78,10 @@ impl MetricArgs {
 
 /// Run `evaluate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
+    // Never write into a folder that holds an input.
+    let protected =
+        crate::util::guard::Protected::default().inputs(args.model.iter().chain([&args.truth]));
+    crate::util::guard::check_output_dir(&args.out, &protected, args.force)?;
     let opts = &args.metrics;
     let ends = opts.cobb_ends()?;
     let truth = opts.load_truth(&args.truth)?;

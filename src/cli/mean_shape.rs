@@ -16,6 +16,9 @@ pub struct Args {
     /// Output mesh (format by extension).
     #[arg(long, value_name = "MESH")]
     pub out: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
     /// Remove size differences too (similarity Procrustes); by default
     /// only position and orientation are removed.
     #[arg(long)]
@@ -24,6 +27,9 @@ pub struct Args {
 
 /// Run `mean-shape`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
+    // Never overwrite an input.
+    let protected = crate::util::guard::Protected::default().inputs(&args.meshes);
+    crate::util::guard::check_outputs(&[&args.out], &protected, args.force)?;
     let mut meshes = Vec::new();
     for p in &args.meshes {
         meshes.push(crate::mesh::read(p)?);

@@ -19,6 +19,9 @@ pub struct Args {
     /// Landmark set to write (.csv).
     #[arg(long, value_name = "LANDMARKS.csv")]
     pub out: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub seg: SegArgs,
 }
@@ -144,6 +147,10 @@ pub fn output_files(p: &Palpated, out: &Path) -> Vec<(PathBuf, Vec<u8>)> {
 
 /// Run `palpate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
+    // Never overwrite an input.
+    let protected = crate::util::guard::Protected::default()
+        .inputs(std::iter::once(&args.segmentation).chain(&args.seg.labels));
+    crate::util::guard::check_outputs(&[&args.out], &protected, args.force)?;
     if args
         .out
         .extension()

@@ -49,10 +49,16 @@ pub struct Args {
     /// Output folder.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Run `sensitivity`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
+    // Never write into a folder that holds an input.
+    let protected = crate::util::guard::Protected::default().inputs([&a.experiment]);
+    crate::util::guard::check_output_dir(&a.out, &protected, a.force)?;
     super::with_jobs(a.jobs, || run_inner(&a))
 }
 

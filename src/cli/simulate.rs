@@ -51,6 +51,9 @@ pub struct Args {
     /// Output folder.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(Debug, Serialize)]
@@ -447,6 +450,9 @@ fn case_line(case: &LoadCase, out: &CaseOut, disp: (f64, String), from: &str) ->
 
 /// Run `simulate`.
 pub fn run(a: Args) -> anyhow::Result<i32> {
+    // Never write into a folder that holds an input.
+    let protected = crate::util::guard::Protected::default().inputs([&a.model, &a.load]);
+    crate::util::guard::check_output_dir(&a.out, &protected, a.force)?;
     check_durations(&a)?;
     let (cases, specimen) = read_load_file(&a.load)?;
     let st = setup(&a, specimen.as_ref())?;

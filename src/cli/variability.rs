@@ -26,6 +26,9 @@ pub struct Args {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
+    /// Allow the output to go where an input is (it may be replaced).
+    #[arg(long)]
+    pub force: bool,
     /// Landmark statistics only: no model per palpation.
     #[arg(long)]
     pub no_models: bool,
@@ -75,6 +78,10 @@ fn model_stem(label: &str) -> String {
 
 /// Run; returns the exit code.
 pub fn run(args: &Args) -> anyhow::Result<i32> {
+    // Never write into a folder that holds an input.
+    let protected = crate::util::guard::Protected::default()
+        .inputs(args.files.iter().chain(&args.base).chain(&args.truth));
+    crate::util::guard::check_output_dir(&args.out, &protected, args.force)?;
     super::with_jobs(args.jobs, || run_inner(args))
 }
 

@@ -23,6 +23,18 @@ impl Protected {
         self
     }
 
+    /// Protect each input path: a folder as a folder, anything else as a file.
+    pub fn inputs<'a>(mut self, paths: impl IntoIterator<Item = &'a PathBuf>) -> Self {
+        for p in paths {
+            self = if p.is_dir() {
+                self.folder(p)
+            } else {
+                self.file(p)
+            };
+        }
+        self
+    }
+
     /// Protect everything in `folder`.
     pub fn folder(mut self, folder: &Path) -> Self {
         self.folders.push(folder.to_path_buf());
@@ -80,8 +92,40 @@ pub fn check_outputs(outputs: &[&Path], protected: &Protected, force: bool) -> R
             return Err(Error::invalid(
                 out.display().to_string(),
                 format!(
-                    "output would be written into the base model's folder {}; refused (pass --force to allow it)",
+                    "output would be written into the input folder {} (it could replace an input there); refused (pass --force to allow it)",
                     protected.folders[i].display()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Refuse an output folder that is (after symlinks) a protected folder, a
+/// protected file, or the folder of a protected file (the command writes
+/// fixed file names into it, which could replace an input), unless `force`.
+pub fn check_output_dir(dir: &Path, protected: &Protected, force: bool) -> Result<()> {
+    if force {
+        return Ok(());
+    }
+    let r = resolve(dir);
+    let folders = protected.folders.iter().map(|d| (d, resolve(d)));
+    let holders = protected.files.iter().map(|f| {
+        (
+            f,
+            resolve(f)
+                .parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_default(),
+        )
+    });
+    for (input, held) in folders.chain(holders) {
+        if held == r || resolve(input) == r {
+            return Err(Error::invalid(
+                dir.display().to_string(),
+                format!(
+                    "the output folder holds the input {}; writing there could replace it: choose another folder (or pass --force)",
+                    input.display()
                 ),
             ));
         }
@@ -117,5 +161,24 @@ mod tests {
         assert!(check_outputs(&[&sub.join("out.osim")], &p, false).is_err());
         assert!(check_outputs(&[&sub.join("x/../out.osim")], &p, false).is_err());
         assert!(check_outputs(&[&dir.path().join("out.osim")], &p, false).is_ok());
+    }
+
+    #[test]
+    fn output_folders_holding_inputs_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("m.osim");
+        std::fs::write(&input, "x").unwrap();
+        let exp = dir.path().join("exp");
+        std::fs::create_dir(&exp).unwrap();
+        let p = Protected::default().file(&input).folder(&exp);
+        // The input's own folder, the input folder, through `..`: refused.
+        assert!(check_output_dir(dir.path(), &p, false).is_err());
+        assert!(check_output_dir(&exp, &p, false).is_err());
+        assert!(check_output_dir(&exp.join("x/.."), &p, false).is_err());
+        assert!(check_output_dir(&input, &p, false).is_err());
+        // A new folder beside them is fine, and --force allows the rest.
+        assert!(check_output_dir(&dir.path().join("out"), &p, false).is_ok());
+        assert!(check_output_dir(&exp.join("out"), &p, false).is_ok());
+        assert!(check_output_dir(&exp, &p, true).is_ok());
     }
 }
