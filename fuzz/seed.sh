@@ -13,9 +13,25 @@ done
 # small real meshes only (a few vertebrae)
 ls base_model/*.vtp | head -3 | xargs -I{} cp {} $c/mesh_vtp/
 S=../shared
-for f in $(ls $S/scoliosis-dev/*/landmarks*.csv 2>/dev/null | head -6); do cp "$f" $c/landmarks/$(echo "$f" | tr / _); done
-for f in $(find tests/fixtures -name '*.trc' -o -name '*.json' | head -6); do cp "$f" $c/landmarks/; done
-for f in $(ls $S/diagnose-dev/*/experiment.toml 2>/dev/null | head -3); do cp "$f" $c/experiment/$(echo "$f" | tr / _); done
+for f in $(ls $S/scoliosis-dev/*/landmarks*.csv 2>/dev/null | head -6); do cp "$f" $c/landmarks/$(basename $(dirname "$f"))_$(basename "$f"); done
+cp fixtures/*.csv $c/landmarks/
+# TRC and JSON, from the example's first rows (mm, LPS).
+python3 - fixtures/example-scoliosis.csv $c/landmarks <<'PY'
+import csv, sys
+rows = [r for r in csv.reader(l for l in open(sys.argv[1]) if not l.startswith('#'))]
+head, body = rows[0], rows[1:15]
+pts = [(r[0], r[1:4]) for r in body]
+json = '{"units": "mm", "frame": "LPS", "landmarks": {%s}}' % ', '.join(
+    '"%s": [%s]' % (n, ', '.join(xyz)) for n, xyz in pts)
+open(sys.argv[2] + '/example.json', 'w').write(json)
+names = '\t\t\t'.join(n for n, _ in pts)
+xyz = '\t'.join('X%d\tY%d\tZ%d' % (i + 1, i + 1, i + 1) for i in range(len(pts)))
+vals = '\t'.join('\t'.join(v) for _, v in pts)
+trc = ('PathFileType\t4\t(X/Y/Z)\tex.trc\nDataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n'
+       '100\t100\t1\t%d\tmm\t100\t1\t1\nFrame#\tTime\t%s\n\t\t%s\n\n1\t0\t%s\n' % (len(pts), names, xyz, vals))
+open(sys.argv[2] + '/example.trc', 'w').write(trc)
+PY
+for f in $(ls $S/diagnose-dev/*/experiment.toml 2>/dev/null | head -3); do cp "$f" $c/experiment/$(basename $(dirname "$f"))_$(basename "$f"); done
 cp templates/stiffness-*.toml templates/stiffness-*.csv $c/stiffness_table/ 2>/dev/null || true
 # NIfTI-1 label maps: small synthetic ones (uint8 and int16, sform and
 # qform), written by python's struct module.

@@ -230,11 +230,14 @@ fn improved_model_reproduces_the_fitted_predictions() {
         let exp = Experiment::read(&dir).unwrap();
         let o = diagnose(&exp, &quiet()).unwrap();
         assert_eq!(o.verdict, want);
-        let files = osim_spine::diagnose::outputs(&exp, &o).unwrap();
         let tmp = tempfile::tempdir().unwrap();
+        let (files, _) = osim_spine::diagnose::outputs(&exp, &o, &tmp.path().join("out")).unwrap();
         let copy = tmp.path().join("improved");
         reduced(&dir, &copy, |_| true);
-        let model = files.iter().find(|(n, _)| n == "improved.osim").unwrap();
+        let model = files
+            .iter()
+            .find(|(p, _)| p.ends_with("improved.osim"))
+            .unwrap();
         std::fs::write(copy.join("specimen.osim"), &model.1).unwrap();
         let exp2 = Experiment::read(&copy).unwrap();
         let sys2 = osim_spine::solver::System::new(&exp2.spec).unwrap();

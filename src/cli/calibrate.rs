@@ -329,13 +329,12 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     );
     let params_svg = report::params_svg(&cal, &format!("{}: parameters ({})", exp.name, a.params));
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    write_atomic(
-        &a.out.join("calibrated.osim"),
-        doc.to_xml_string().as_bytes(),
-    )?;
     write_atomic(&a.out.join("report.json"), json.as_bytes())?;
     write_atomic(&a.out.join("fit.svg"), fit_svg.as_bytes())?;
     write_atomic(&a.out.join("params.svg"), params_svg.as_bytes())?;
+    let model_out = a.out.join("calibrated.osim");
+    let missing = doc.write_with_meshes(&model_out, &[], false)?;
+    super::warn_missing_meshes(&model_out, &missing, false);
     let unit = exp.units.angle;
     crate::errln!(
         "calibrate: rotation RMSE {:.4} {unit} (nominal model {:.4} {unit}); {} local minim{} from {} starts{}; condition number {:.3e}",

@@ -1,4 +1,4 @@
-//! `osim-spine convert IN OUT [--geometry DIR]`: models of any supported
+//! `osim-spine convert IN OUT [--geometry DIR] [--drop-missing-meshes]`: models of any supported
 //! version to the canonical 4.x form (validated before anything is
 //! written); mesh files by extension through `crate::mesh`.
 
@@ -19,6 +19,12 @@ pub struct Args {
     /// Extra folder to search for mesh files of the model.
     #[arg(long, value_name = "DIR")]
     pub geometry: Vec<PathBuf>,
+    /// Remove the references to mesh files found nowhere (the model's
+    /// folder, its Geometry/, --geometry), so that OpenSim loads the output
+    /// without "Couldn't find file" warnings. By default they are kept, as
+    /// OpenSim's own upgrade keeps them; either way they are named.
+    #[arg(long)]
+    pub drop_missing_meshes: bool,
 }
 
 const MESH_EXTENSIONS: [&str; 4] = ["vtp", "stl", "obj", "ply"];
@@ -35,7 +41,7 @@ fn ext(p: &Path) -> String {
 pub fn convert_model(input: &Path, output: &Path) -> crate::Result<Document> {
     let doc = Document::read(input)?;
     doc.model()?;
-    doc.write(output)?;
+    doc.write_with_meshes(output, &[], true)?;
     Ok(doc)
 }
 
@@ -61,7 +67,9 @@ fn convert_checked(args: &Args) -> anyhow::Result<(Document, super::info::Summar
     let model = typed_model(&doc)?;
     let s = super::info::summarize(&doc, &model, &args.geometry)?;
     super::info::refuse_escaping_meshes(&s)?;
-    doc.write(&args.output)?;
+    let keep = !args.drop_missing_meshes;
+    let missing = doc.write_with_meshes(&args.output, &args.geometry, keep)?;
+    super::warn_missing_meshes(&args.output, &missing, keep);
     Ok((doc, s))
 }
 

@@ -39,7 +39,8 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         progress: !a.quiet,
         ..Options::default()
     };
-    let o = diagnose::run(&a.experiment, &a.out, &opts)?;
+    let (o, missing) = diagnose::run(&a.experiment, &a.out, &opts)?;
+    super::warn_missing_meshes(&a.out.join("improved.osim"), &missing, false);
     let (b, au) = o.heldout_rmse();
     crate::errln!(
         "verdict: {} (confidence {:.2}); held-out rotation RMSE {:.4} -> {:.4} deg; wrote {}",

@@ -79,6 +79,31 @@ pub enum Command {
 }
 
 /// Parse the command line and run; returns the process exit code.
+/// Warn about the meshes of a written model found nowhere beside its
+/// input: dropped from it, or (`kept`) left for OpenSim to warn about.
+pub fn warn_missing_meshes(out: &std::path::Path, missing: &[String], kept: bool) {
+    if missing.is_empty() {
+        return;
+    }
+    let shown: Vec<&str> = missing.iter().take(5).map(String::as_str).collect();
+    crate::errln!(
+        "warning: {}: {} mesh file(s) of the input model found nowhere ({}{}): {}",
+        out.display(),
+        missing.len(),
+        shown.join(", "),
+        if missing.len() > shown.len() {
+            ", ..."
+        } else {
+            ""
+        },
+        if kept {
+            "kept as references; OpenSim will warn that it cannot find them"
+        } else {
+            "their references are removed from the output (display only)"
+        }
+    );
+}
+
 /// Run `f` on a pool of `jobs` worker threads (`None`: one per core).
 /// Results do not depend on the count: parallel work is collected in input
 /// order.

@@ -103,7 +103,8 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     // the written model must still be a valid model the solver can read
     let model = new.model()?;
     crate::solver::SystemSpec::from_model(&model)?;
-    new.write(out)?;
+    let missing = new.write_with_meshes(out, &[], false)?;
+    super::warn_missing_meshes(out, &missing, false);
     crate::errln!(
         "{} of {} levels set from {}, {} bushing(s) rewritten -> {}",
         laws.len(),

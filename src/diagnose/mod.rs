@@ -24,10 +24,17 @@ pub mod synth;
 
 use crate::calibrate::experiment::Experiment;
 use crate::error::Result;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-/// Everything a diagnosis writes, computed in memory (file name, bytes).
-pub fn outputs(exp: &Experiment, o: &select::Outcome) -> Result<Vec<(String, Vec<u8>)>> {
+/// Everything a diagnosis writes into `out`, computed in memory (paths,
+/// bytes), and the specimen's meshes found nowhere (dropped from the
+/// improved model).
+#[allow(clippy::type_complexity)]
+pub fn outputs(
+    exp: &Experiment,
+    o: &select::Outcome,
+    out: &Path,
+) -> Result<(Vec<(PathBuf, Vec<u8>)>, Vec<String>)> {
     let aug = o.augmented();
     let variant = aug.family.variant(&o.sim, &aug.x)?;
     let doc = report::improved_model(&o.sim, exp, &variant)?;
@@ -37,26 +44,37 @@ pub fn outputs(exp: &Experiment, o: &select::Outcome) -> Result<Vec<(String, Vec
     let mut text = serde_json::to_string_pretty(&json)
         .map_err(|e| crate::Error::invalid("diagnosis.json", e.to_string()))?;
     text.push('\n');
-    Ok(vec![
-        ("diagnosis.json".into(), text.into_bytes()),
-        ("report.md".into(), md.into_bytes()),
+    let mut files: Vec<(PathBuf, Vec<u8>)> = vec![
+        (out.join("diagnosis.json"), text.into_bytes()),
+        (out.join("report.md"), md.into_bytes()),
         (
-            "residual_map.svg".into(),
+            out.join("residual_map.svg"),
             report::residual_map_svg(o, exp).into_bytes(),
         ),
-        ("curves.svg".into(), report::curves_svg(o, exp).into_bytes()),
-        (model_name.into(), doc.to_xml_string().into_bytes()),
-    ])
+        (
+            out.join("curves.svg"),
+            report::curves_svg(o, exp).into_bytes(),
+        ),
+    ];
+    // The improved model with the specimen's meshes (copied or dropped).
+    let (model_files, missing) = doc.files_for(&out.join(model_name), &[], false)?;
+    files.extend(model_files);
+    Ok((files, missing))
 }
 
-/// Read, diagnose and write `out/` (all outputs computed before any is written).
-pub fn run(experiment: &Path, out: &Path, opts: &select::Options) -> Result<select::Outcome> {
+/// Read, diagnose and write `out/` (all outputs computed before any is
+/// written); returns the outcome and the specimen's meshes found nowhere.
+pub fn run(
+    experiment: &Path,
+    out: &Path,
+    opts: &select::Options,
+) -> Result<(select::Outcome, Vec<String>)> {
     let exp = Experiment::read(experiment)?;
     let o = select::diagnose(&exp, opts)?;
-    let files = outputs(&exp, &o)?;
+    let (files, missing) = outputs(&exp, &o, out)?;
     std::fs::create_dir_all(out).map_err(|e| crate::Error::io(out, e))?;
-    for (name, bytes) in files {
-        crate::util::write_atomic(&out.join(name), &bytes)?;
+    for (path, bytes) in files {
+        crate::util::write_atomic(&path, &bytes)?;
     }
-    Ok(o)
+    Ok((o, missing))
 }

@@ -197,8 +197,7 @@ pub fn read(path: &Path) -> Result<TriMesh> {
     read_bytes(format, &bytes, path)
 }
 
-/// Largest mesh file read (bytes): far above any vertebra or pelvis mesh.
-pub const MAX_MESH_BYTES: u64 = 512 * 1024 * 1024;
+pub use crate::osim::geometry::MAX_MESH_BYTES;
 
 /// The bytes of a mesh file, through the crate's input gate (regular files
 /// only, at most [`MAX_MESH_BYTES`]).

@@ -111,6 +111,8 @@ impl Document {
         }
         if version < 40000 {
             super::legacy::upgrade(&mut tree, version, &path)?;
+        } else if version < CURRENT_VERSION {
+            super::legacy::upgrade_4x(&mut tree);
         }
         Ok(Document {
             tree,
@@ -185,6 +187,49 @@ impl Document {
     /// Write atomically to `path`.
     pub fn write(&self, path: impl AsRef<Path>) -> Result<()> {
         crate::util::write_atomic(path.as_ref(), self.to_xml_string().as_bytes())
+    }
+
+    /// The files that put this model at `out` so that OpenSim finds all
+    /// its meshes: the meshes found where this document's own file looks
+    /// (and in `extra`) but not beside `out`, bound for `out`'s
+    /// `Geometry/`, then the model itself, last. References to meshes found
+    /// nowhere are removed from the written model unless `keep_missing`
+    /// (they are display-only, and OpenSim would warn on every load); they
+    /// are returned either way.
+    #[allow(clippy::type_complexity)]
+    pub fn files_for(
+        &self,
+        out: &Path,
+        extra: &[PathBuf],
+        keep_missing: bool,
+    ) -> Result<(Vec<(PathBuf, Vec<u8>)>, Vec<String>)> {
+        use super::geometry::{drop_meshes, mesh_copies, mesh_files};
+        let copies = mesh_copies(&mesh_files(self.model_element()), self.path(), out, extra)?;
+        let xml = if keep_missing || copies.missing.is_empty() {
+            self.to_xml_string()
+        } else {
+            let mut doc = self.clone();
+            drop_meshes(doc.model_element_mut(), &copies.missing);
+            doc.to_xml_string()
+        };
+        let mut files = copies.files;
+        files.push((out.to_path_buf(), xml.into_bytes()));
+        Ok((files, copies.missing))
+    }
+
+    /// Write [`Self::files_for`] (each atomically, the model last); returns
+    /// the meshes found nowhere.
+    pub fn write_with_meshes(
+        &self,
+        out: &Path,
+        extra: &[PathBuf],
+        keep_missing: bool,
+    ) -> Result<Vec<String>> {
+        let (files, missing) = self.files_for(out, extra, keep_missing)?;
+        for (p, bytes) in &files {
+            crate::util::write_atomic(p, bytes)?;
+        }
+        Ok(missing)
     }
 
     /// The `<Model>` element.

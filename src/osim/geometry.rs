@@ -3,7 +3,12 @@
 //! `mesh_file` that is absolute or contains `..` is never followed: it is
 //! reported as escaping its folder.
 
+use super::xml::Element;
+use crate::error::Result;
 use std::path::{Component, Path, PathBuf};
+
+/// Largest mesh file read (bytes): far above any vertebra or pelvis mesh.
+pub const MAX_MESH_BYTES: u64 = 512 * 1024 * 1024;
 
 /// Outcome of looking up one mesh file.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -62,6 +67,82 @@ pub fn resolve(model_path: &Path, mesh_file: &str, extra: &[PathBuf]) -> MeshLoo
     MeshLookup::Missing
 }
 
+/// Every `mesh_file` of a model element tree (bodies, ground, offset
+/// frames), in document order, each once, empty ones skipped.
+pub fn mesh_files(root: &Element) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    let mut stack = vec![root];
+    while let Some(e) = stack.pop() {
+        if e.name == "mesh_file" {
+            let f = e.text().trim().to_string();
+            if !f.is_empty() && !out.contains(&f) {
+                out.push(f);
+            }
+            continue;
+        }
+        // Children pushed in reverse: popped in document order.
+        stack.extend(e.elements().collect::<Vec<_>>().into_iter().rev());
+    }
+    out
+}
+
+/// Remove every `Mesh` geometry whose `mesh_file` is one of `files` (in
+/// any frame of the tree); returns how many were removed.
+pub fn drop_meshes(root: &mut Element, files: &[String]) -> usize {
+    let before = root.children.len();
+    root.children.retain(|n| match n {
+        super::xml::Node::Element(e) if e.name == "Mesh" => e
+            .child_text("mesh_file")
+            .is_none_or(|f| !files.contains(&f)),
+        _ => true,
+    });
+    let mut removed = before - root.children.len();
+    for e in root.elements_mut() {
+        removed += drop_meshes(e, files);
+    }
+    removed
+}
+
+/// The meshes an output model needs beside it.
+#[derive(Debug, Default)]
+pub struct MeshCopies {
+    /// (destination path, bytes): meshes to write into the output's
+    /// `Geometry/` folder.
+    pub files: Vec<(PathBuf, Vec<u8>)>,
+    /// Meshes found neither beside the output nor where the source model
+    /// looks: OpenSim will not find them either.
+    pub missing: Vec<String>,
+}
+
+/// What makes every mesh of a model read from `source` resolvable by
+/// OpenSim from an output model at `out`: meshes the output's folder
+/// already resolves (e.g. the same folder) need nothing; the others are
+/// read where the source model finds them (its folder, `Geometry/`,
+/// `extra`) and copied into `out`'s `Geometry/`. Escaping names are not
+/// followed and count as missing.
+pub fn mesh_copies(
+    files: &[String],
+    source: &Path,
+    out: &Path,
+    extra: &[PathBuf],
+) -> Result<MeshCopies> {
+    let mut copies = MeshCopies::default();
+    let geometry = search_dirs(out, &[])[1].clone();
+    for f in files {
+        if matches!(resolve(out, f, &[]), MeshLookup::Found(_)) {
+            continue;
+        }
+        match resolve(source, f, extra) {
+            MeshLookup::Found(p) => {
+                let bytes = crate::util::read_bytes_capped(&p, MAX_MESH_BYTES, "mesh files")?;
+                copies.files.push((geometry.join(f), bytes));
+            }
+            MeshLookup::Missing | MeshLookup::Escapes(_) => copies.missing.push(f.clone()),
+        }
+    }
+    Ok(copies)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -92,5 +173,45 @@ mod tests {
             resolve(&model, "/etc/passwd", &ex),
             MeshLookup::Escapes(_)
         ));
+    }
+
+    #[test]
+    fn meshes_follow_a_model_written_elsewhere() {
+        let src = tempfile::tempdir().unwrap();
+        let model = src.path().join("m.osim");
+        std::fs::create_dir(src.path().join("Geometry")).unwrap();
+        std::fs::write(src.path().join("Geometry/a.vtp"), "A").unwrap();
+        std::fs::write(src.path().join("b.stl"), "B").unwrap();
+        let files: Vec<String> = ["a.vtp", "b.stl", "gone.obj", "../x.vtp"]
+            .map(String::from)
+            .into();
+        // Another folder: the found meshes go to its Geometry/.
+        let out = tempfile::tempdir().unwrap();
+        let o = out.path().join("sub/n.osim");
+        let c = mesh_copies(&files, &model, &o, &[]).unwrap();
+        let dests: Vec<&PathBuf> = c.files.iter().map(|(p, _)| p).collect();
+        let g = out.path().join("sub/Geometry");
+        assert_eq!(dests, [&g.join("a.vtp"), &g.join("b.stl")]);
+        assert_eq!(c.files[0].1, b"A");
+        assert_eq!(c.missing, ["gone.obj", "../x.vtp"]);
+        // The same folder: nothing to copy.
+        let same = mesh_copies(&files, &model, &src.path().join("n.osim"), &[]).unwrap();
+        assert!(same.files.is_empty());
+    }
+
+    #[test]
+    fn mesh_files_are_listed_once_in_order() {
+        let root = Element::new("Model")
+            .with_child(
+                Element::new("Body")
+                    .with_child(Element::new("Mesh").with_prop("mesh_file", "b.vtp")),
+            )
+            .with_child(Element::new("Mesh").with_prop("mesh_file", "a.vtp"))
+            .with_child(Element::new("Mesh").with_prop("mesh_file", "b.vtp"))
+            .with_child(Element::new("Mesh").with_prop("mesh_file", " "));
+        assert_eq!(mesh_files(&root), ["b.vtp", "a.vtp"]);
+        let mut root = root;
+        assert_eq!(drop_meshes(&mut root, &["b.vtp".to_string()]), 2);
+        assert_eq!(mesh_files(&root), ["a.vtp"]);
     }
 }

@@ -45,7 +45,8 @@
 //!   renamed (<= 20301); GeometryPath default colour (< 30516);
 //! - controllers' `actuator_list` becomes `socket_actuators`.
 //!
-//! The document then says Version="40600".
+//! The document then says Version="40600". 4.x files before 4.6 get
+//! [`upgrade_4x`] (the path actuators' `geometrypath` becomes `path`).
 
 use super::document::{fmt_numbers, loc, parse_numbers, CURRENT_VERSION};
 use super::xml::{Element, Node, XmlTree};
@@ -232,6 +233,28 @@ pub fn upgrade(tree: &mut XmlTree, version: u32, path: &Path) -> Result<()> {
     })?;
     tree.root.set_attr("Version", CURRENT_VERSION.to_string());
     Ok(())
+}
+
+/// Upgrade a 4.x `tree` written before 4.6 (`40000 <= version < 40600`):
+/// the paths of path actuators, muscles and path springs, a `GeometryPath`
+/// named `geometrypath` (or `GeometryPath`), are the 4.6 property `path`.
+/// OpenSim 4.6 applies the same rename when it loads such a file (and logs
+/// "Updating Model file from 40000"); a model it printed then says 40600.
+pub fn upgrade_4x(tree: &mut XmlTree) {
+    if let Some(model) = tree.root.child_mut("Model") {
+        if let Some(forces) = model.child_mut("ForceSet") {
+            if let Some(objects) = forces.child_mut("objects") {
+                for f in objects.elements_mut() {
+                    for gp in f.elements_mut().filter(|e| e.name == "GeometryPath") {
+                        if matches!(gp.attr("name"), Some("geometrypath" | "GeometryPath")) {
+                            gp.set_attr("name", "path");
+                        }
+                    }
+                }
+            }
+        }
+    }
+    tree.root.set_attr("Version", CURRENT_VERSION.to_string());
 }
 
 /// Very old files keep the sets inside `<DynamicsEngine><SimbodyEngine>`.

@@ -17,8 +17,7 @@ use std::path::{Path, PathBuf};
 /// Mesh file extensions read.
 const EXTENSIONS: [&str; 4] = ["stl", "obj", "vtp", "ply"];
 
-/// Largest mesh file read (bytes).
-pub const MAX_MESH_BYTES: u64 = 512 * 1024 * 1024;
+use crate::mesh::MAX_MESH_BYTES;
 
 /// The level files of a folder, by level (one or, for TotalSegmentator's
 /// sacrum, two files), and notes on the files ignored.

@@ -159,14 +159,25 @@ fn muscle_element(m: &MuscleSpec, class: &str) -> Element {
                 .with_child(Element::new("groups")),
         )
         .with_child(Element::new("Appearance").with_prop("color", "0.8 0.1 0.1"));
-    Element::new(class)
+    let muscle = Element::new(class)
         .with_attr("name", m.name.clone())
         .with_child(path)
         .with_prop("max_isometric_force", fmt_f64(m.max_isometric_force))
         .with_prop("optimal_fiber_length", fmt_f64(m.optimal_fiber_length))
         .with_prop("tendon_slack_length", fmt_f64(m.tendon_slack_length))
         .with_prop("pennation_angle_at_optimal", "0")
-        .with_prop("ignore_tendon_compliance", "true")
+        .with_prop("ignore_tendon_compliance", "true");
+    if class != "Millard2012EquilibriumMuscle" {
+        return muscle;
+    }
+    // Millard's damped fibre model (the default fiber_damping 0.1) needs an
+    // active-force-length curve that reaches 0; OpenSim 4.6 lowers the
+    // default 0.1 on every load and logs it, so the file states it.
+    muscle.with_child(
+        Element::new("ActiveForceLengthCurve")
+            .with_attr("name", "ActiveForceLengthCurve")
+            .with_prop("minimum_value", "0"),
+    )
 }
 
 /// Build the generic document from the skeleton, masses and muscles.

@@ -1,0 +1,24 @@
+#!/bin/sh
+# The long fuzz pass (issue 19): every reader's target for SECONDS (default
+# 300) with a 1 GB memory limit and a 2 s per-input timeout, so a hang or
+# an allocation blow-up is a finding. Run from the repo root after
+# `cargo install cargo-fuzz` and `sh fuzz/seed.sh`:
+#   sh fuzz/run_all.sh [SECONDS]
+# Prints one line per target: runs, seconds, and the crash files (if any).
+set -u
+secs=${1:-300}
+cd fuzz
+mkdir -p logs
+for t in osim_reader mesh_vtp mesh_stl mesh_obj mesh_ply landmarks experiment stiffness_table nifti_labels segmentation_level; do
+  case $t in
+    osim_reader|mesh_vtp) dict="-dict=dict/xml.dict" ;;
+    landmarks|experiment|stiffness_table) dict="-dict=dict/csv.dict" ;;
+    *) dict="" ;;
+  esac
+  mkdir -p corpus/$t
+  cargo +nightly fuzz run $t corpus/$t -- -max_total_time=$secs -rss_limit_mb=1024 \
+    -malloc_limit_mb=1024 -timeout=2 $dict > logs/$t.log 2>&1
+  code=$?
+  runs=$(grep -o 'Done [0-9]* runs in [0-9]* second' logs/$t.log | tail -1)
+  echo "$t: exit $code; ${runs:-no summary (see fuzz/logs/$t.log)}; artifacts: $(ls artifacts/$t 2>/dev/null | wc -l)"
+done
