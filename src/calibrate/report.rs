@@ -88,11 +88,7 @@ pub struct FitSummary {
     pub per_level_dof: ErrorTable,
 }
 
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
+use crate::util::svg::esc;
 
 fn nice(v: f64) -> String {
     let a = v.abs();
@@ -124,13 +120,14 @@ pub fn fit_svg(pb: &Problem, pred: &[[f64; 6]], title: &str) -> String {
     let w = margin + dofs.len() as f64 * (pw + margin);
     let h = top + pairs.len() as f64 * (ph + margin) + 10.0;
     let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{:.0}\" y=\"20\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n<text x=\"{:.0}\" y=\"36\" text-anchor=\"middle\">measured (x) vs predicted (y) per level and DoF; dashed: identity</text>",
-        w / 2.0,
-        esc(title),
-        w / 2.0
+    let (open, head) = crate::util::svg::figure_open(
+        w,
+        h - 40.0,
+        title,
+        "measured (x) vs predicted (y) per level and DoF; dashed: identity",
     );
+    s.push_str(&open);
+    let _ = writeln!(s, "<g transform=\"translate(0,{:.1})\">", head - 40.0);
     for (pi, (u, l)) in pairs.iter().enumerate() {
         for (di, &d) in dofs.iter().enumerate() {
             let f = pb.exp.units.from_si(d);
@@ -190,7 +187,7 @@ pub fn fit_svg(pb: &Problem, pred: &[[f64; 6]], title: &str) -> String {
             }
         }
     }
-    s.push_str("</svg>\n");
+    s.push_str("</g>\n</svg>\n");
     s
 }
 
@@ -239,11 +236,9 @@ pub fn params_svg(cal: &Calibration, title: &str) -> String {
     let sy =
         |v: f64| top + (h - top - bottom) * (1.0 - (v.max(1e-300).log10() - lmin) / (lmax - lmin));
     let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{:.0}\" y=\"20\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n<text x=\"{:.0}\" y=\"36\" text-anchor=\"middle\">value / nominal (log); dots: end of each start; red: best with 95% CI; grey: literature bounds</text>",
-        w / 2.0, esc(title), w / 2.0
-    );
+    let (open, head) = crate::util::svg::figure_open(w, h - 40.0, title, "value / nominal (log); dots: end of each start; red: best with 95% CI; grey: literature bounds");
+    s.push_str(&open);
+    let _ = writeln!(s, "<g transform=\"translate(0,{:.1})\">", head - 40.0);
     let mut e10 = lmin;
     while e10 <= lmax + 1e-9 {
         let y = sy(10f64.powf(e10));
@@ -288,7 +283,7 @@ pub fn params_svg(cal: &Calibration, title: &str) -> String {
             xc + 5.0, sy(e.value / nom), xc, h - bottom + 12.0, esc(&e.name)
         );
     }
-    s.push_str("</svg>\n");
+    s.push_str("</g>\n</svg>\n");
     s
 }
 

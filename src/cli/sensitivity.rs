@@ -153,15 +153,9 @@ fn spread_svg(rep: &SensitivityReport, title: &str) -> String {
     let hi = ratios.iter().fold(1.1f64, |m, v| m.max(*v)).log10();
     let sy = |v: f64| top + (h - top - bottom) * (1.0 - (v.max(1e-300).log10() - lo) / (hi - lo));
     let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{:.0}\" y=\"20\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n<text x=\"{:.0}\" y=\"36\" text-anchor=\"middle\">stiffness / reference calibration (log): box 25-75%, whiskers 2.5-97.5%, dots min/max ({} of {} samples)</text>",
-        w / 2.0,
-        title.replace('&', "&amp;").replace('<', "&lt;"),
-        w / 2.0,
-        rep.reduced,
-        rep.samples
-    );
+    let (open, head) = crate::util::svg::figure_open(w, h - 40.0, title, &format!("stiffness / reference calibration (log): box 25-75%, whiskers 2.5-97.5%, dots min/max ({} of {} samples)", rep.reduced, rep.samples));
+    s.push_str(&open);
+    let _ = writeln!(s, "<g transform=\"translate(0,{:.1})\">", head - 40.0);
     for t in [lo, 0.0, hi] {
         let v = 10f64.powf(t);
         let y = sy(v);
@@ -194,6 +188,6 @@ fn spread_svg(rep: &SensitivityReport, title: &str) -> String {
             p.name
         );
     }
-    s.push_str("</svg>\n");
+    s.push_str("</g>\n</svg>\n");
     s
 }

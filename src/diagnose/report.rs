@@ -273,29 +273,24 @@ fn color(v: f64) -> String {
     format!("rgb({},{},{})", r as u8, g as u8, b as u8)
 }
 
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
+use crate::util::svg::esc;
 
 /// Residual map (levels x (case, DoF)) of the baseline and the augmented
 /// model on every case, held-out cases marked; colour scaled by the
-/// largest baseline residual of each DoF class.
+/// largest baseline residual of each DoF class, with a colour bar.
 pub fn residual_map_svg(o: &Outcome, exp: &Experiment) -> String {
     let sim = &o.sim;
     let dofs: Vec<usize> = (0..6)
         .filter(|d| sim.cells.iter().any(|c| c.dof == *d))
         .collect();
-    let nc = exp.cases.len();
-    let nl = sim.levels.len();
-    let cw = 6.0;
-    let ch = 14.0;
-    let left = 70.0;
+    let (nc, nl) = (exp.cases.len(), sim.levels.len());
+    let (cw, ch, left) = (6.0, 14.0, 70.0);
     let panel_w = cw * (nc * dofs.len()) as f64;
     let panel_h = ch * nl as f64;
-    let w = left + panel_w + 20.0;
-    let h = 40.0 + 2.0 * (panel_h + 50.0);
+    // Each panel: title, rows, held-out marks and case numbers; then the bar.
+    let block = panel_h + 54.0;
+    let w = (left + panel_w + 20.0).max(360.0);
+    let content_h = 2.0 * block + 50.0;
     let scale = |rot: bool| {
         sim.cells
             .iter()
@@ -305,65 +300,126 @@ pub fn residual_map_svg(o: &Outcome, exp: &Experiment) -> String {
             .fold(1e-9, f64::max)
     };
     let (sr, st) = (scale(true), scale(false));
-    let mut s = String::new();
-    let _ = write!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w:.0}" height="{h:.0}" font-family="sans-serif" font-size="10">"#
-    );
-    let _ = write!(s, r#"<rect width="100%" height="100%" fill="white"/>"#);
-    let held: Vec<bool> = (0..nc).map(|i| o.design.heldout.contains(&i)).collect();
-    for (pi, (title, fit)) in [("baseline", &o.baseline), ("augmented", o.augmented())]
+    let dof_list = dofs
         .iter()
-        .enumerate()
-    {
-        let y0 = 30.0 + pi as f64 * (panel_h + 50.0);
+        .map(|d| DOF_NAMES[*d])
+        .collect::<Vec<_>>()
+        .join(", ");
+    let subtitle = format!(
+        "predicted - measured, rows: levels, columns: cases 1..{nc} x DoF ({dof_list}); held-out cases underlined"
+    );
+    let title = format!("{}: residual map", exp.name);
+    let (open, head) = crate::util::svg::figure_open(w, content_h, &title, &subtitle);
+    let mut s = open;
+    let held: Vec<bool> = (0..nc).map(|i| o.design.heldout.contains(&i)).collect();
+    let panels = [
+        ("baseline model", &o.baseline),
+        ("augmented model (chosen effect added)", o.augmented()),
+    ];
+    for (pi, (name, fit)) in panels.iter().enumerate() {
+        let y0 = head + 16.0 + pi as f64 * block;
         let _ = write!(
             s,
-            r#"<text x="{left}" y="{:.1}">{} residual (predicted - measured), columns: case x DoF ({}), scale +-{:.3} deg / +-{:.3} mm; held-out cases underlined</text>"#,
-            y0 - 8.0,
-            title,
-            dofs.iter()
-                .map(|d| DOF_NAMES[*d])
-                .collect::<Vec<_>>()
-                .join(","),
-            sr,
-            st
+            r#"<text x="{left}" y="{:.1}" font-size="11">{name}</text>"#,
+            y0 - 5.0
         );
-        for (li, l) in sim.levels.iter().enumerate() {
-            let _ = write!(
-                s,
-                r#"<text x="4" y="{:.1}">{}</text>"#,
-                y0 + ch * (li as f64 + 0.75),
-                esc(&l.name)
-            );
-        }
-        for (ci, c) in sim.cells.iter().enumerate() {
-            let Some(dk) = dofs.iter().position(|d| *d == c.dof) else {
-                continue;
-            };
-            let x = left + cw * (c.case * dofs.len() + dk) as f64;
-            let y = y0 + ch * c.level as f64;
-            let r = fit.residual(sim, ci) / if c.dof < 3 { sr } else { st };
-            let _ = write!(
-                s,
-                r#"<rect x="{x:.1}" y="{y:.1}" width="{cw}" height="{ch}" fill="{}"/>"#,
-                color(r)
-            );
-        }
-        for (i, hd) in held.iter().enumerate() {
-            if *hd {
-                let x = left + cw * (i * dofs.len()) as f64;
-                let _ = write!(
-                    s,
-                    r#"<rect x="{x:.1}" y="{:.1}" width="{:.1}" height="3" fill="black"/>"#,
-                    y0 + panel_h + 2.0,
-                    cw * dofs.len() as f64
-                );
-            }
-        }
+        residual_rows(&mut s, o, fit, &dofs, (left, y0), (sr, st));
+        residual_marks(&mut s, &held, dofs.len(), (left, y0 + panel_h));
     }
+    colour_bar(&mut s, (left, head + 2.0 * block + 8.0), (sr, st));
     s.push_str("</svg>\n");
     s
+}
+
+/// One residual panel: level names and one cell per (level, case, DoF).
+fn residual_rows(
+    s: &mut String,
+    o: &Outcome,
+    fit: &crate::diagnose::fit::Fitted,
+    dofs: &[usize],
+    (left, y0): (f64, f64),
+    (sr, st): (f64, f64),
+) {
+    let (cw, ch) = (6.0, 14.0);
+    let sim = &o.sim;
+    for (li, l) in sim.levels.iter().enumerate() {
+        let y = y0 + ch * (li as f64 + 0.75);
+        let _ = write!(s, r#"<text x="4" y="{y:.1}">{}</text>"#, esc(&l.name));
+    }
+    for (ci, c) in sim.cells.iter().enumerate() {
+        let Some(dk) = dofs.iter().position(|d| *d == c.dof) else {
+            continue;
+        };
+        let x = left + cw * (c.case * dofs.len() + dk) as f64;
+        let y = y0 + ch * c.level as f64;
+        let r = fit.residual(sim, ci) / if c.dof < 3 { sr } else { st };
+        let _ = write!(
+            s,
+            r#"<rect x="{x:.1}" y="{y:.1}" width="{cw}" height="{ch}" fill="{}"/>"#,
+            color(r)
+        );
+    }
+}
+
+/// Below a panel: held-out cases underlined, and the case numbers (every
+/// case when they fit, else every fifth).
+fn residual_marks(s: &mut String, held: &[bool], ndof: usize, (left, y): (f64, f64)) {
+    let step = 6.0 * ndof as f64;
+    let every = if step >= 14.0 { 1 } else { 5 };
+    for (i, hd) in held.iter().enumerate() {
+        let x = left + step * i as f64;
+        if *hd {
+            let _ = write!(
+                s,
+                r#"<rect x="{x:.1}" y="{:.1}" width="{step:.1}" height="3" fill="black"/>"#,
+                y + 2.0
+            );
+        }
+        if (i + 1) % every == 0 || i == 0 {
+            let _ = write!(
+                s,
+                r#"<text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="8">{}</text>"#,
+                x + step / 2.0,
+                y + 14.0,
+                i + 1
+            );
+        }
+    }
+    let _ = write!(
+        s,
+        r#"<text x="4" y="{:.1}" font-size="8">case</text>"#,
+        y + 14.0
+    );
+}
+
+/// The colour scale: blue (model below the measurement) to red (above),
+/// labelled in degrees (rotations) and millimetres (translations).
+fn colour_bar(s: &mut String, (left, y): (f64, f64), (sr, st): (f64, f64)) {
+    let n = 21;
+    for k in 0..n {
+        let v = -1.0 + 2.0 * k as f64 / (n - 1) as f64;
+        let _ = write!(
+            s,
+            r#"<rect x="{:.1}" y="{y:.1}" width="10" height="10" fill="{}"/>"#,
+            left + 10.0 * k as f64,
+            color(v)
+        );
+    }
+    let right = left + 10.0 * n as f64;
+    let unit = |v: f64| format!("{:.3} deg / {:.3} mm", v * sr, v * st);
+    let _ = write!(
+        s,
+        r#"<text x="{left:.1}" y="{:.1}" font-size="8">{}</text><text x="{right:.1}" y="{:.1}" text-anchor="end" font-size="8">+{}</text>"#,
+        y + 22.0,
+        unit(-1.0),
+        y + 34.0,
+        unit(1.0)
+    );
+    let _ = write!(
+        s,
+        r#"<text x="4" y="{:.1}" font-size="8">colour</text>"#,
+        y + 8.0
+    );
 }
 
 /// Measured vs predicted total rotation (sum over levels of the primary

@@ -51,6 +51,14 @@ impl View {
         }
     }
 
+    /// The horizontal axis' title.
+    pub fn horizontal_label(self) -> &'static str {
+        match self {
+            View::Frontal => "towards the subject's left (mm)",
+            View::Sagittal => "anterior (mm)",
+        }
+    }
+
     /// (horizontal, vertical) of a point (mm).
     fn project(self, p: &Point3<f64>) -> (f64, f64) {
         (self.horizontal(p), p.y * 1e3)
@@ -223,8 +231,8 @@ fn draw(fig: &Figure, view: View, title: &str) -> String {
         let chart = ChartBuilder::on(&root)
             .caption(title, ("sans-serif", 15))
             .margin(10)
-            .x_label_area_size(30)
-            .y_label_area_size(50)
+            .x_label_area_size(45)
+            .y_label_area_size(55)
             .build_cartesian_2d(
                 (hc - 0.5 * hspan)..(hc + 0.5 * hspan),
                 (vc - 0.5 * span)..(vc + 0.5 * span),
@@ -236,7 +244,7 @@ fn draw(fig: &Figure, view: View, title: &str) -> String {
         };
         let _ = chart
             .configure_mesh()
-            .x_desc("mm")
+            .x_desc(view.horizontal_label())
             .y_desc("superior (mm)")
             .draw();
         // about 2 px of the plotting area
@@ -305,6 +313,63 @@ fn draw(fig: &Figure, view: View, title: &str) -> String {
         let _ = root.present();
     }
     svg
+}
+
+/// Escape text for SVG character data.
+pub fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+/// Width (px) that `text` may take at `font_px` in the sans-serif fonts
+/// figures are viewed with: 0.62 em per character bounds DejaVu Sans and
+/// Arial for the mixed text of titles (a layout estimate, on the safe side).
+pub fn text_width(text: &str, font_px: f64) -> f64 {
+    text.chars().count() as f64 * 0.62 * font_px
+}
+
+/// `text` broken at spaces into lines of at most `max_px` at `font_px`
+/// (a single word longer than that keeps its own line).
+pub fn wrap(text: &str, max_px: f64, font_px: f64) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    for word in text.split_whitespace() {
+        match lines.last_mut() {
+            Some(l) if text_width(&format!("{l} {word}"), font_px) <= max_px => {
+                l.push(' ');
+                l.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
+    }
+    lines
+}
+
+/// Opening of a hand-laid figure of width `w`: the caller closes it. The
+/// `<svg>` element (sans-serif, 10 px), a white background, the title
+/// (14 px) and the subtitle (10 px), each centred and wrapped to the
+/// canvas. Returns the text and the height the header takes, so the
+/// content starts below it; `h` is the figure's height without the header.
+pub fn figure_open(w: f64, h: f64, title: &str, subtitle: &str) -> (String, f64) {
+    let max = w - 20.0;
+    let mut body = String::new();
+    let mut y = 8.0;
+    for (text, size) in [(title, 14.0), (subtitle, 10.0)] {
+        for line in wrap(text, max, size) {
+            y += size * 1.4;
+            body.push_str(&format!(
+                "<text x=\"{:.0}\" y=\"{y:.1}\" text-anchor=\"middle\" font-size=\"{size}\">{}</text>\n",
+                w / 2.0,
+                esc(&line)
+            ));
+        }
+    }
+    let head = y + 8.0;
+    let total = h + head;
+    let open = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{total:.0}\" viewBox=\"0 0 {w:.0} {total:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
+    );
+    (open + &body, head)
 }
 
 #[cfg(test)]
