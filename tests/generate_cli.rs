@@ -234,11 +234,17 @@ fn map_points(lines: &[String], f: &Rename<'_>) -> String {
 #[test]
 fn bad_landmark_sets_are_refused_without_output() {
     let lines = example_lines();
-    // A missing landmark, named.
+    // Too few landmarks at a level to fit it: named.
     refused(
-        "missing.csv",
-        &without(&lines, &|l| l.starts_with("L2_IEC,")),
-        &["L2_IEC"],
+        "sparse.csv",
+        &without(&lines, &|l| {
+            [
+                "L2_IEC,", "L2_SEC,", "L2_SA,", "L2_SP,", "L2_IA,", "L2_IP,", "L2_SR,",
+            ]
+            .iter()
+            .any(|p| l.starts_with(p))
+        }),
+        &["L2", "a fit needs at least 8"],
     );
     // Duplicate names.
     let dup = lines
@@ -652,4 +658,55 @@ fn smoothing_is_reported_and_deterministic() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--smooth"));
     assert!(!tmp.path().join("bad").exists());
+}
+
+/// Issue 17, item 10: one missing landmark does not refuse the set; the
+/// level is fitted on the 13 others, flagged on the console and in the
+/// report, and lands where the complete set puts it.
+#[test]
+fn a_missing_landmark_gives_a_reduced_fit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lines = example_lines();
+    let mut centres = Vec::new();
+    for (name, text) in [
+        ("full.csv", lines.join("\n") + "\n"),
+        (
+            "missing.csv",
+            without(&lines, &|l| l.starts_with("L2_IEC,")),
+        ),
+    ] {
+        let lm = tmp.path().join(name);
+        std::fs::write(&lm, text).unwrap();
+        let out = tmp.path().join(name.replace(".csv", "")).join("p.osim");
+        let o = run(&[
+            "generate",
+            "--landmarks",
+            lm.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(o.status.success(), "{name}: {err}");
+        let rep: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.with_file_name("p_report.json")).unwrap())
+                .unwrap();
+        let reduced = rep["reduced_fits"].as_array().unwrap();
+        if name == "missing.csv" {
+            assert_eq!(reduced.len(), 1, "{reduced:?}");
+            assert_eq!(reduced[0]["level"], "L2");
+            assert_eq!(reduced[0]["missing"][0], "L2_IEC");
+            assert_eq!(reduced[0]["used"], 13);
+            assert!(err.contains("L2 fitted on 13 of 14 landmarks"), "{err}");
+        } else {
+            assert!(reduced.is_empty());
+        }
+        let c = &rep["centres"]["L2"];
+        centres.push([0, 1, 2].map(|k| c[k].as_f64().unwrap()));
+    }
+    let d = (0..3)
+        .map(|k| (centres[0][k] - centres[1][k]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    println!("L2 centre moved {:.2} mm by the reduced fit", d * 1e3);
+    assert!(d < 2e-3, "L2 centre moved {:.2} mm", d * 1e3);
 }

@@ -98,8 +98,10 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     // Landmarks (read, or palpated on the segmentation): check, then load strictly.
     let (raw, landmarks_name, mut palpated) = landmark_source(&args)?;
     let rep = check_raw(&raw);
+    // Missing landmarks (LM020) are not blocking here: the level is fitted
+    // on those present (a reduced fit, reported) when enough remain.
     let blocking = |f: &crate::landmarks::check::Finding| {
-        f.severity == Severity::Error && BLOCKING.contains(&f.code.as_str())
+        f.severity == Severity::Error && f.code != "LM020" && BLOCKING.contains(&f.code.as_str())
     };
     let errors: Vec<String> = rep
         .findings
@@ -201,6 +203,15 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         crate::outln!("outlier landmarks: none");
     } else {
         crate::outln!("outlier landmarks (rejected): {}", r.outliers.join(", "));
+    }
+    for f in &r.reduced_fits {
+        crate::errln!(
+            "warning: {} fitted on {} of {} landmarks (missing {}): a reduced fit, its pose is less certain",
+            f.level,
+            f.used,
+            f.used + f.missing.len(),
+            f.missing.join(", ")
+        );
     }
     crate::outln!("orientation smoothing: {}", r.smoothing.note);
     print_above_fov(r.above_fov.as_ref());

@@ -194,6 +194,9 @@ pub struct GenerateReport {
     /// Levels above the landmarks' field of view and where T1 ended
     /// (`None` when the landmarks reach T1).
     pub above_fov: Option<AboveFovReport>,
+    /// Levels fitted on fewer landmarks than the protocol's (missing ones
+    /// named); empty for a complete set.
+    pub reduced_fits: Vec<ReducedFit>,
 }
 
 /// What the orientation smoothing did ([`smooth`]).
@@ -311,6 +314,88 @@ fn set_levels(set: &LandmarkSet, file: &str) -> Result<Vec<Level>> {
     Ok(levels)
 }
 
+/// Fewest landmarks a vertebra is fitted on (of 14): the lsq fit of a
+/// pose and three scale factors, with one landmark left out in turn.
+pub const MIN_VERTEBRA_LANDMARKS: usize = 8;
+
+/// Fewest sacral landmarks for the registration (a rigid fit needs 3).
+pub const MIN_SACRUM_LANDMARKS: usize = 3;
+
+/// A level fitted on fewer landmarks than the protocol's.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReducedFit {
+    pub level: String,
+    /// The protocol's landmarks missing from the set.
+    pub missing: Vec<String>,
+    /// Landmarks the fit used (before outlier rejection).
+    pub used: usize,
+}
+
+/// Check that the base model has every marker of each landmarked level,
+/// and list the levels whose landmarks are incomplete: fitted on what is
+/// there (a reduced fit) when at least [`MIN_VERTEBRA_LANDMARKS`]
+/// ([`MIN_SACRUM_LANDMARKS`] for S1) remain, refused otherwise.
+fn landmark_coverage(
+    levels: &[Level],
+    patient: &BTreeMap<Level, Points>,
+    markers: &BTreeMap<Level, (String, Points)>,
+    set_name: &str,
+    bfile: &str,
+) -> Result<Vec<ReducedFit>> {
+    let mut reduced = Vec::new();
+    for l in levels {
+        let (_, mpts) = markers.get(l).ok_or_else(|| {
+            Error::invalid(
+                bfile,
+                format!(
+                    "the landmarks cover {l} but the base model has no {l} markers (body '{}')",
+                    l.body_name()
+                ),
+            )
+        })?;
+        let absent = |have: &Points| -> Vec<String> {
+            l.required_codes()
+                .iter()
+                .filter(|c| !have.contains_key(c))
+                .map(|c| format!("{l}_{c}"))
+                .collect()
+        };
+        let mmissing = absent(mpts);
+        if !mmissing.is_empty() {
+            return Err(Error::invalid(
+                bfile,
+                format!("the base model lacks the marker(s) {}", mmissing.join(", ")),
+            ));
+        }
+        let have = patient.get(l).cloned().unwrap_or_default();
+        let missing = absent(&have);
+        if missing.is_empty() {
+            continue;
+        }
+        let need = if l.is_sacrum() {
+            MIN_SACRUM_LANDMARKS
+        } else {
+            MIN_VERTEBRA_LANDMARKS
+        };
+        let used = l.required_codes().len() - missing.len();
+        if used < need {
+            return Err(Error::invalid(
+                set_name,
+                format!(
+                    "{l}: only {used} landmark(s) (missing {}); a fit needs at least {need}",
+                    missing.join(", ")
+                ),
+            ));
+        }
+        reduced.push(ReducedFit {
+            level: l.to_string(),
+            missing,
+            used,
+        });
+    }
+    Ok(reduced)
+}
+
 /// Generate the patient model from `base` and `set` (see the module docs).
 /// `meshes` serve the self-check's through-bone test (skipped without).
 pub fn generate(
@@ -334,42 +419,7 @@ pub fn generate(
     for (id, p) in &set.points {
         patient.entry(id.level).or_default().insert(id.code, *p);
     }
-    for l in &levels {
-        let (_, mpts) = markers.get(l).ok_or_else(|| {
-            Error::invalid(
-                &bfile,
-                format!(
-                    "the landmarks cover {l} but the base model has no {l} markers (body '{}')",
-                    l.body_name()
-                ),
-            )
-        })?;
-        let have = patient.get(l).cloned().unwrap_or_default();
-        let missing: Vec<String> = l
-            .required_codes()
-            .iter()
-            .filter(|c| !have.contains_key(c))
-            .map(|c| format!("{l}_{c}"))
-            .collect();
-        if !missing.is_empty() {
-            return Err(Error::invalid(
-                set_name,
-                format!("missing landmark(s): {}", missing.join(", ")),
-            ));
-        }
-        let mmissing: Vec<String> = l
-            .required_codes()
-            .iter()
-            .filter(|c| !mpts.contains_key(c))
-            .map(|c| format!("{l}_{c}"))
-            .collect();
-        if !mmissing.is_empty() {
-            return Err(Error::invalid(
-                &bfile,
-                format!("the base model lacks the marker(s) {}", mmissing.join(", ")),
-            ));
-        }
-    }
+    let reduced_fits = landmark_coverage(&levels, &patient, &markers, set_name, &bfile)?;
 
     // ---- 1. registration through the sacrum
     let x_sacrum = poses0
@@ -712,6 +762,7 @@ pub fn generate(
             .collect(),
         self_check,
         above_fov,
+        reduced_fits,
     };
     Ok(Generated { doc, report, views })
 }
