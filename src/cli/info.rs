@@ -31,6 +31,8 @@ pub struct Summary {
     pub version_read: u32,
     pub version: u32,
     pub gravity: [f64; 3],
+    /// Sum of the body masses (kg).
+    pub total_mass: f64,
     pub bodies: Vec<String>,
     pub joints: Vec<JointSummary>,
     pub coordinates: usize,
@@ -51,7 +53,38 @@ pub struct JointSummary {
     pub class: String,
     pub parent: String,
     pub child: String,
-    pub coordinates: Vec<String>,
+    pub coordinates: Vec<CoordinateSummary>,
+}
+
+/// One coordinate: range and default in the file's units (rad or m), and
+/// whether it is locked.
+#[derive(Debug, Serialize)]
+pub struct CoordinateSummary {
+    pub name: String,
+    /// `rotational`, `translational` or `coupled`.
+    pub motion: String,
+    pub range: [f64; 2],
+    pub default: f64,
+    pub locked: bool,
+}
+
+impl CoordinateSummary {
+    /// `name [lo, hi] deg` (or mm), `locked` when locked.
+    fn render(&self) -> String {
+        let (f, unit) = match self.motion.as_str() {
+            "translational" => (1e3, "mm"),
+            "rotational" => (180.0 / std::f64::consts::PI, "deg"),
+            _ => (1.0, ""),
+        };
+        let lock = if self.locked { ", locked" } else { "" };
+        format!(
+            "{} [{:.0}, {:.0}]{}{unit}{lock}",
+            self.name,
+            self.range[0] * f,
+            self.range[1] * f,
+            if unit.is_empty() { "" } else { " " }
+        )
+    }
 }
 
 /// Build the summary of a read model.
@@ -66,7 +99,17 @@ pub fn summarize(doc: &Document, model: &Model, extra: &[PathBuf]) -> crate::Res
             class: j.class.clone(),
             parent: f.parent_body.clone(),
             child: f.child_body.clone(),
-            coordinates: j.coordinates.iter().map(|c| c.name.clone()).collect(),
+            coordinates: j
+                .coordinates
+                .iter()
+                .map(|c| CoordinateSummary {
+                    name: c.name.clone(),
+                    motion: format!("{:?}", c.motion_type).to_lowercase(),
+                    range: c.range,
+                    default: c.default_value,
+                    locked: c.locked,
+                })
+                .collect(),
         })
         .collect();
     let mut forces_by_class = BTreeMap::new();
@@ -98,6 +141,7 @@ pub fn summarize(doc: &Document, model: &Model, extra: &[PathBuf]) -> crate::Res
         version_read: doc.original_version(),
         version: doc.version(),
         gravity: [model.gravity.x, model.gravity.y, model.gravity.z],
+        total_mass: model.bodies.iter().map(|b| b.mass).sum(),
         bodies: model.bodies.iter().map(|b| b.name.clone()).collect(),
         joints,
         coordinates: model.coordinates().count(),
@@ -126,7 +170,12 @@ pub fn render(s: &Summary) -> String {
         "gravity {} {} {}",
         s.gravity[0], s.gravity[1], s.gravity[2]
     );
-    let _ = writeln!(o, "bodies: {}", s.bodies.len());
+    let _ = writeln!(
+        o,
+        "bodies: {} (total mass {:.2} kg)",
+        s.bodies.len(),
+        s.total_mass
+    );
     let _ = writeln!(
         o,
         "joints: {} ({} coordinates)",
@@ -141,7 +190,11 @@ pub fn render(s: &Summary) -> String {
             j.class,
             j.parent,
             j.child,
-            j.coordinates.join(" ")
+            j.coordinates
+                .iter()
+                .map(CoordinateSummary::render)
+                .collect::<Vec<_>>()
+                .join("; ")
         );
     }
     let _ = writeln!(o, "forces: {}", s.forces_by_class.values().sum::<usize>());
@@ -166,8 +219,17 @@ pub fn render(s: &Summary) -> String {
         s.meshes_missing.len(),
         s.meshes_refused.len()
     );
-    for m in &s.meshes_missing {
+    // The first few missing meshes, then a count (--json lists them all).
+    const SHOWN: usize = 5;
+    for m in s.meshes_missing.iter().take(SHOWN) {
         let _ = writeln!(o, "  not found: {m}");
+    }
+    if s.meshes_missing.len() > SHOWN {
+        let _ = writeln!(
+            o,
+            "  ... and {} more not found (all in --json; add their folder with --geometry DIR)",
+            s.meshes_missing.len() - SHOWN
+        );
     }
     for m in &s.meshes_refused {
         let _ = writeln!(o, "  refused: {m}");
