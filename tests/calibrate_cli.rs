@@ -59,7 +59,13 @@ fn calibrates_writes_outputs_and_is_deterministic() {
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
     let o = calibrate(&dir, &a, &["--starts", "3", "--loco", "--jobs", "1"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    // --loco prints its held-out errors
+    assert!(
+        err.contains("leave-one-case-out (24 cases held out in turn): held-out rotation RMSE"),
+        "{err}"
+    );
     let o2 = calibrate(&dir, &b, &["--starts", "3", "--loco", "--jobs", "2"]);
     assert!(o2.status.success());
     for f in ["report.json", "calibrated.osim", "fit.svg", "params.svg"] {

@@ -360,6 +360,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
             if e.at_bound { "  (at bound)" } else { "" }
         );
     }
+    print_validation(&rep.validation, unit);
     for p in &cal.identifiability.poorly_determined {
         crate::errln!(
             "warning: parameter {} is poorly determined: {}",
@@ -369,6 +370,44 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     }
     crate::errln!("calibrate: written to {}", a.out.display());
     Ok(0)
+}
+
+/// The held-out errors of `--loco` and `--loso`: pooled rotation RMSE and
+/// the worst level/DoF, per held-out specimen for `--loso`.
+fn print_validation(v: &Validation, unit: &str) {
+    let line = |label: String, t: &crate::calibrate::fit::ErrorTable| {
+        let worst = t
+            .entries
+            .iter()
+            .max_by(|a, b| a.rmse_in_unit.total_cmp(&b.rmse_in_unit));
+        let worst = worst
+            .map(|e| {
+                format!(
+                    "; worst {} {} {:.4} {}",
+                    e.pair, e.dof, e.rmse_in_unit, e.unit
+                )
+            })
+            .unwrap_or_default();
+        crate::errln!(
+            "{label}: held-out rotation RMSE {:.4} {unit}{worst}",
+            t.pooled(true)
+        );
+    };
+    if let Some(l) = &v.leave_one_case_out {
+        line(
+            format!(
+                "leave-one-case-out ({} cases held out in turn)",
+                l.cases.len()
+            ),
+            &l.errors,
+        );
+    }
+    for h in v.leave_one_specimen_out.iter().flatten() {
+        line(
+            format!("leave-one-specimen-out: {}", h.experiment),
+            &h.errors,
+        );
+    }
 }
 
 /// The last component of `p` (the whole path when it has none).
