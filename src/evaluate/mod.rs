@@ -891,6 +891,28 @@ pub fn evaluate(
     ))
 }
 
+/// One two-point series per (model, level): model centre to truth centre.
+fn error_vectors(models: &[ModelShape], tc: &BTreeMap<Level, Point3<f64>>) -> Vec<plot::Series> {
+    let mut out = Vec::new();
+    for m in models {
+        for (l, p) in &m.centres {
+            let Some(t) = tc.get(l) else { continue };
+            out.push(plot::Series {
+                label: if out.is_empty() {
+                    "error (model to truth)".into()
+                } else {
+                    String::new()
+                },
+                colour: plotters::style::RGBColor(120, 120, 120),
+                points: vec![*p, *t],
+                radius: 0,
+                line: true,
+            });
+        }
+    }
+    out
+}
+
 fn figures(models: &[ModelShape], truth: &Truth, align: Align) -> Result<Vec<(String, String)>> {
     use plot::Series;
     use plotters::style::RGBColor;
@@ -937,14 +959,17 @@ fn figures(models: &[ModelShape], truth: &Truth, align: Align) -> Result<Vec<(St
     let tc: BTreeMap<Level, Point3<f64>> =
         truth.centres.iter().map(|(l, p)| (*l, x_t * p)).collect();
     let red = RGBColor(220, 40, 40);
-    let mut fig56 = series.clone_series();
-    fig56.push(Series {
+    // Truth first and larger, the models' centres on top, and an error
+    // vector from each model centre to the truth's.
+    let mut fig56 = vec![Series {
         label: "truth centres".into(),
         colour: red,
         points: tc.values().copied().collect(),
-        radius: 4,
+        radius: 5,
         line: false,
-    });
+    }];
+    fig56.extend(error_vectors(models, &tc));
+    fig56.extend(series.clone_series());
     let mut fig57 = curves;
     fig57.push(Series {
         label: "truth centres".into(),
@@ -961,7 +986,7 @@ fn figures(models: &[ModelShape], truth: &Truth, align: Align) -> Result<Vec<(St
         line: true,
     });
     let mut out = Vec::new();
-    for (name, s) in plot::views("vertebral centres (Fig. 5.6)", &fig56) {
+    for (name, s) in plot::labelled_views("vertebral centres (Fig. 5.6)", &fig56, &tc) {
         out.push((format!("centres_{name}.svg"), s));
     }
     for (name, s) in plot::views("4th-order curve fits (Fig. 5.7)", &fig57) {

@@ -18,8 +18,18 @@ pub use crate::util::svg::Series;
 /// The two views of `series`: `[(suffix, svg)]` with suffixes `frontal`,
 /// `sagittal`.
 pub fn views(title: &str, series: &[Series]) -> Vec<(String, String)> {
+    labelled_views(title, series, &BTreeMap::new())
+}
+
+/// [`views`] with each level's name written beside its point.
+pub fn labelled_views(
+    title: &str,
+    series: &[Series],
+    labels: &BTreeMap<Level, Point3<f64>>,
+) -> Vec<(String, String)> {
     let mut f = Figure::new(title);
     f.series = series.to_vec();
+    f.labels = labels.iter().map(|(l, p)| (*p, l.to_string())).collect();
     f.draw_both()
 }
 
@@ -53,5 +63,5 @@ pub fn generate_views(
             line: true,
         },
     ];
-    views("generated model", &series)
+    labelled_views("generated model", &series, centres)
 }

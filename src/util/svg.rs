@@ -104,6 +104,8 @@ pub struct Figure {
     pub silhouettes: Vec<Silhouette>,
     pub circles: Vec<Circles>,
     pub series: Vec<Series>,
+    /// Text placed just right of a point (e.g. level names), drawn last.
+    pub labels: Vec<(Point3<f64>, String)>,
 }
 
 impl Figure {
@@ -115,6 +117,7 @@ impl Figure {
             silhouettes: Vec::new(),
             circles: Vec::new(),
             series: Vec::new(),
+            labels: Vec::new(),
         }
     }
 
@@ -304,15 +307,85 @@ fn draw(fig: &Figure, view: View, title: &str) -> String {
                 }
             }
         }
+        let _ = chart.draw_series(fig.labels.iter().map(|(p, t)| {
+            EmptyElement::at(view.project(p)) + Text::new(t.clone(), (7, -6), ("sans-serif", 10))
+        }));
+        let corner = legend_corner(
+            fig,
+            view,
+            (hc - 0.5 * hspan, vc - 0.5 * span),
+            (hspan, span),
+        );
         let _ = chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperLeft)
+            .position(corner)
             .draw();
         let _ = root.present();
     }
     svg
+}
+
+/// The corner of the plotting area whose legend-sized box holds the fewest
+/// data points (series, circle centres, labels), so the legend covers as
+/// little data as possible; upper left on ties. `org` and `size` are the
+/// plotted ranges (mm).
+fn legend_corner(
+    fig: &Figure,
+    view: View,
+    org: (f64, f64),
+    size: (f64, f64),
+) -> SeriesLabelPosition {
+    let entries = fig.series.iter().filter(|s| !s.label.is_empty()).count()
+        + fig.circles.iter().filter(|c| !c.label.is_empty()).count()
+        + fig
+            .silhouettes
+            .iter()
+            .filter(|s| !s.label.is_empty())
+            .count();
+    let longest = fig
+        .series
+        .iter()
+        .map(|s| s.label.chars().count())
+        .chain(fig.circles.iter().map(|c| c.label.chars().count()))
+        .max()
+        .unwrap_or(0);
+    // The legend box as fractions of the plotting area (about 520 x 700 px).
+    let (fw, fh) = (
+        ((longest as f64 * 7.0 + 50.0) / 520.0).min(1.0),
+        ((entries as f64 * 20.0 + 16.0) / 700.0).min(1.0),
+    );
+    let points: Vec<(f64, f64)> = fig
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .chain(
+            fig.circles
+                .iter()
+                .flat_map(|c| c.circles.iter().map(|(p, _)| p)),
+        )
+        .chain(fig.labels.iter().map(|(p, _)| p))
+        .map(|p| view.project(p))
+        .map(|(h, v)| ((h - org.0) / size.0, (v - org.1) / size.1))
+        .collect();
+    let corners = [
+        (SeriesLabelPosition::UpperLeft, 0.0, 1.0 - fh),
+        (SeriesLabelPosition::UpperRight, 1.0 - fw, 1.0 - fh),
+        (SeriesLabelPosition::LowerLeft, 0.0, 0.0),
+        (SeriesLabelPosition::LowerRight, 1.0 - fw, 0.0),
+    ];
+    let inside = |x0: f64, y0: f64| {
+        points
+            .iter()
+            .filter(|(x, y)| (x0..=x0 + fw).contains(x) && (y0..=y0 + fh).contains(y))
+            .count()
+    };
+    corners
+        .into_iter()
+        .min_by_key(|(_, x0, y0)| inside(*x0, *y0))
+        .map(|(c, _, _)| c)
+        .unwrap_or(SeriesLabelPosition::UpperLeft)
 }
 
 /// Escape text for SVG character data.
