@@ -426,177 +426,21 @@ pub fn generate(
         .get("sacrum")
         .copied()
         .ok_or_else(|| Error::invalid(&bfile, "the base model has no body 'sacrum'"))?;
-    let (src, dst, used): (Vec<Point3<f64>>, Vec<Point3<f64>>, Vec<String>) = {
-        let pp = &patient[&Level::S1];
-        let mp = &markers[&Level::S1].1;
-        let mut codes: Vec<Code> = Code::SACRUM_REQUIRED.to_vec();
-        if [Code::PTR, Code::PTL]
-            .iter()
-            .all(|c| pp.contains_key(c) && mp.contains_key(c))
-        {
-            codes.extend([Code::PTR, Code::PTL]);
-        }
-        let mut s = Vec::new();
-        let mut d = Vec::new();
-        let mut u = Vec::new();
-        for c in codes {
-            if let (Some(p), Some(m)) = (pp.get(&c), mp.get(&c)) {
-                s.push(*p);
-                d.push(x_sacrum * m);
-                u.push(format!("S1_{c}"));
-            }
-        }
-        (s, d, u)
-    };
-    let reg = umeyama(&src, &dst, false).map_err(|e| {
-        Error::invalid(
-            set_name,
-            format!("sacral landmarks cannot be registered to the model: {e}"),
-        )
-    })?;
-    let x_reg = Isometry3::from_parts(reg.translation.into(), reg.rotation);
-    let reg_rms = (src
-        .iter()
-        .zip(&dst)
-        .map(|(s, d)| (x_reg * s - d).norm_squared())
-        .sum::<f64>()
-        / src.len() as f64)
-        .sqrt();
-    let registration = Registration::from_iso(&x_reg, used, reg_rms);
-    for pts in patient.values_mut() {
-        for p in pts.values_mut() {
-            *p = x_reg * *p;
-        }
-    }
+    let registration = register_sacrum(&mut patient, &markers, &x_sacrum, set_name)?;
 
     // ---- 2. fits (lsq: palpation noise estimated over the whole set for
     // the outlier test)
-    let noise = match opts.method {
-        Method::Lsq => {
-            let loo: Vec<pose::VertebraLoo> = vert_levels
-                .iter()
-                .map(|l| pose::vertebra_loo(*l, &patient[l], &markers[l].1))
-                .collect();
-            pose::set_noise_sd(&loo)
-        }
-        Method::Thesis => None,
-    };
-    let mut fits: BTreeMap<Level, pose::VertebraFit> = BTreeMap::new();
-    for l in &vert_levels {
-        let f = pose::fit_vertebra_with(
-            *l,
-            &patient[l],
-            &markers[l].1,
-            opts.method,
-            opts.outlier_sigmas,
-            noise,
-        )?;
-        fits.insert(*l, f);
-    }
-    // Base joint centres between consecutive vertebrae, in each body
-    // (the chain smoothing's prior).
-    let mut joint_centres: BTreeMap<Level, (Point3<f64>, Point3<f64>)> = BTreeMap::new();
-    for jf in model.joint_frames()? {
-        let (Some(lu), Some(ll)) = (
-            Level::from_body_name(&jf.child_body),
-            Level::from_body_name(&jf.parent_body),
-        ) else {
-            continue;
-        };
-        let (Some(xu), Some(xl)) = (poses0.get(&jf.child_body), poses0.get(&jf.parent_body)) else {
-            continue;
-        };
-        if lu.caudal() == Some(ll) {
-            let in_lower = Point3::from(jf.parent_in_body.translation.vector);
-            let in_upper = xu.inverse() * (xl * in_lower);
-            joint_centres.insert(lu, (in_upper, in_lower));
-        }
-    }
-    let smoothing = smooth_fits(
-        &mut fits,
-        &vert_levels,
-        &patient,
-        &markers,
-        &joint_centres,
-        opts,
-        noise,
-    )?;
+    let (fits, noise, smoothing) =
+        fit_levels(&model, &poses0, &vert_levels, &patient, &markers, opts)?;
 
     // ---- 3. scaling
     let mut doc = base.clone();
-    let mut scales: BTreeMap<String, Vector3<f64>> = BTreeMap::new();
-    let mut scaling = BTreeMap::new();
-    for (l, f) in &fits {
-        let body = l.body_name();
-        let c = scale::scale_body(&mut doc, &body, &f.scale)?;
-        scaling.insert(l.to_string(), c);
-        scales.insert(body, f.scale);
-    }
+    let (scales, scaling) = scale_bodies(&mut doc, &fits)?;
 
     // ---- 4. joint frames
-    let jframes = model.joint_frames()?;
-    let pose_of = |l: Level| -> Isometry3<f64> {
-        match fits.get(&l) {
-            Some(f) => f.pose,
-            None => x_sacrum,
-        }
-    };
-    let scaled_markers = |l: Level| -> Points {
-        let (_, m) = &markers[&l];
-        match fits.get(&l) {
-            Some(f) => m
-                .iter()
-                .map(|(c, p)| (*c, pose::scale_point(p, &f.scale)))
-                .collect(),
-            None => m.clone(),
-        }
-    };
-    let mut rewritten = Vec::new();
-    let mut prefixes = Vec::new();
-    for jf in &jframes {
-        let (Some(lu), Some(ll)) = (
-            Level::from_body_name(&jf.child_body),
-            Level::from_body_name(&jf.parent_body),
-        ) else {
-            continue;
-        };
-        if lu.caudal() != Some(ll) {
-            continue;
-        }
-        prefixes.push(format!("{lu}_{ll}"));
-        if !fits.contains_key(&lu) {
-            continue;
-        }
-        let (xu, xl) = (pose_of(lu), pose_of(ll));
-        let (mu, ml) = (scaled_markers(lu), scaled_markers(ll));
-        let iec = xu * mu[&Code::IEC];
-        let sec = xl * ml[&Code::SEC];
-        let ru = isb_rotation(&mu)
-            .ok_or_else(|| Error::invalid(&bfile, format!("the {lu} markers give no ISB frame")))?;
-        let rl = if ll.is_sacrum() {
-            sacral_rotation(&ml)
-        } else {
-            isb_rotation(&ml)
-        }
-        .ok_or_else(|| Error::invalid(&bfile, format!("the {ll} markers give no frame")))?;
-        let qu = xu.rotation * UnitQuaternion::from_rotation_matrix(&ru);
-        let ql = xl.rotation * UnitQuaternion::from_rotation_matrix(&rl);
-        let q = ql.slerp(&qu, 0.5);
-        let j = Isometry3::from_parts(nalgebra::center(&iec, &sec).coords.into(), q);
-        let p_in_l = xl.inverse() * j;
-        let c_in_u = xu.inverse() * j;
-        write_joint(
-            &mut doc,
-            &model,
-            &jf.joint,
-            &jf.parent_body,
-            &jf.child_body,
-            &p_in_l,
-            &c_in_u,
-        )?;
-        rewritten.push(jf.joint.clone());
-    }
-    let prefixes: Vec<String> = prefixes;
+    let (rewritten, prefixes) =
+        rewrite_joint_frames(&mut doc, &model, &fits, &markers, &x_sacrum, &bfile)?;
+
     // ---- 4b. levels above the field of view ([`balance`])
     let above_fov = match vert_levels.first() {
         Some(top) => balance::place_above_fov(
@@ -640,84 +484,14 @@ pub fn generate(
     let poses2 = kin2.body_poses(&kin2.default_values())?;
     let centres =
         crate::evaluate::model_centres(&out_model, &poses2, crate::evaluate::CentreDef::default())?;
-    let mut rows = Vec::new();
-    let mut outliers = Vec::new();
-    let mut all_res = Vec::new();
-    for (l, f) in &fits {
-        let rms = (f.residuals.values().map(|r| r * r).sum::<f64>()
-            / f.residuals.len().max(1) as f64)
-            .sqrt();
-        all_res.extend(f.residuals.values().copied());
-        if let Some((c, e)) = f.outlier {
-            outliers.push(format!("{l}_{c} ({:.1} mm)", e * 1e3));
-        }
-        let x = poses2.get(&l.body_name()).copied().unwrap_or(f.pose);
-        rows.push(VertebraRow {
-            level: l.to_string(),
-            body: l.body_name(),
-            scale: [f.scale.x, f.scale.y, f.scale.z],
-            origin: [
-                x.translation.vector.x,
-                x.translation.vector.y,
-                x.translation.vector.z,
-            ],
-            orientation_deg: xyz_deg(&x.rotation),
-            rms_mm: rms * 1e3,
-            max_residual_mm: f.residuals.values().fold(0.0f64, |a, b| a.max(*b)) * 1e3,
-            outlier: f.outlier.map(|(c, _)| format!("{l}_{c}")),
-            outlier_error_mm: f.outlier.map(|(_, e)| e * 1e3),
-            loo_max_mm: f.loo_max.map(|(_, e, _)| e * 1e3),
-            loo_threshold_mm: f.loo_max.map(|(_, _, t)| t * 1e3),
-        });
-    }
-    let landmark_rms =
-        (all_res.iter().map(|r| r * r).sum::<f64>() / all_res.len().max(1) as f64).sqrt();
+    let (rows, outliers, landmark_rms) = vertebra_rows(&fits, &poses2);
     let levels_from_base: Vec<String> = markers
         .keys()
         .filter(|l| !l.is_sacrum() && !fits.contains_key(l))
         .map(|l| l.to_string())
         .collect();
     let self_check = if opts.self_check {
-        let mut owned = Vec::new();
-        if let Some(src) = meshes {
-            for b in &out_model.bodies {
-                if Level::from_body_name(&b.name).map(|l| l.is_sacrum()) != Some(false) {
-                    continue;
-                }
-                let mut missing = Vec::new();
-                if let Some(m) = mesh_of(b, src, &mut missing)? {
-                    let q = MeshQuery::new(&m).map_err(|e| {
-                        Error::invalid(format!("mesh of {}", b.name), e.to_string())
-                    })?;
-                    owned.push((b.name.clone(), q));
-                }
-            }
-        }
-        let refs: Vec<(String, &MeshQuery)> = owned.iter().map(|(n, q)| (n.clone(), q)).collect();
-        let rows: Vec<crate::build::base::wrap::SphereRow> = spheres
-            .iter()
-            .map(|s| crate::build::base::wrap::SphereRow {
-                level: Level::from_body_name(&s.body)
-                    .map(|l| l.to_string())
-                    .unwrap_or_default(),
-                body: s.body.clone(),
-                name: s.name.clone(),
-                centre: s.centre,
-                radius_fit: s.radius_refit,
-                radius_no_overlap: s.radius,
-                radius: s.radius,
-                rms_mm: 0.0,
-                nodes: 0,
-                centre_inside_mesh: true,
-                source: "refitted from the base model".into(),
-                body_mesh_registration_rms_mm: None,
-                muscles: s.muscles.clone(),
-                muscles_refused: s.muscles_refused.clone(),
-            })
-            .collect();
-        Some(crate::build::base::check::run_wrapped(
-            &out_model, &refs, &rows,
-        )?)
+        Some(self_check(&out_model, meshes, &spheres)?)
     } else {
         None
     };
@@ -765,6 +539,314 @@ pub fn generate(
         reduced_fits,
     };
     Ok(Generated { doc, report, views })
+}
+
+/// Step 1: register the landmarks to the base model through the sacrum
+/// (its required landmarks, plus PTR/PTL when both sides have them); every
+/// landmark is moved into the model's frame.
+fn register_sacrum(
+    patient: &mut BTreeMap<Level, Points>,
+    markers: &BTreeMap<Level, (String, Points)>,
+    x_sacrum: &Isometry3<f64>,
+    set_name: &str,
+) -> Result<Registration> {
+    let (src, dst, used): (Vec<Point3<f64>>, Vec<Point3<f64>>, Vec<String>) = {
+        let pp = &patient[&Level::S1];
+        let mp = &markers[&Level::S1].1;
+        let mut codes: Vec<Code> = Code::SACRUM_REQUIRED.to_vec();
+        if [Code::PTR, Code::PTL]
+            .iter()
+            .all(|c| pp.contains_key(c) && mp.contains_key(c))
+        {
+            codes.extend([Code::PTR, Code::PTL]);
+        }
+        let mut s = Vec::new();
+        let mut d = Vec::new();
+        let mut u = Vec::new();
+        for c in codes {
+            if let (Some(p), Some(m)) = (pp.get(&c), mp.get(&c)) {
+                s.push(*p);
+                d.push(x_sacrum * m);
+                u.push(format!("S1_{c}"));
+            }
+        }
+        (s, d, u)
+    };
+    let reg = umeyama(&src, &dst, false).map_err(|e| {
+        Error::invalid(
+            set_name,
+            format!("sacral landmarks cannot be registered to the model: {e}"),
+        )
+    })?;
+    let x_reg = Isometry3::from_parts(reg.translation.into(), reg.rotation);
+    let reg_rms = (src
+        .iter()
+        .zip(&dst)
+        .map(|(s, d)| (x_reg * s - d).norm_squared())
+        .sum::<f64>()
+        / src.len() as f64)
+        .sqrt();
+    for pts in patient.values_mut() {
+        for p in pts.values_mut() {
+            *p = x_reg * *p;
+        }
+    }
+    Ok(Registration::from_iso(&x_reg, used, reg_rms))
+}
+
+/// Step 2: fit every vertebra (lsq: with the palpation noise estimated
+/// over the whole set for the outlier test), then smooth the orientations
+/// along the chain with the base joint centres as prior.
+#[allow(clippy::type_complexity)]
+fn fit_levels(
+    model: &Model,
+    poses0: &BTreeMap<String, Isometry3<f64>>,
+    vert_levels: &[Level],
+    patient: &BTreeMap<Level, Points>,
+    markers: &BTreeMap<Level, (String, Points)>,
+    opts: &GenerateOptions,
+) -> Result<(
+    BTreeMap<Level, pose::VertebraFit>,
+    Option<f64>,
+    SmoothingReport,
+)> {
+    let noise = match opts.method {
+        Method::Lsq => {
+            let loo: Vec<pose::VertebraLoo> = vert_levels
+                .iter()
+                .map(|l| pose::vertebra_loo(*l, &patient[l], &markers[l].1))
+                .collect();
+            pose::set_noise_sd(&loo)
+        }
+        Method::Thesis => None,
+    };
+    let mut fits: BTreeMap<Level, pose::VertebraFit> = BTreeMap::new();
+    for l in vert_levels {
+        let f = pose::fit_vertebra_with(
+            *l,
+            &patient[l],
+            &markers[l].1,
+            opts.method,
+            opts.outlier_sigmas,
+            noise,
+        )?;
+        fits.insert(*l, f);
+    }
+    // Base joint centres between consecutive vertebrae, in each body
+    // (the chain smoothing's prior).
+    let mut joint_centres: BTreeMap<Level, (Point3<f64>, Point3<f64>)> = BTreeMap::new();
+    for jf in model.joint_frames()? {
+        let (Some(lu), Some(ll)) = (
+            Level::from_body_name(&jf.child_body),
+            Level::from_body_name(&jf.parent_body),
+        ) else {
+            continue;
+        };
+        let (Some(xu), Some(xl)) = (poses0.get(&jf.child_body), poses0.get(&jf.parent_body)) else {
+            continue;
+        };
+        if lu.caudal() == Some(ll) {
+            let in_lower = Point3::from(jf.parent_in_body.translation.vector);
+            let in_upper = xu.inverse() * (xl * in_lower);
+            joint_centres.insert(lu, (in_upper, in_lower));
+        }
+    }
+    let smoothing = smooth_fits(
+        &mut fits,
+        vert_levels,
+        patient,
+        markers,
+        &joint_centres,
+        opts,
+        noise,
+    )?;
+    Ok((fits, noise, smoothing))
+}
+
+/// Step 3: scale each fitted vertebra's body (meshes, markers, frames).
+#[allow(clippy::type_complexity)]
+fn scale_bodies(
+    doc: &mut Document,
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+) -> Result<(
+    BTreeMap<String, Vector3<f64>>,
+    BTreeMap<String, scale::ScaleCount>,
+)> {
+    let mut scales: BTreeMap<String, Vector3<f64>> = BTreeMap::new();
+    let mut scaling = BTreeMap::new();
+    for (l, f) in fits {
+        let body = l.body_name();
+        let c = scale::scale_body(doc, &body, &f.scale)?;
+        scaling.insert(l.to_string(), c);
+        scales.insert(body, f.scale);
+    }
+    Ok((scales, scaling))
+}
+
+/// Step 4: each IVD joint between a fitted vertebra and the one below at
+/// the mid-point of IEC above and SEC below, oriented half-way between the
+/// two ISB frames, written with undeflected bushings. Returns the joints
+/// rewritten and the prefixes (`L4_L5`) of every IVD joint.
+fn rewrite_joint_frames(
+    doc: &mut Document,
+    model: &Model,
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+    markers: &BTreeMap<Level, (String, Points)>,
+    x_sacrum: &Isometry3<f64>,
+    bfile: &str,
+) -> Result<(Vec<String>, Vec<String>)> {
+    let jframes = model.joint_frames()?;
+    let pose_of = |l: Level| -> Isometry3<f64> {
+        match fits.get(&l) {
+            Some(f) => f.pose,
+            None => *x_sacrum,
+        }
+    };
+    let scaled_markers = |l: Level| -> Points {
+        let (_, m) = &markers[&l];
+        match fits.get(&l) {
+            Some(f) => m
+                .iter()
+                .map(|(c, p)| (*c, pose::scale_point(p, &f.scale)))
+                .collect(),
+            None => m.clone(),
+        }
+    };
+    let mut rewritten = Vec::new();
+    let mut prefixes = Vec::new();
+    for jf in &jframes {
+        let (Some(lu), Some(ll)) = (
+            Level::from_body_name(&jf.child_body),
+            Level::from_body_name(&jf.parent_body),
+        ) else {
+            continue;
+        };
+        if lu.caudal() != Some(ll) {
+            continue;
+        }
+        prefixes.push(format!("{lu}_{ll}"));
+        if !fits.contains_key(&lu) {
+            continue;
+        }
+        let (xu, xl) = (pose_of(lu), pose_of(ll));
+        let (mu, ml) = (scaled_markers(lu), scaled_markers(ll));
+        let iec = xu * mu[&Code::IEC];
+        let sec = xl * ml[&Code::SEC];
+        let ru = isb_rotation(&mu)
+            .ok_or_else(|| Error::invalid(bfile, format!("the {lu} markers give no ISB frame")))?;
+        let rl = if ll.is_sacrum() {
+            sacral_rotation(&ml)
+        } else {
+            isb_rotation(&ml)
+        }
+        .ok_or_else(|| Error::invalid(bfile, format!("the {ll} markers give no frame")))?;
+        let qu = xu.rotation * UnitQuaternion::from_rotation_matrix(&ru);
+        let ql = xl.rotation * UnitQuaternion::from_rotation_matrix(&rl);
+        let q = ql.slerp(&qu, 0.5);
+        let j = Isometry3::from_parts(nalgebra::center(&iec, &sec).coords.into(), q);
+        let p_in_l = xl.inverse() * j;
+        let c_in_u = xu.inverse() * j;
+        write_joint(
+            doc,
+            model,
+            &jf.joint,
+            &jf.parent_body,
+            &jf.child_body,
+            &p_in_l,
+            &c_in_u,
+        )?;
+        rewritten.push(jf.joint.clone());
+    }
+    let prefixes: Vec<String> = prefixes;
+    Ok((rewritten, prefixes))
+}
+
+/// The report's row per fitted vertebra, the outliers rejected and the
+/// RMS of all residuals (m).
+fn vertebra_rows(
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+    poses2: &BTreeMap<String, Isometry3<f64>>,
+) -> (Vec<VertebraRow>, Vec<String>, f64) {
+    let mut rows = Vec::new();
+    let mut outliers = Vec::new();
+    let mut all_res = Vec::new();
+    for (l, f) in fits {
+        let rms = (f.residuals.values().map(|r| r * r).sum::<f64>()
+            / f.residuals.len().max(1) as f64)
+            .sqrt();
+        all_res.extend(f.residuals.values().copied());
+        if let Some((c, e)) = f.outlier {
+            outliers.push(format!("{l}_{c} ({:.1} mm)", e * 1e3));
+        }
+        let x = poses2.get(&l.body_name()).copied().unwrap_or(f.pose);
+        rows.push(VertebraRow {
+            level: l.to_string(),
+            body: l.body_name(),
+            scale: [f.scale.x, f.scale.y, f.scale.z],
+            origin: [
+                x.translation.vector.x,
+                x.translation.vector.y,
+                x.translation.vector.z,
+            ],
+            orientation_deg: xyz_deg(&x.rotation),
+            rms_mm: rms * 1e3,
+            max_residual_mm: f.residuals.values().fold(0.0f64, |a, b| a.max(*b)) * 1e3,
+            outlier: f.outlier.map(|(c, _)| format!("{l}_{c}")),
+            outlier_error_mm: f.outlier.map(|(_, e)| e * 1e3),
+            loo_max_mm: f.loo_max.map(|(_, e, _)| e * 1e3),
+            loo_threshold_mm: f.loo_max.map(|(_, _, t)| t * 1e3),
+        });
+    }
+    let landmark_rms =
+        (all_res.iter().map(|r| r * r).sum::<f64>() / all_res.len().max(1) as f64).sqrt();
+    (rows, outliers, landmark_rms)
+}
+
+/// Step 6: the generated model's self-check (bushings at rest, muscle
+/// paths against the vertebra meshes when there are any, equilibrium
+/// under gravity), with the refitted wrap spheres.
+fn self_check(
+    out_model: &Model,
+    meshes: Option<&dyn MeshSource>,
+    spheres: &[wraps::SphereOut],
+) -> Result<crate::build::base::check::SelfCheck> {
+    let mut owned = Vec::new();
+    if let Some(src) = meshes {
+        for b in &out_model.bodies {
+            if Level::from_body_name(&b.name).map(|l| l.is_sacrum()) != Some(false) {
+                continue;
+            }
+            let mut missing = Vec::new();
+            if let Some(m) = mesh_of(b, src, &mut missing)? {
+                let q = MeshQuery::new(&m)
+                    .map_err(|e| Error::invalid(format!("mesh of {}", b.name), e.to_string()))?;
+                owned.push((b.name.clone(), q));
+            }
+        }
+    }
+    let refs: Vec<(String, &MeshQuery)> = owned.iter().map(|(n, q)| (n.clone(), q)).collect();
+    let rows: Vec<crate::build::base::wrap::SphereRow> = spheres
+        .iter()
+        .map(|s| crate::build::base::wrap::SphereRow {
+            level: Level::from_body_name(&s.body)
+                .map(|l| l.to_string())
+                .unwrap_or_default(),
+            body: s.body.clone(),
+            name: s.name.clone(),
+            centre: s.centre,
+            radius_fit: s.radius_refit,
+            radius_no_overlap: s.radius,
+            radius: s.radius,
+            rms_mm: 0.0,
+            nodes: 0,
+            centre_inside_mesh: true,
+            source: "refitted from the base model".into(),
+            body_mesh_registration_rms_mm: None,
+            muscles: s.muscles.clone(),
+            muscles_refused: s.muscles_refused.clone(),
+        })
+        .collect();
+    crate::build::base::check::run_wrapped(out_model, &refs, &rows)
 }
 
 /// Replace the fitted orientations by their spinal-continuity posterior
