@@ -235,34 +235,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     } else {
         None
     };
-    let mut specimens = Vec::new();
-    let loso = if a.loso.is_empty() {
-        None
-    } else {
-        let mut items: Vec<(Problem, Vec<f64>)> = vec![(pb.clone(), cal.best.clone())];
-        for dir in &a.loso {
-            crate::errln!(
-                "calibrate: leave-one-specimen-out: calibrating {} ...",
-                dir.display()
-            );
-            let e = Arc::new(Experiment::read(dir)?);
-            let (p2, _) = setup::build_problem(e, &setup)?;
-            let c2 = fit::calibrate(
-                &p2,
-                &FitOptions {
-                    progress: false,
-                    ..fopts.clone()
-                },
-            )
-            .with_context(|| format!("calibrating {}", dir.display()))?;
-            specimens.push(LosoSpecimen {
-                experiment: p2.exp.name.clone(),
-                calibrated: c2.best.clone(),
-            });
-            items.push((p2, c2.best));
-        }
-        Some(validate::leave_one_specimen_out(&items)?)
-    };
+    let (loso, specimens) = leave_one_specimen_out(a, &setup, &pb, &cal, &fopts)?;
     // calibrated model
     let stiff = fam.bushing_stiffness(&cal.best);
     let names: Vec<String> = pb.system().bushing_names().map(String::from).collect();
@@ -279,18 +252,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         .collect();
     let rep = Report {
         tool: concat!("osim-spine ", env!("CARGO_PKG_VERSION")),
-        experiment: ExperimentInfo {
-            name: exp.name.clone(),
-            // Names only: the report is the same wherever the experiment lies.
-            dir: file_name_of(&exp.dir),
-            model: file_name_of(&exp.model_path),
-            fixed_body: exp.fixed_body.clone(),
-            gravity: exp.gravity,
-            units: exp.units,
-            cases: exp.cases.len(),
-            rows: exp.rows.len(),
-            warnings: exp.warnings.clone(),
-        },
+        experiment: experiment_info(&exp),
         options: OptionsInfo {
             params: a.params.clone(),
             cost_dofs: pb.opts.dofs.iter().map(|&d| DOF_NAMES[d]).collect(),
@@ -335,14 +297,79 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     let model_out = a.out.join("calibrated.osim");
     let missing = doc.write_with_meshes(&model_out, &[], false)?;
     super::warn_missing_meshes(&model_out, &missing, false);
-    let unit = exp.units.angle;
+    print_summary(&rep, &cal, a.starts, exp.units.angle);
+    crate::errln!("calibrate: written to {}", a.out.display());
+    Ok(0)
+}
+
+/// `--loso`: calibrate each other experiment alone, then predict each
+/// specimen with the median of the others' parameters.
+#[allow(clippy::type_complexity)]
+fn leave_one_specimen_out(
+    a: &Args,
+    setup: &Setup,
+    pb: &Problem,
+    cal: &Calibration,
+    fopts: &FitOptions,
+) -> anyhow::Result<(Option<Vec<validate::HeldOutSpecimen>>, Vec<LosoSpecimen>)> {
+    let mut specimens = Vec::new();
+    let loso = if a.loso.is_empty() {
+        None
+    } else {
+        let mut items: Vec<(Problem, Vec<f64>)> = vec![(pb.clone(), cal.best.clone())];
+        for dir in &a.loso {
+            crate::errln!(
+                "calibrate: leave-one-specimen-out: calibrating {} ...",
+                dir.display()
+            );
+            let e = Arc::new(Experiment::read(dir)?);
+            let (p2, _) = setup::build_problem(e, setup)?;
+            let c2 = fit::calibrate(
+                &p2,
+                &FitOptions {
+                    progress: false,
+                    ..fopts.clone()
+                },
+            )
+            .with_context(|| format!("calibrating {}", dir.display()))?;
+            specimens.push(LosoSpecimen {
+                experiment: p2.exp.name.clone(),
+                calibrated: c2.best.clone(),
+            });
+            items.push((p2, c2.best));
+        }
+        Some(validate::leave_one_specimen_out(&items)?)
+    };
+    Ok((loso, specimens))
+}
+
+/// The experiment as the report describes it (file names only: the report
+/// is the same wherever the experiment lies).
+fn experiment_info(exp: &Experiment) -> ExperimentInfo {
+    ExperimentInfo {
+        name: exp.name.clone(),
+        // Names only: the report is the same wherever the experiment lies.
+        dir: file_name_of(&exp.dir),
+        model: file_name_of(&exp.model_path),
+        fixed_body: exp.fixed_body.clone(),
+        gravity: exp.gravity,
+        units: exp.units,
+        cases: exp.cases.len(),
+        rows: exp.rows.len(),
+        warnings: exp.warnings.clone(),
+    }
+}
+
+/// The console summary: fit, estimates with their 95% CIs, held-out
+/// errors, and every parameter the data cannot determine.
+fn print_summary(rep: &Report, cal: &Calibration, starts: usize, unit: &str) {
     crate::errln!(
         "calibrate: rotation RMSE {:.4} {unit} (nominal model {:.4} {unit}); {} local minim{} from {} starts{}; condition number {:.3e}",
         rep.fit.rotation_rmse,
         rep.nominal_fit.rotation_rmse,
         cal.minima.len(),
         if cal.minima.len() == 1 { "um" } else { "a" },
-        a.starts,
+        starts,
         match cal.starts.iter().filter(|s| !s.converged).count() {
             0 => String::new(),
             k => format!(" ({k} start(s) did not converge: see report.json)"),
@@ -368,8 +395,6 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
             p.reason
         );
     }
-    crate::errln!("calibrate: written to {}", a.out.display());
-    Ok(0)
 }
 
 /// The held-out errors of `--loco` and `--loso`: pooled rotation RMSE and
