@@ -179,50 +179,115 @@ fn header_value<'a>(comment: &'a str, key: &str) -> Option<&'a str> {
     }
 }
 
+/// The `#` header lines of a landmark CSV seen so far.
+#[derive(Default)]
+struct CsvHeader {
+    units: Option<Units>,
+    frame: Option<Frame>,
+    operator: Option<String>,
+    repetition: Option<u32>,
+}
+
+impl CsvHeader {
+    /// Take one `# key: value` line (other comments are ignored).
+    fn read(&mut self, line: &str, line_no: usize, path: &Path) -> Result<()> {
+        let err = |msg: String| Error::parse(path, format!("line {line_no}"), msg);
+        if let Some(v) = header_value(line, "units") {
+            self.units = Some(
+                Units::parse_label(v)
+                    .ok_or_else(|| err(format!("`# units: {v}`: expected `mm` or `m`")))?,
+            );
+        } else if let Some(v) = header_value(line, "frame") {
+            self.frame = Some(Frame::parse_label(v).ok_or_else(|| {
+                err(format!(
+                    "`# frame: {v}`: expected `LPS`, `RAS` or `opensim`"
+                ))
+            })?);
+        } else if let Some(v) = header_value(line, "operator") {
+            self.operator = Some(v.to_string());
+        } else if let Some(v) = header_value(line, "repetition") {
+            self.repetition =
+                Some(v.parse().map_err(|_| {
+                    err(format!("`# repetition: {v}`: expected a positive integer"))
+                })?);
+        }
+        Ok(())
+    }
+}
+
+/// The column header: (has operator columns, number of fields).
+fn csv_columns(fields: &[&str], line: &str, line_no: usize, path: &Path) -> Result<(bool, usize)> {
+    let lower: Vec<String> = fields.iter().map(|f| f.to_ascii_lowercase()).collect();
+    let lower: Vec<&str> = lower.iter().map(String::as_str).collect();
+    match lower.as_slice() {
+        ["name", "x", "y", "z"] => Ok((false, 4)),
+        ["operator", "repetition", "name", "x", "y", "z"] => Ok((true, 6)),
+        _ => Err(Error::parse(
+            path,
+            format!("line {line_no}"),
+            format!(
+                "expected the header `name,x,y,z` or `operator,repetition,name,x,y,z`, found `{line}`"
+            ),
+        )),
+    }
+}
+
+/// One landmark row: its palpation (operator, repetition) and the point.
+fn csv_row(
+    fields: &[&str],
+    with_op: bool,
+    header: &CsvHeader,
+    line_no: usize,
+    path: &Path,
+) -> Result<((String, u32), RawPoint)> {
+    let err = |msg: String| Error::parse(path, format!("line {line_no}"), msg);
+    let (key, rest) = if with_op {
+        let rep: u32 = fields[1].parse().map_err(|_| {
+            err(format!(
+                "column `repetition`: expected a positive integer, found `{}`",
+                fields[1]
+            ))
+        })?;
+        if fields[0].is_empty() {
+            return Err(err("column `operator`: empty".into()));
+        }
+        ((fields[0].to_string(), rep), &fields[2..])
+    } else {
+        let operator = header.operator.clone().unwrap_or_else(|| "1".into());
+        ((operator, header.repetition.unwrap_or(1)), fields)
+    };
+    let name = rest[0].to_string();
+    if name.is_empty() {
+        return Err(err("column `name`: empty landmark name".into()));
+    }
+    let x = parse_number(rest[1], path, line_no, "x")?;
+    let y = parse_number(rest[2], path, line_no, "y")?;
+    let z = parse_number(rest[3], path, line_no, "z")?;
+    let parsed = LandmarkId::parse_name(&name);
+    let point = RawPoint {
+        id: parsed.map(|p| p.0),
+        canonical: parsed.map(|p| p.1).unwrap_or(false),
+        name,
+        xyz: [x, y, z],
+        line: Some(line_no),
+    };
+    Ok((key, point))
+}
+
 /// Parse a landmark CSV (see the module docs).
 pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
-    let mut units = None;
-    let mut frame = None;
-    let mut file_operator: Option<String> = None;
-    let mut file_repetition: Option<u32> = None;
+    let mut header = CsvHeader::default();
     let mut columns: Option<(bool, usize)> = None; // (has operator columns, n fields)
                                                    // Palpations in order of first appearance.
     let mut groups: Vec<((String, u32), Vec<RawPoint>)> = Vec::new();
-    let text = strip_bom(text);
-    for (i, raw_line) in text.lines().enumerate() {
+    for (i, raw_line) in strip_bom(text).lines().enumerate() {
         let line_no = i + 1;
         let line = raw_line.trim();
         if line.is_empty() {
             continue;
         }
         if line.starts_with('#') {
-            if let Some(v) = header_value(line, "units") {
-                units = Some(Units::parse_label(v).ok_or_else(|| {
-                    Error::parse(
-                        path,
-                        format!("line {line_no}"),
-                        format!("`# units: {v}`: expected `mm` or `m`"),
-                    )
-                })?);
-            } else if let Some(v) = header_value(line, "frame") {
-                frame = Some(Frame::parse_label(v).ok_or_else(|| {
-                    Error::parse(
-                        path,
-                        format!("line {line_no}"),
-                        format!("`# frame: {v}`: expected `LPS`, `RAS` or `opensim`"),
-                    )
-                })?);
-            } else if let Some(v) = header_value(line, "operator") {
-                file_operator = Some(v.to_string());
-            } else if let Some(v) = header_value(line, "repetition") {
-                file_repetition = Some(v.parse().map_err(|_| {
-                    Error::parse(
-                        path,
-                        format!("line {line_no}"),
-                        format!("`# repetition: {v}`: expected a positive integer"),
-                    )
-                })?);
-            }
+            header.read(line, line_no, path)?;
             continue;
         }
         let mut fields: Vec<&str> = line.split(',').map(strip_quotes).collect();
@@ -232,21 +297,7 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
             fields.pop();
         }
         let Some((with_op, n)) = columns else {
-            let lower: Vec<String> = fields.iter().map(|f| f.to_ascii_lowercase()).collect();
-            let lower: Vec<&str> = lower.iter().map(String::as_str).collect();
-            columns = match lower.as_slice() {
-                ["name", "x", "y", "z"] => Some((false, 4)),
-                ["operator", "repetition", "name", "x", "y", "z"] => Some((true, 6)),
-                _ => {
-                    return Err(Error::parse(
-                        path,
-                        format!("line {line_no}"),
-                        format!(
-                            "expected the header `name,x,y,z` or `operator,repetition,name,x,y,z`, found `{line}`"
-                        ),
-                    ))
-                }
-            };
+            columns = Some(csv_columns(&fields, line, line_no, path)?);
             continue;
         };
         if fields.len() != n {
@@ -259,53 +310,7 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
                 ),
             ));
         }
-        let (key, rest) = if with_op {
-            let rep: u32 = fields[1].parse().map_err(|_| {
-                Error::parse(
-                    path,
-                    format!("line {line_no}"),
-                    format!(
-                        "column `repetition`: expected a positive integer, found `{}`",
-                        fields[1]
-                    ),
-                )
-            })?;
-            if fields[0].is_empty() {
-                return Err(Error::parse(
-                    path,
-                    format!("line {line_no}"),
-                    "column `operator`: empty",
-                ));
-            }
-            ((fields[0].to_string(), rep), &fields[2..])
-        } else {
-            (
-                (
-                    file_operator.clone().unwrap_or_else(|| "1".into()),
-                    file_repetition.unwrap_or(1),
-                ),
-                &fields[..],
-            )
-        };
-        let name = rest[0].to_string();
-        if name.is_empty() {
-            return Err(Error::parse(
-                path,
-                format!("line {line_no}"),
-                "column `name`: empty landmark name",
-            ));
-        }
-        let x = parse_number(rest[1], path, line_no, "x")?;
-        let y = parse_number(rest[2], path, line_no, "y")?;
-        let z = parse_number(rest[3], path, line_no, "z")?;
-        let parsed = LandmarkId::parse_name(&name);
-        let point = RawPoint {
-            id: parsed.map(|p| p.0),
-            canonical: parsed.map(|p| p.1).unwrap_or(false),
-            name,
-            xyz: [x, y, z],
-            line: Some(line_no),
-        };
+        let (key, point) = csv_row(&fields, with_op, &header, line_no, path)?;
         match groups.iter_mut().find(|(k, _)| *k == key) {
             Some((_, v)) => v.push(point),
             None => groups.push((key, vec![point])),
@@ -333,8 +338,8 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
             raw: RawLandmarks {
                 path: path.to_path_buf(),
                 format: FileFormat::Csv,
-                declared_units: units,
-                declared_frame: frame,
+                declared_units: header.units,
+                declared_frame: header.frame,
                 points,
                 notes: Vec::new(),
             },
