@@ -386,36 +386,69 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
     if !at(0)?.trim_start().starts_with("PathFileType") {
         return Err(Error::parse(path, "line 1", "TRC: expected `PathFileType`"));
     }
-    // Keys and values are tab-separated; a header written with spaces only
-    // (no tab on the line) is split on whitespace.
-    let cells = |l: &'_ str| -> Vec<String> {
-        if l.contains('\t') {
-            l.split('\t').map(|c| c.trim().to_string()).collect()
-        } else {
-            l.split_whitespace().map(str::to_string).collect()
-        }
-    };
-    let keys = cells(at(1)?);
-    let vals = cells(at(2)?);
+    let (keys, vals) = (trc_cells(at(1)?), trc_cells(at(2)?));
     check_trc_counts(&keys, &vals, path)?;
+    let units = trc_units(&keys, &vals, path)?;
+    let (markers, ignored) = trc_markers(at(3)?, path)?;
+    let (stats, n_frames) = trc_frames(&lines, &markers, path)?;
+    let scale_mm = units.to_metres() * 1e3;
+    let (points, max_spread) = trc_points(&markers, &stats, n_frames, scale_mm, path)?;
+    let mut notes = Vec::new();
+    if !ignored.is_empty() {
+        notes.push(format!(
+            "TRC: {} marker(s) without a <LEVEL>_ prefix ignored: {}",
+            ignored.len(),
+            ignored.join(", ")
+        ));
+    }
+    if n_frames > 1 {
+        notes.push(format!(
+            "TRC: {n_frames} frames averaged per marker (largest spread {max_spread:.2} mm)"
+        ));
+    }
+    Ok(RawLandmarks {
+        path: path.to_path_buf(),
+        format: FileFormat::Trc,
+        declared_units: Some(units),
+        declared_frame: None,
+        points,
+        notes,
+    })
+}
+
+/// Header keys and values are tab-separated; a header written with spaces
+/// only (no tab on the line) is split on whitespace.
+fn trc_cells(l: &str) -> Vec<String> {
+    if l.contains('\t') {
+        l.split('\t').map(|c| c.trim().to_string()).collect()
+    } else {
+        l.split_whitespace().map(str::to_string).collect()
+    }
+}
+
+/// The header's `Units` (required: mm or m).
+fn trc_units(keys: &[String], vals: &[String], path: &Path) -> Result<Units> {
     let units_idx = keys.iter().position(|k| k.eq_ignore_ascii_case("Units"));
-    let units = match units_idx.and_then(|k| vals.get(k)) {
-        Some(u) => Some(Units::parse_label(u).ok_or_else(|| {
+    match units_idx.and_then(|k| vals.get(k)) {
+        Some(u) => Units::parse_label(u).ok_or_else(|| {
             Error::parse(
                 path,
                 "line 3",
                 format!("TRC Units `{u}`: expected `mm` or `m`"),
             )
-        })?),
-        None => {
-            return Err(Error::parse(
-                path,
-                "line 2",
-                "TRC: no `Units` column in the header",
-            ));
-        }
-    };
-    let names_line = at(3)?;
+        }),
+        None => Err(Error::parse(
+            path,
+            "line 2",
+            "TRC: no `Units` column in the header",
+        )),
+    }
+}
+
+/// The landmark markers of the names line, each with its first data
+/// column, and the other markers' names (ignored).
+#[allow(clippy::type_complexity)]
+fn trc_markers(names_line: &str, path: &Path) -> Result<(Vec<(usize, String)>, Vec<String>)> {
     let cols: Vec<&str> = names_line.split('\t').collect();
     if cols.len() < 3 || !cols[0].trim().eq_ignore_ascii_case("Frame#") {
         return Err(Error::parse(
@@ -455,11 +488,34 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
             "TRC: no landmark markers (names <LEVEL>_<CODE>)",
         ));
     }
-    let mut sums = vec![[0.0f64; 3]; markers.len()];
-    let mut mins = vec![[f64::INFINITY; 3]; markers.len()];
-    let mut maxs = vec![[f64::NEG_INFINITY; 3]; markers.len()];
-    let mut counts = vec![0usize; markers.len()];
-    let mut first_line = vec![None; markers.len()];
+    Ok((markers, ignored))
+}
+
+/// One marker over the frames: sum, extent, count and first line.
+#[derive(Clone)]
+struct TrcStats {
+    sum: [f64; 3],
+    min: [f64; 3],
+    max: [f64; 3],
+    count: usize,
+    first_line: Option<usize>,
+}
+
+/// Read the data frames (line 6 on): per marker, the frames where it is
+/// present (empty or NaN cells: occluded), and the number of frames.
+fn trc_frames(
+    lines: &[&str],
+    markers: &[(usize, String)],
+    path: &Path,
+) -> Result<(Vec<TrcStats>, usize)> {
+    let empty = TrcStats {
+        sum: [0.0; 3],
+        min: [f64::INFINITY; 3],
+        max: [f64::NEG_INFINITY; 3],
+        count: 0,
+        first_line: None,
+    };
+    let mut stats = vec![empty; markers.len()];
     let mut n_frames = 0usize;
     for (i, l) in lines.iter().enumerate().skip(5) {
         let line_no = i + 1;
@@ -468,7 +524,7 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
         }
         n_frames += 1;
         let f: Vec<&str> = l.split('\t').collect();
-        for (m, (c, name)) in markers.iter().enumerate() {
+        for (st, (c, name)) in stats.iter_mut().zip(markers) {
             let cell = |k: usize| f.get(c + k).map(|s| s.trim()).unwrap_or("");
             let (sx, sy, sz) = (cell(0), cell(1), cell(2));
             if sx.is_empty() && sy.is_empty() && sz.is_empty() {
@@ -488,26 +544,37 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
             if v[0].is_nan() {
                 continue;
             }
-            counts[m] += 1;
-            first_line[m].get_or_insert(line_no);
+            st.count += 1;
+            st.first_line.get_or_insert(line_no);
             for k in 0..3 {
-                sums[m][k] += v[k];
-                mins[m][k] = mins[m][k].min(v[k]);
-                maxs[m][k] = maxs[m][k].max(v[k]);
+                st.sum[k] += v[k];
+                st.min[k] = st.min[k].min(v[k]);
+                st.max[k] = st.max[k].max(v[k]);
             }
         }
     }
     if n_frames == 0 {
         return Err(Error::parse(path, "line 6", "TRC: no data frames"));
     }
-    let scale_mm = units.map(|u| u.to_metres() * 1e3).unwrap_or(1.0);
+    Ok((stats, n_frames))
+}
+
+/// Each present marker's mean over the frames; a marker moving more than
+/// 5 mm is refused (a landmark set is static). Also the largest spread (mm).
+fn trc_points(
+    markers: &[(usize, String)],
+    stats: &[TrcStats],
+    n_frames: usize,
+    scale_mm: f64,
+    path: &Path,
+) -> Result<(Vec<RawPoint>, f64)> {
     let mut points = Vec::new();
     let mut max_spread = 0.0f64;
-    for (m, (_, name)) in markers.iter().enumerate() {
-        if counts[m] == 0 {
+    for ((_, name), st) in markers.iter().zip(stats) {
+        if st.count == 0 {
             continue;
         }
-        let spread = (0..3).map(|k| maxs[m][k] - mins[m][k]).fold(0.0, f64::max) * scale_mm;
+        let spread = (0..3).map(|k| st.max[k] - st.min[k]).fold(0.0, f64::max) * scale_mm;
         max_spread = max_spread.max(spread);
         if spread > 5.0 {
             return Err(Error::parse(
@@ -518,37 +585,17 @@ pub fn parse_trc(text: &str, path: &Path) -> Result<RawLandmarks> {
                 ),
             ));
         }
-        let n = counts[m] as f64;
+        let n = st.count as f64;
         let parsed = LandmarkId::parse_name(name);
         points.push(RawPoint {
             name: name.clone(),
             id: parsed.map(|p| p.0),
             canonical: parsed.map(|p| p.1).unwrap_or(false),
-            xyz: [sums[m][0] / n, sums[m][1] / n, sums[m][2] / n],
-            line: first_line[m],
+            xyz: [st.sum[0] / n, st.sum[1] / n, st.sum[2] / n],
+            line: st.first_line,
         });
     }
-    let mut notes = Vec::new();
-    if !ignored.is_empty() {
-        notes.push(format!(
-            "TRC: {} marker(s) without a <LEVEL>_ prefix ignored: {}",
-            ignored.len(),
-            ignored.join(", ")
-        ));
-    }
-    if n_frames > 1 {
-        notes.push(format!(
-            "TRC: {n_frames} frames averaged per marker (largest spread {max_spread:.2} mm)"
-        ));
-    }
-    Ok(RawLandmarks {
-        path: path.to_path_buf(),
-        format: FileFormat::Trc,
-        declared_units: units,
-        declared_frame: None,
-        points,
-        notes,
-    })
+    Ok((points, max_spread))
 }
 
 /// Ordered JSON object entries, duplicates kept.
