@@ -578,6 +578,20 @@ fn bad_label_maps_are_refused() {
     // No orientation at all.
     let b = patch(small_map(), 254, &0i16.to_le_bytes());
     refuses(&write("noxform.nii", b), &[], "qform_code/sform_code");
+    // bitpix contradicting the datatype (fuzz finding: int16 with bitpix 10
+    // was read as half the voxels).
+    let b = patch(small_map(), 72, &10i16.to_le_bytes());
+    refuses(&write("bitpix.nii", b), &[], "bitpix");
+    // A truncated volume: refused before anything is allocated for it.
+    let mut b = small_map();
+    b.truncate(b.len() - 10);
+    refuses(&write("short.nii", b), &[], "header announces");
+    // A gzip stream that is not one.
+    refuses(
+        &write("bad.nii.gz", vec![0x1f, 0x8b, 8, 0, 1, 2, 3]),
+        &[],
+        "gzip",
+    );
 }
 
 /// A closed tetrahedron-like box mesh (mm) of a given size.

@@ -209,6 +209,17 @@ fn check_datatype(h: &NiftiHeader, path: &Path) -> Result<NiftiType> {
             format!("unknown datatype code {}", h.datatype),
         )
     })?;
+    if h.bitpix as usize != 8 * t.size_of() {
+        return Err(Error::parse(
+            path,
+            "header bitpix",
+            format!(
+                "{} bits per voxel contradicts the datatype {t:?} ({} bits)",
+                h.bitpix,
+                8 * t.size_of()
+            ),
+        ));
+    }
     match t {
         NiftiType::Uint8
         | NiftiType::Int8
