@@ -3,16 +3,18 @@
 # 300) with a 1 GB memory limit and a 2 s per-input timeout, so a hang or
 # an allocation blow-up is a finding. Run from the repo root after
 # `cargo install cargo-fuzz` and `sh fuzz/seed.sh`:
-#   sh fuzz/run_all.sh [SECONDS]
+#   sh fuzz/run_all.sh [SECONDS [TARGET...]]   (default: every target)
 # The targets are built once (cargo +nightly fuzz build), then run
 # directly. Prints one line per target: runs, seconds, crash files.
 set -u
 secs=${1:-300}
+[ $# -gt 0 ] && shift
+targets=${*:-osim_reader mesh_vtp mesh_stl mesh_obj mesh_ply landmarks experiment stiffness_table nifti_labels segmentation_level}
 cd fuzz
 cargo +nightly fuzz build || exit 1
 bin=target/x86_64-unknown-linux-gnu/release
 mkdir -p logs
-for t in osim_reader mesh_vtp mesh_stl mesh_obj mesh_ply landmarks experiment stiffness_table nifti_labels segmentation_level; do
+for t in $targets; do
   case $t in
     osim_reader|mesh_vtp) dict="-dict=dict/xml.dict" ;;
     landmarks|experiment|stiffness_table) dict="-dict=dict/csv.dict" ;;

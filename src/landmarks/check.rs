@@ -455,160 +455,179 @@ pub fn check_set(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>) -> Vec<
         return cx.out;
     };
     let levels = set.levels();
-    let (ex, ey, ez) = (Vector3::x(), Vector3::y(), Vector3::z());
     for &l in &levels {
-        // ---- orientation
-        let orient =
-            |cx: &mut Ctx, code: &str, a: Code, b: Code, axis: Vector3<f64>, what: &str| {
-                if let (Some(pa), Some(pb)) = (cx.g(l, a), cx.g(l, b)) {
-                    let d = mm((pa - pb).dot(&axis));
-                    if d < -3.0 {
-                        cx.push(
-                            code,
-                            Severity::Error,
-                            &[id(l, a), id(l, b)],
-                            format!("{l}_{a} is {:.1} mm {what} {l}_{b} (swapped?)", -d),
-                        );
-                    } else if d < 0.0 {
-                        cx.push(
-                            code,
-                            Severity::Warning,
-                            &[id(l, a), id(l, b)],
-                            format!("{l}_{a} is {:.1} mm {what} {l}_{b}", -d),
-                        );
-                    }
-                }
-            };
-        orient(&mut cx, "LM030", Code::SEC, Code::IEC, ey, "below");
-        orient(&mut cx, "LM031", Code::PTR, Code::PBR, ey, "below");
-        orient(&mut cx, "LM031", Code::PTL, Code::PBL, ey, "below");
-        orient(&mut cx, "LM037", Code::SA, Code::SP, ex, "posterior of");
-        orient(&mut cx, "LM037", Code::IA, Code::IP, ex, "posterior of");
-        for (r, lft) in [
-            (Code::PTR, Code::PTL),
-            (Code::PBR, Code::PBL),
-            (Code::SR, Code::SL),
-            (Code::IR, Code::IL),
-        ] {
-            if let (Some(pr), Some(pl)) = (cx.g(l, r), cx.g(l, lft)) {
-                let d = mm((pr - pl).dot(&ez));
-                if d < -3.0 {
-                    cx.push(
-                        "LM032",
-                        Severity::Error,
-                        &[id(l, r), id(l, lft)],
-                        format!(
-                            "{l}_{r} is {:.1} mm to the left of {l}_{lft} (left/right swapped?)",
-                            -d
-                        ),
-                    );
-                }
-            }
-        }
-        // pedicles behind the body
-        let body = mean_codes(set, l, &[Code::SEC, Code::IEC]);
-        let ped = mean_codes(set, l, &[Code::PTR, Code::PTL, Code::PBR, Code::PBL]);
-        if let (Some(b), Some(p)) = (body, ped) {
-            let d = mm((b - p).dot(&ex));
-            if d < -3.0 {
-                cx.push("LM037", Severity::Error, &[id(l, Code::SEC), id(l, Code::PTR)], format!("{l}: the pedicles are {:.1} mm anterior of the endplate centres (anterior/posterior inverted?)", -d));
-            }
-        }
-        // ---- endplate centres inside their extreme points
-        for (c, a, r, p, lf) in [
-            (Code::SEC, Code::SA, Code::SR, Code::SP, Code::SL),
-            (Code::IEC, Code::IA, Code::IR, Code::IP, Code::IL),
-        ] {
-            let pts = [cx.g(l, c), cx.g(l, a), cx.g(l, r), cx.g(l, p), cx.g(l, lf)];
-            if let [Some(pc), Some(pa), Some(pr), Some(pp), Some(pl)] = pts {
-                if let Some(out_by) = outside_quad(pc, [pa, pr, pp, pl]) {
-                    if let Some((sev, why)) = lm033_severity(out_by) {
-                        cx.push("LM033", sev, &[id(l, c), id(l, a), id(l, r), id(l, p), id(l, lf)], format!("{l}_{c} lies {out_by:.1} mm outside the quadrilateral of {l}_{a}/{r}/{p}/{lf} ({why})"));
-                    }
-                }
-            }
-        }
-        // ---- dimension ranges
-        let d = table.level(l);
-        let dist = |a: Code, b: Code| Some((set.get(l, a)? - set.get(l, b)?).norm());
-        let range = |cx: &mut Ctx,
-                     code: &str,
-                     what: &str,
-                     v: Option<f64>,
-                     m: crate::build::anatomy::Measure,
-                     widen: f64,
-                     ids: &[LandmarkId]| {
-            let Some(v) = v else { return };
-            if m.is_missing() {
-                return;
-            }
-            // Anatomical SD (widened for wedging) combined with palpation
-            // noise of a distance between two landmarks (2.5 mm).
-            let sd = ((m.sd * widen).max(0.08 * m.mean).powi(2) + 0.0025f64.powi(2)).sqrt();
-            let (lo_w, hi_w) = (m.mean - 4.0 * sd, m.mean + 4.0 * sd);
-            let (lo_e, hi_e) = (
-                m.mean - (0.65 * m.mean).max(6.0 * sd),
-                m.mean + m.mean.max(6.0 * sd),
-            );
-            let msg = format!("{l} {what} {:.1} mm; published mean {:.1} mm (warning outside {:.1}..{:.1}, error outside {:.1}..{:.1})", mm(v), mm(m.mean), mm(lo_w), mm(hi_w), mm(lo_e), mm(hi_e));
-            if v < lo_e || v > hi_e {
-                cx.push(code, Severity::Error, ids, msg);
-            } else if v < lo_w || v > hi_w {
-                cx.push(code, Severity::Warning, ids, msg);
-            }
-        };
-        range(
-            &mut cx,
-            "LM034",
-            "superior endplate width",
-            dist(Code::SR, Code::SL),
-            d.sup_ep_width,
-            1.0,
-            &[id(l, Code::SR), id(l, Code::SL)],
-        );
-        range(
-            &mut cx,
-            "LM035",
-            "superior endplate depth",
-            dist(Code::SA, Code::SP),
-            d.sup_ep_depth,
-            1.0,
-            &[id(l, Code::SA), id(l, Code::SP)],
-        );
-        if !l.is_sacrum() {
-            range(
-                &mut cx,
-                "LM034",
-                "inferior endplate width",
-                dist(Code::IR, Code::IL),
-                d.inf_ep_width,
-                1.0,
-                &[id(l, Code::IR), id(l, Code::IL)],
-            );
-            range(
-                &mut cx,
-                "LM035",
-                "inferior endplate depth",
-                dist(Code::IA, Code::IP),
-                d.inf_ep_depth,
-                1.0,
-                &[id(l, Code::IA), id(l, Code::IP)],
-            );
-            let h = crate::landmarks::frames::vertebra_dimensions(set, l).height;
-            range(
-                &mut cx,
-                "LM036",
-                "body height",
-                h,
-                d.body_height(),
-                1.5,
-                &[id(l, Code::SA), id(l, Code::IA)],
-            );
-        }
+        check_orientation(&mut cx, l);
+        check_endplate_centres(&mut cx, l);
+        check_dimensions(&mut cx, &table, l);
     }
     check_neighbours(&mut cx, &table, &levels);
     check_outliers(&mut cx, &table, &levels);
     cx.out
+}
+
+/// LM030-LM032, LM037: superior above inferior, anterior before
+/// posterior, right right of left, pedicles behind the body.
+fn check_orientation(cx: &mut Ctx, l: Level) {
+    let set = cx.set;
+    let (ex, ey, ez) = (Vector3::x(), Vector3::y(), Vector3::z());
+    // ---- orientation
+    let orient = |cx: &mut Ctx, code: &str, a: Code, b: Code, axis: Vector3<f64>, what: &str| {
+        if let (Some(pa), Some(pb)) = (cx.g(l, a), cx.g(l, b)) {
+            let d = mm((pa - pb).dot(&axis));
+            if d < -3.0 {
+                cx.push(
+                    code,
+                    Severity::Error,
+                    &[id(l, a), id(l, b)],
+                    format!("{l}_{a} is {:.1} mm {what} {l}_{b} (swapped?)", -d),
+                );
+            } else if d < 0.0 {
+                cx.push(
+                    code,
+                    Severity::Warning,
+                    &[id(l, a), id(l, b)],
+                    format!("{l}_{a} is {:.1} mm {what} {l}_{b}", -d),
+                );
+            }
+        }
+    };
+    orient(cx, "LM030", Code::SEC, Code::IEC, ey, "below");
+    orient(cx, "LM031", Code::PTR, Code::PBR, ey, "below");
+    orient(cx, "LM031", Code::PTL, Code::PBL, ey, "below");
+    orient(cx, "LM037", Code::SA, Code::SP, ex, "posterior of");
+    orient(cx, "LM037", Code::IA, Code::IP, ex, "posterior of");
+    for (r, lft) in [
+        (Code::PTR, Code::PTL),
+        (Code::PBR, Code::PBL),
+        (Code::SR, Code::SL),
+        (Code::IR, Code::IL),
+    ] {
+        if let (Some(pr), Some(pl)) = (cx.g(l, r), cx.g(l, lft)) {
+            let d = mm((pr - pl).dot(&ez));
+            if d < -3.0 {
+                cx.push(
+                    "LM032",
+                    Severity::Error,
+                    &[id(l, r), id(l, lft)],
+                    format!(
+                        "{l}_{r} is {:.1} mm to the left of {l}_{lft} (left/right swapped?)",
+                        -d
+                    ),
+                );
+            }
+        }
+    }
+    // pedicles behind the body
+    let body = mean_codes(set, l, &[Code::SEC, Code::IEC]);
+    let ped = mean_codes(set, l, &[Code::PTR, Code::PTL, Code::PBR, Code::PBL]);
+    if let (Some(b), Some(p)) = (body, ped) {
+        let d = mm((b - p).dot(&ex));
+        if d < -3.0 {
+            cx.push("LM037", Severity::Error, &[id(l, Code::SEC), id(l, Code::PTR)], format!("{l}: the pedicles are {:.1} mm anterior of the endplate centres (anterior/posterior inverted?)", -d));
+        }
+    }
+}
+
+/// LM033: each endplate centre inside the quadrilateral of its extreme
+/// points (with the palpation noise).
+fn check_endplate_centres(cx: &mut Ctx, l: Level) {
+    // ---- endplate centres inside their extreme points
+    for (c, a, r, p, lf) in [
+        (Code::SEC, Code::SA, Code::SR, Code::SP, Code::SL),
+        (Code::IEC, Code::IA, Code::IR, Code::IP, Code::IL),
+    ] {
+        let pts = [cx.g(l, c), cx.g(l, a), cx.g(l, r), cx.g(l, p), cx.g(l, lf)];
+        if let [Some(pc), Some(pa), Some(pr), Some(pp), Some(pl)] = pts {
+            if let Some(out_by) = outside_quad(pc, [pa, pr, pp, pl]) {
+                if let Some((sev, why)) = lm033_severity(out_by) {
+                    cx.push("LM033", sev, &[id(l, c), id(l, a), id(l, r), id(l, p), id(l, lf)], format!("{l}_{c} lies {out_by:.1} mm outside the quadrilateral of {l}_{a}/{r}/{p}/{lf} ({why})"));
+                }
+            }
+        }
+    }
+}
+
+/// LM034-LM036: endplate widths and depths and body height against the
+/// published ranges of the level.
+fn check_dimensions(cx: &mut Ctx, table: &DimensionTable, l: Level) {
+    let set = cx.set;
+    // ---- dimension ranges
+    let d = table.level(l);
+    let dist = |a: Code, b: Code| Some((set.get(l, a)? - set.get(l, b)?).norm());
+    let range = |cx: &mut Ctx,
+                 code: &str,
+                 what: &str,
+                 v: Option<f64>,
+                 m: crate::build::anatomy::Measure,
+                 widen: f64,
+                 ids: &[LandmarkId]| {
+        let Some(v) = v else { return };
+        if m.is_missing() {
+            return;
+        }
+        // Anatomical SD (widened for wedging) combined with palpation
+        // noise of a distance between two landmarks (2.5 mm).
+        let sd = ((m.sd * widen).max(0.08 * m.mean).powi(2) + 0.0025f64.powi(2)).sqrt();
+        let (lo_w, hi_w) = (m.mean - 4.0 * sd, m.mean + 4.0 * sd);
+        let (lo_e, hi_e) = (
+            m.mean - (0.65 * m.mean).max(6.0 * sd),
+            m.mean + m.mean.max(6.0 * sd),
+        );
+        let msg = format!("{l} {what} {:.1} mm; published mean {:.1} mm (warning outside {:.1}..{:.1}, error outside {:.1}..{:.1})", mm(v), mm(m.mean), mm(lo_w), mm(hi_w), mm(lo_e), mm(hi_e));
+        if v < lo_e || v > hi_e {
+            cx.push(code, Severity::Error, ids, msg);
+        } else if v < lo_w || v > hi_w {
+            cx.push(code, Severity::Warning, ids, msg);
+        }
+    };
+    range(
+        cx,
+        "LM034",
+        "superior endplate width",
+        dist(Code::SR, Code::SL),
+        d.sup_ep_width,
+        1.0,
+        &[id(l, Code::SR), id(l, Code::SL)],
+    );
+    range(
+        cx,
+        "LM035",
+        "superior endplate depth",
+        dist(Code::SA, Code::SP),
+        d.sup_ep_depth,
+        1.0,
+        &[id(l, Code::SA), id(l, Code::SP)],
+    );
+    if !l.is_sacrum() {
+        range(
+            cx,
+            "LM034",
+            "inferior endplate width",
+            dist(Code::IR, Code::IL),
+            d.inf_ep_width,
+            1.0,
+            &[id(l, Code::IR), id(l, Code::IL)],
+        );
+        range(
+            cx,
+            "LM035",
+            "inferior endplate depth",
+            dist(Code::IA, Code::IP),
+            d.inf_ep_depth,
+            1.0,
+            &[id(l, Code::IA), id(l, Code::IP)],
+        );
+        let h = crate::landmarks::frames::vertebra_dimensions(set, l).height;
+        range(
+            cx,
+            "LM036",
+            "body height",
+            h,
+            d.body_height(),
+            1.5,
+            &[id(l, Code::SA), id(l, Code::IA)],
+        );
+    }
 }
 
 /// Nominal palpation noise (mm, SD per coordinate) of a CT-palpated
