@@ -136,6 +136,11 @@ fn legacy_models() -> Vec<PathBuf> {
     if let Some(dir) = common::shared("data/models/legacy") {
         files.extend(osim_files(&dir));
     }
+    // A 4.0 file: OpenSim 4.6 upgrades it too (the path actuators'
+    // `geometrypath` becomes `path`).
+    if let Some(cyclist) = common::shared("data/models/cyclistFullBodyMuscle.osim") {
+        files.push(cyclist);
+    }
     files
 }
 
