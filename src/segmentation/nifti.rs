@@ -97,9 +97,15 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LabelMap> {
     let dtype = check_datatype(&header, path)?;
     check_length(&header, dims, dtype, bytes.len(), path)?;
     let (affine, transform, mut notes) = header_affine(&header, path)?;
-    // The header is sound: now the volume.
+    // The header is sound: now the volume. Extensions are not used, and the
+    // crate would allocate what their size fields claim: the reader sees
+    // the extender bytes as 0 (no extensions) and the volume right after
+    // (`check_length` put vox_offset within the file, at 352 or more).
+    use std::io::Read;
+    let volume_at = header.vox_offset as usize;
+    let no_ext = bytes[..348].chain(&[0u8; 4][..]).chain(&bytes[volume_at..]);
     let obj =
-        nifti::InMemNiftiObject::from_reader(bytes).map_err(|e| nifti_error(path, "volume", e))?;
+        nifti::InMemNiftiObject::from_reader(no_ext).map_err(|e| nifti_error(path, "volume", e))?;
     let volume = obj.into_volume();
     let labels = to_labels(volume, dtype, path)?;
     if header.scl_slope != 0.0 && (header.scl_slope != 1.0 || header.scl_inter != 0.0) {
@@ -127,7 +133,7 @@ fn check_length(
     path: &Path,
 ) -> Result<()> {
     let offset = h.vox_offset;
-    if !offset.is_finite() || offset < 0.0 || offset > MAX_FILE_BYTES as f32 {
+    if !offset.is_finite() || offset < 352.0 || offset > MAX_FILE_BYTES as f32 {
         return Err(Error::parse(
             path,
             "header vox_offset",
@@ -383,4 +389,43 @@ fn labels_from(values: impl Iterator<Item = f64>, path: &Path) -> Result<Vec<u16
         out.push(x as u16);
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::segmentation::voxelise::{nifti_bytes, HeaderTransform};
+
+    fn small() -> LabelMap {
+        LabelMap {
+            dims: [3, 2, 2],
+            labels: (0..12).map(|i| (i % 4) as u16).collect(),
+            affine: Matrix4::identity(),
+            transform: "sform",
+            notes: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn round_trip_and_ignored_extensions() {
+        let map = small();
+        let bytes = nifti_bytes(&map, HeaderTransform::Sform);
+        let back = parse(&bytes, Path::new("a.nii")).unwrap();
+        assert_eq!(back.labels, map.labels);
+        // An extension whose size field claims 1.5 GB (fuzz finding: the
+        // crate allocated it): the extender flag set, vox_offset 360.
+        let mut ext = bytes[..348].to_vec();
+        ext.extend_from_slice(&[1, 0, 0, 0]);
+        ext.extend_from_slice(&1_500_000_000i32.to_le_bytes());
+        ext.extend_from_slice(&4i32.to_le_bytes());
+        ext.extend_from_slice(&bytes[352..]);
+        ext[108..112].copy_from_slice(&360f32.to_le_bytes());
+        let back = parse(&ext, Path::new("ext.nii")).unwrap();
+        assert_eq!(back.labels, map.labels);
+        // vox_offset inside the header is refused.
+        let mut low = bytes.clone();
+        low[108..112].copy_from_slice(&100f32.to_le_bytes());
+        let e = parse(&low, Path::new("low.nii")).unwrap_err().to_string();
+        assert!(e.contains("vox_offset"), "{e}");
+    }
 }
