@@ -388,6 +388,44 @@ impl Family {
         self.x0.len()
     }
 
+    /// Block index of each masked level (its parameters' position among
+    /// the masked levels), `None` for the others.
+    fn block_index(&self, nl: usize) -> Vec<Option<usize>> {
+        let mut block = vec![None; nl];
+        let mut nb = 0;
+        for (li, m) in self.mask.iter().enumerate().take(nl) {
+            if *m {
+                block[li] = Some(nb);
+                nb += 1;
+            }
+        }
+        block
+    }
+
+    /// Level `li`'s linear stiffness under parameters `x`: the nominal
+    /// `kn` with the rotational terms scaled by exp of the shared (or, per
+    /// DoF and level, own) log-factors, and the level factor of
+    /// `LevelScalar`.
+    fn level_stiffness(&self, kn: [f64; 6], li: usize, x: &[f64]) -> [f64; 6] {
+        let get = |i: usize| x.get(i).copied().unwrap_or(0.0);
+        let mut k = kn;
+        for d in 0..3 {
+            let i = if self.kind == Kind::LevelPerDof {
+                3 * li + d
+            } else {
+                d
+            };
+            k[d] = kn[d] * get(i).exp();
+        }
+        if self.kind == Kind::LevelScalar && li > 0 {
+            let m = get(3 + li - 1).exp();
+            for kd in k.iter_mut().take(3) {
+                *kd *= m;
+            }
+        }
+        k
+    }
+
     /// The laws and frames of parameters `x`.
     pub fn variant(&self, sim: &Sim, x: &[f64]) -> Result<Variant> {
         let nl = sim.levels.len();
@@ -396,37 +434,10 @@ impl Family {
         let mut laws = Vec::with_capacity(nl);
         let mut frames = vec![None; nl];
         let mut expressions = vec![None; nl];
-        // block index of each masked level
-        let mut block = vec![None; nl];
-        let mut nb = 0;
-        for (li, m) in self.mask.iter().enumerate() {
-            if *m {
-                block[li] = Some(nb);
-                nb += 1;
-            }
-        }
+        let block = self.block_index(nl);
         for li in 0..nl {
-            let kn = sim.k_nominal[li];
             let damping = sim.nominal[li].damping();
-            let mut k = kn;
-            match self.kind {
-                Kind::LevelPerDof => {
-                    for d in 0..3 {
-                        k[d] = kn[d] * get(3 * li + d).exp();
-                    }
-                }
-                _ => {
-                    for d in 0..3 {
-                        k[d] = kn[d] * get(d).exp();
-                    }
-                }
-            }
-            if self.kind == Kind::LevelScalar && li > 0 {
-                let m = get(3 + li - 1).exp();
-                for kd in k.iter_mut().take(3) {
-                    *kd *= m;
-                }
-            }
+            let k = self.level_stiffness(sim.k_nominal[li], li, x);
             let linear = |k: [f64; 6]| BushingModel::Linear {
                 rot_stiffness: Vector3::new(k[0], k[1], k[2]),
                 trans_stiffness: Vector3::new(k[3], k[4], k[5]),
