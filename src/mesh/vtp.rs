@@ -341,6 +341,50 @@ fn count_attr(ctx: &Ctx, piece: &Elem, key: &str, loc: &str, required: bool) -> 
     }
 }
 
+/// The `<Points>` of a piece: `n_points` finite 3-D points.
+fn read_points(ctx: &Ctx, piece: &Elem, p: usize, n_points: usize) -> Result<Vec<Point3<f64>>> {
+    let name = ctx.name;
+    let loc = format!("line {}, Piece {p}", piece.line);
+    let mut vertices = Vec::new();
+    let pts = piece
+        .child("Points")
+        .ok_or_else(|| Error::parse(name, loc.clone(), "no <Points> element"))?;
+    let da = pts.child("DataArray").ok_or_else(|| {
+        Error::parse(
+            name,
+            format!("line {}, Piece {p} Points", pts.line),
+            "no <DataArray> in <Points>",
+        )
+    })?;
+    let aloc = format!("line {}, Piece {p} Points DataArray", da.line);
+    let ncomp = da.attr("NumberOfComponents").unwrap_or("1");
+    if ncomp.trim() != "3" {
+        return Err(Error::parse(
+            name,
+            aloc,
+            format!("NumberOfComponents=\"{ncomp}\", expected 3"),
+        ));
+    }
+    let vals = read_array(ctx, da, &aloc, Some(3 * n_points))?;
+    let vals = vals.into_f64();
+    vertices.reserve(n_points);
+    for (i, c) in vals.chunks_exact(3).enumerate() {
+        let pt = Point3::new(c[0], c[1], c[2]);
+        if !pt.coords.iter().all(|x| x.is_finite()) {
+            return Err(Error::parse(
+                name,
+                aloc,
+                format!(
+                    "point {i} has a non-finite coordinate ({}, {}, {})",
+                    c[0], c[1], c[2]
+                ),
+            ));
+        }
+        vertices.push(pt);
+    }
+    Ok(vertices)
+}
+
 fn read_piece(ctx: &Ctx, piece: &Elem, p: usize) -> Result<TriMesh> {
     let name = ctx.name;
     let loc = format!("line {}, Piece {p}", piece.line);
@@ -362,45 +406,11 @@ fn read_piece(ctx: &Ctx, piece: &Elem, p: usize) -> Result<TriMesh> {
             ));
         }
     }
-    let mut vertices = Vec::new();
-    if n_points > 0 {
-        let pts = piece
-            .child("Points")
-            .ok_or_else(|| Error::parse(name, loc.clone(), "no <Points> element"))?;
-        let da = pts.child("DataArray").ok_or_else(|| {
-            Error::parse(
-                name,
-                format!("line {}, Piece {p} Points", pts.line),
-                "no <DataArray> in <Points>",
-            )
-        })?;
-        let aloc = format!("line {}, Piece {p} Points DataArray", da.line);
-        let ncomp = da.attr("NumberOfComponents").unwrap_or("1");
-        if ncomp.trim() != "3" {
-            return Err(Error::parse(
-                name,
-                aloc,
-                format!("NumberOfComponents=\"{ncomp}\", expected 3"),
-            ));
-        }
-        let vals = read_array(ctx, da, &aloc, Some(3 * n_points))?;
-        let vals = vals.into_f64();
-        vertices.reserve(n_points);
-        for (i, c) in vals.chunks_exact(3).enumerate() {
-            let pt = Point3::new(c[0], c[1], c[2]);
-            if !pt.coords.iter().all(|x| x.is_finite()) {
-                return Err(Error::parse(
-                    name,
-                    aloc,
-                    format!(
-                        "point {i} has a non-finite coordinate ({}, {}, {})",
-                        c[0], c[1], c[2]
-                    ),
-                ));
-            }
-            vertices.push(pt);
-        }
-    }
+    let vertices = if n_points > 0 {
+        read_points(ctx, piece, p, n_points)?
+    } else {
+        Vec::new()
+    };
     let mut triangles = Vec::new();
     for (section, n_cells, strips) in [("Polys", n_polys, false), ("Strips", n_strips, true)] {
         if n_cells == 0 {
