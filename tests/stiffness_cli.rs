@@ -46,8 +46,16 @@ fn assert_round_trip(model: &Path, dir: &Path, tag: &str, csv: bool) {
             "{tag} {f}: {}",
             String::from_utf8_lossy(&o.stderr)
         );
+        // The model as written: its own bytes for a 4.6 file, the upgraded
+        // document for an older one (a 4.0 file is written as 4.6).
+        let doc = osim_spine::osim::Document::read(model).unwrap();
+        let want = if doc.original_version() == doc.version() {
+            std::fs::read(model).unwrap()
+        } else {
+            doc.to_xml_string().into_bytes()
+        };
         assert_eq!(
-            std::fs::read(model).unwrap(),
+            want,
             std::fs::read(&out).unwrap(),
             "{tag}: --list ({f}) then --table changed the model"
         );

@@ -103,8 +103,10 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     // the written model must still be a valid model the solver can read
     let model = new.model()?;
     crate::solver::SystemSpec::from_model(&model)?;
-    let missing = new.write_with_meshes(out, &[], false)?;
-    super::warn_missing_meshes(out, &missing, false);
+    // The input model with new stiffness only: mesh references are kept
+    // even when found nowhere (so --list then --table is byte-identical).
+    let missing = new.write_with_meshes(out, &[], true)?;
+    super::warn_missing_meshes(out, &missing, true);
     crate::errln!(
         "{} of {} levels set from {}, {} bushing(s) rewritten -> {}",
         laws.len(),

@@ -71,6 +71,30 @@ pub struct SphereOut {
     pub muscles_refused: Vec<String>,
 }
 
+/// No two spheres overlap in any test pose: a pair closer than the sum of
+/// their radii (with 2% margin) shrinks both in proportion. `centres[k]` is
+/// sphere `k`'s centre in each test pose.
+fn limit_overlaps(out: &mut [SphereOut], centres: &[Vec<Point3<f64>>]) {
+    for i in 0..out.len() {
+        for j in (i + 1)..out.len() {
+            let d = centres[i]
+                .iter()
+                .zip(&centres[j])
+                .map(|(a, b)| (a - b).norm())
+                .fold(f64::MAX, f64::min);
+            let sum = out[i].radius + out[j].radius;
+            if sum > 0.98 * d {
+                let f = 0.98 * d / sum;
+                out[i].radius *= f;
+                out[j].radius *= f;
+                let (ni, nj) = (out[i].name.clone(), out[j].name.clone());
+                out[i].limited_by = format!("no overlap with {nj}");
+                out[j].limited_by = format!("no overlap with {ni}");
+            }
+        }
+    }
+}
+
 /// Refit and constrain every WrapSphere of `doc` (already scaled, joints
 /// rewritten); `scales` gives each scaled body's factors, `base_radii` the
 /// base model's radius of each sphere by name. Edits `doc`.
@@ -123,25 +147,7 @@ pub fn refit_spheres(
             .collect()
     };
     let all_c: Vec<Vec<Point3<f64>>> = out.iter().map(centres).collect();
-    // No overlap.
-    for i in 0..out.len() {
-        for j in (i + 1)..out.len() {
-            let d = all_c[i]
-                .iter()
-                .zip(&all_c[j])
-                .map(|(a, b)| (a - b).norm())
-                .fold(f64::MAX, f64::min);
-            let sum = out[i].radius + out[j].radius;
-            if sum > 0.98 * d {
-                let f = 0.98 * d / sum;
-                out[i].radius *= f;
-                out[j].radius *= f;
-                let (ni, nj) = (out[i].name.clone(), out[j].name.clone());
-                out[i].limited_by = format!("no overlap with {nj}");
-                out[j].limited_by = format!("no overlap with {ni}");
-            }
-        }
-    }
+    limit_overlaps(&mut out, &all_c);
     // Muscles over the test poses, and the base pipeline's crossing rule
     // and inside-point fix on the generated pose.
     let mut mgeo = Vec::new();
