@@ -4,7 +4,7 @@
 //! default or a `--base` folder/file. Commands run from any directory and
 //! after `cargo install` without the repository.
 
-use crate::build::base::MeshSource;
+use crate::mesh::source::MeshSource;
 use crate::mesh::TriMesh;
 use crate::osim::geometry::{check_relative, resolve, MeshLookup};
 use crate::osim::Document;

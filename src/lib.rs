@@ -21,6 +21,7 @@
 // `cargo doc --document-private-items`), so a reader sees the stage's order.
 #![allow(rustdoc::private_intra_doc_links)]
 
+pub mod anatomy;
 pub mod build;
 pub mod calibrate;
 pub mod cli;

@@ -11,7 +11,7 @@
 mod common;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
-use osim_spine::build::anatomy::DimensionTable;
+use osim_spine::anatomy::DimensionTable;
 use osim_spine::build::procedural::{
     generate_generic, GenericModel, ProceduralOptions, Sex, Templates,
 };

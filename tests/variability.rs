@@ -4,9 +4,9 @@
 mod common;
 
 use nalgebra::Vector3;
+use osim_spine::evaluate::variability::{analyse, PalpationSet};
 use osim_spine::landmarks::io::csv_string;
 use osim_spine::landmarks::synth::{generate, SpineShape, SynthOptions};
-use osim_spine::landmarks::variability::{analyse, PalpationSet};
 use osim_spine::landmarks::{Code, Frame, Level, Units};
 use std::path::PathBuf;
 

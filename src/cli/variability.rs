@@ -10,7 +10,7 @@
 
 use crate::build::generate::Method;
 use crate::evaluate::propagation::PropagationOptions;
-use crate::landmarks::variability;
+use crate::evaluate::variability;
 use anyhow::Context;
 use std::collections::BTreeMap;
 use std::path::PathBuf;

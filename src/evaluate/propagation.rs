@@ -36,6 +36,7 @@
 //! generated in parallel (rayon, the caller's thread pool) and collected in
 //! palpation order, so the report is deterministic.
 
+use super::variability::PalpationSet;
 use super::{
     centre_definition, evaluate_model, mean_sd, med_iqr, metrics, summarise, truth_transform,
     Align, CentreDef, LevelSummary, MeanSd, MedIqr, ModelMetrics, ModelShape, Truth,
@@ -43,7 +44,6 @@ use super::{
 use crate::build::generate::{generate, GenerateOptions, Generated, Method};
 use crate::error::{Error, Result};
 use crate::landmarks::check::{check_completeness, check_set, Severity, GENERATE_BLOCKING};
-use crate::landmarks::variability::PalpationSet;
 use crate::landmarks::{LandmarkId, LandmarkSet, Level};
 use crate::osim::Document;
 use nalgebra::Point3;
@@ -539,7 +539,7 @@ fn group(kind: &str, within: &str, rows: &[&PalpationModel]) -> GroupSummary {
 /// (Cobb angle, lordosis, deg) and `model_centre_rmse_groups.svg` (centre
 /// RMSE per group).
 pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
-    use crate::landmarks::variability::{boxplot_svg, boxplot_svg_axis};
+    use super::variability::{boxplot_svg, boxplot_svg_axis};
     let ms: Vec<&ModelMetrics> = p.rows.iter().filter_map(|r| r.metrics.as_ref()).collect();
     let col = |f: &dyn Fn(&ModelMetrics) -> Option<f64>| -> Vec<f64> {
         ms.iter().filter_map(|m| f(m)).collect()

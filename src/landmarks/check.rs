@@ -70,7 +70,7 @@ use super::frames::mean_of;
 use super::io::{read_path, RawLandmarks};
 use super::synth::local_position;
 use super::{Code, LandmarkId, LandmarkSet, Level};
-use crate::build::anatomy::DimensionTable;
+use crate::anatomy::DimensionTable;
 use nalgebra::{DMatrix, Point3, Vector3};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -558,7 +558,7 @@ fn check_dimensions(cx: &mut Ctx, table: &DimensionTable, l: Level) {
                  code: &str,
                  what: &str,
                  v: Option<f64>,
-                 m: crate::build::anatomy::Measure,
+                 m: crate::anatomy::Measure,
                  widen: f64,
                  ids: &[LandmarkId]| {
         let Some(v) = v else { return };

@@ -3,7 +3,7 @@
 //! - **Units**: vertebral dimensions measured from the landmarks (endplate
 //!   widths SR-SL / IR-IL, depths SA-SP / IA-IP, body heights SEC-IEC) are
 //!   divided by the published means of their level
-//!   ([`crate::build::anatomy`]); the median ratio is ~1 for metres and
+//!   ([`crate::anatomy`]); the median ratio is ~1 for metres and
 //!   ~1000 for millimetres. A median ratio in [0.4, 2.5] says metres, in
 //!   [400, 2500] millimetres; anything else (centimetres, inches, a corrupt
 //!   file) is undetermined and refused.
@@ -21,7 +21,7 @@
 
 use super::io::RawLandmarks;
 use super::{Code, Frame, LandmarkId, Level, Units};
-use crate::build::anatomy::DimensionTable;
+use crate::anatomy::DimensionTable;
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
 

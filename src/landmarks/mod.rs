@@ -1,16 +1,17 @@
 //! Palpated landmark sets (`../shared/formats/landmarks.md`): reading CSV, TRC
-//! and JSON, units and frame handling, checks and variability statistics.
+//! and JSON, units and frame handling, checks and the statistics of repeated
+//! palpations ([`stats`]; the `variability` study itself is
+//! [`crate::evaluate::variability`]).
 //!
 //! | submodule | what lives there |
 //! |---|---|
-//! | (this file) | `Level`, `Code`, `LandmarkId`, `Units`, `Frame`, `LandmarkSet` |
+//! | (this file) | `Code` (and the landmark codes of each [`Level`], defined in [`crate::anatomy`]), `LandmarkId`, `Units`, `Frame`, `LandmarkSet` |
 //! | [`io`] | readers (CSV, TRC, JSON) into `RawLandmarks`, the CSV writer |
 //! | [`detect`] | units and frame detection from the anatomy (`Detection`) |
 //! | [`frames`] | per-vertebra ISB-style local frames and dimensions |
 //! | [`synth`] | synthetic landmark sets along a parametric spine curve |
 //! | [`check`] | `osim-spine check`: findings with stable `LM0xx` codes |
 //! | [`stats`] | ICC(2,1), Shapiro-Wilk, Friedman / Skillings-Mack, Nemenyi |
-//! | [`variability`] | `osim-spine variability`: repeated-palpation statistics |
 //!
 //! Internally a set is in metres in the OpenSim frame (x anterior, y
 //! superior, z right); the source's declared and detected units/frame are
@@ -22,74 +23,18 @@ pub mod frames;
 pub mod io;
 pub mod stats;
 pub mod synth;
-pub mod variability;
 
 use nalgebra::{Matrix3, Point3, Vector3};
 use std::collections::BTreeMap;
 use std::fmt;
 use std::str::FromStr;
 
+pub use crate::anatomy::Level;
 pub use detect::Detection;
 pub use io::{read_palpations, read_path, Palpation, RawLandmarks, RawPoint};
 
-/// A vertebral level, cranial to caudal (`T1 < T2 < ... < L5 < S1`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-#[rustfmt::skip]
-pub enum Level {
-    T1, T2, T3, T4, T5, T6, T7, T8, T9, T10, T11, T12,
-    L1, L2, L3, L4, L5,
-    S1,
-}
-
+/// The protocol's landmark codes per level (see [`Code`]).
 impl Level {
-    /// Every level, cranial to caudal.
-    #[rustfmt::skip]
-    pub const ALL: [Level; 18] = [
-        Level::T1, Level::T2, Level::T3, Level::T4, Level::T5, Level::T6, Level::T7,
-        Level::T8, Level::T9, Level::T10, Level::T11, Level::T12,
-        Level::L1, Level::L2, Level::L3, Level::L4, Level::L5, Level::S1,
-    ];
-
-    /// Position in [`Level::ALL`] (T1 = 0 ... S1 = 17).
-    pub fn index(self) -> usize {
-        self as usize
-    }
-
-    /// Level from its index in [`Level::ALL`].
-    pub fn from_index(i: usize) -> Option<Level> {
-        Level::ALL.get(i).copied()
-    }
-
-    /// The next level caudally (T12 -> L1, L5 -> S1, S1 -> None).
-    pub fn caudal(self) -> Option<Level> {
-        Level::from_index(self.index() + 1)
-    }
-
-    /// The next level cranially (T1 -> None).
-    pub fn cranial(self) -> Option<Level> {
-        self.index().checked_sub(1).and_then(Level::from_index)
-    }
-
-    /// OpenSim body name: `thoracic1`..`thoracic12`, `lumbar1`..`lumbar5`, `sacrum`.
-    pub fn body_name(self) -> String {
-        let i = self.index();
-        match i {
-            0..=11 => format!("thoracic{}", i + 1),
-            12..=16 => format!("lumbar{}", i - 11),
-            _ => "sacrum".to_string(),
-        }
-    }
-
-    /// Level from an OpenSim body name.
-    pub fn from_body_name(name: &str) -> Option<Level> {
-        Level::ALL.into_iter().find(|l| l.body_name() == name)
-    }
-
-    /// `true` for S1 (the sacrum carries fewer landmarks).
-    pub fn is_sacrum(self) -> bool {
-        self == Level::S1
-    }
-
     /// Landmark codes the protocol requires at this level.
     pub fn required_codes(self) -> &'static [Code] {
         if self.is_sacrum() {
@@ -106,29 +51,6 @@ impl Level {
         } else {
             true
         }
-    }
-}
-
-impl fmt::Display for Level {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let i = self.index();
-        match i {
-            0..=11 => write!(f, "T{}", i + 1),
-            12..=16 => write!(f, "L{}", i - 11),
-            _ => write!(f, "S1"),
-        }
-    }
-}
-
-impl FromStr for Level {
-    type Err = ();
-    /// Parses `T1`..`T12`, `L1`..`L5`, `S1` (case-insensitive).
-    fn from_str(s: &str) -> Result<Self, ()> {
-        let up = s.trim().to_ascii_uppercase();
-        Level::ALL
-            .into_iter()
-            .find(|l| l.to_string() == up)
-            .ok_or(())
     }
 }
 

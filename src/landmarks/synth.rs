@@ -1,5 +1,5 @@
 //! Synthetic landmark sets: clean vertebrae from the dimension table
-//! ([`crate::build::anatomy`]) stacked along a parametric spine curve, with
+//! ([`crate::anatomy`]) stacked along a parametric spine curve, with
 //! optional seeded Gaussian noise. Used by tests and as a fixture generator.
 //!
 //! Construction (OpenSim frame, metres): the sacrum's superior endplate
@@ -20,7 +20,7 @@
 
 use super::frames::VertebraFrame;
 use super::{Code, LandmarkSet, Level};
-use crate::build::anatomy::{DimensionTable, LevelDimensions};
+use crate::anatomy::{DimensionTable, LevelDimensions};
 use crate::error::{Error, Result};
 use nalgebra::{Point3, Rotation3, Vector3};
 use rand::SeedableRng;

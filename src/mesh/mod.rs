@@ -21,6 +21,7 @@ pub mod ply;
 pub mod query;
 pub mod register;
 pub mod sample;
+pub mod source;
 pub mod sphere;
 pub mod stl;
 pub mod vtp;

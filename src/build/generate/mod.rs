@@ -47,13 +47,15 @@ pub mod example;
 pub mod pose;
 pub mod scale;
 pub mod smooth;
+pub mod views;
 pub mod wraps;
 
+use crate::build::base::centres::{model_centres, CentreDef};
 use crate::build::base::kin::Kinematics;
-use crate::build::base::MeshSource;
 use crate::error::{Error, Result};
 use crate::landmarks::frames::frame_from_axes;
 use crate::landmarks::{Code, LandmarkId, LandmarkSet, Level};
+use crate::mesh::source::MeshSource;
 use crate::mesh::{umeyama, MeshQuery};
 use crate::osim::document::{set_f64, set_vec3};
 use crate::osim::model::Model;
@@ -482,8 +484,7 @@ pub fn generate(
     let out_model = doc.model()?;
     let kin2 = Kinematics::new(&out_model)?;
     let poses2 = kin2.body_poses(&kin2.default_values())?;
-    let centres =
-        crate::evaluate::model_centres(&out_model, &poses2, crate::evaluate::CentreDef::default())?;
+    let centres = model_centres(&out_model, &poses2, CentreDef::default())?;
     let (rows, outliers, landmark_rms) = vertebra_rows(&fits, &poses2);
     let levels_from_base: Vec<String> = markers
         .keys()
@@ -507,7 +508,7 @@ pub fn generate(
                 model_markers.push(pb * x * Point3::from(mk.location));
             }
         }
-        crate::evaluate::plot::generate_views(&centres, &registered, &model_markers)
+        views::generate_views(&centres, &registered, &model_markers)
     } else {
         Vec::new()
     };

@@ -32,10 +32,10 @@
 //! Figures: [`boxplot_svg`] draws every box plot (the per-landmark IQRs
 //! here, the model metrics in [`crate::evaluate::propagation::boxplots`]).
 
-use super::stats::{self, Icc};
-use super::{Code, LandmarkId, LandmarkSet, Level};
+use super::propagation::{self, ModelPropagation, PropagationOptions};
 use crate::error::{Error, Result};
-use crate::evaluate::propagation::{self, ModelPropagation, PropagationOptions};
+use crate::landmarks::stats::{self, Icc};
+use crate::landmarks::{Code, LandmarkId, LandmarkSet, Level};
 use crate::osim::Document;
 use crate::util::write_atomic;
 use nalgebra::Vector3;
@@ -58,7 +58,7 @@ pub struct PalpationSet {
 pub fn load_palpations(paths: &[PathBuf]) -> Result<Vec<PalpationSet>> {
     let mut out = Vec::new();
     for p in paths {
-        for pal in super::io::read_palpations(p)? {
+        for pal in crate::landmarks::io::read_palpations(p)? {
             let set = pal.raw.to_set()?;
             out.push(PalpationSet {
                 operator: pal.operator,
