@@ -769,7 +769,11 @@ fn noise_study_table() {
                 cobb_sd: sd(&def.cobb_fixed),
                 bias: bias(&def.cobb_fixed),
                 beats_independent_rmse: median(&def.rmse) < median(&off.rmse),
-                beats_thesis: median(&def.rmse) < median(&th.rmse) && sd(&def.cobb) < sd(&th.cobb),
+                // Cobb spread with the truth's end vertebrae: with automatic
+                // ends a shape whose two curves are nearly equal (lumbar 60:
+                // -57.7 against 55.5) flips between them for every method.
+                beats_thesis: median(&def.rmse) < median(&th.rmse)
+                    && sd(&def.cobb_fixed) < sd(&th.cobb_fixed),
             });
             if with_outliers {
                 outlier_rows.push((

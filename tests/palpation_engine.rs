@@ -198,7 +198,12 @@ fn procedural_meshes_follow_the_protocol() {
 }
 
 #[test]
-#[ignore = "on the dense Visible Human meshes SEC/IEC and SA/SP/IA/IP land up to 2.9 mm (L4) off the mid-sagittal plane against the 2 mm of the protocol: the endplate centroid is not held on the plane (issue 16, open)"]
+fn dense_meshes_follow_the_protocol() {
+    check_family(&dense_meshes(), &dense_hint());
+}
+
+#[test]
+#[ignore = "with the mesh moved and the frame hint 30 deg off, L1_IEC, L2_IEC and L4_SEC land 2.4-4.1 mm off the mid-sagittal plane (area centroid of an asymmetric endplate region is not projected onto the plane): engine fix pending"]
 fn dense_meshes_follow_the_protocol_in_any_pose() {
     let ps = check_family(&dense_meshes(), &dense_hint());
     // A rigid motion of the mesh (and a hint 30 deg off) moves every landmark with it.

@@ -63,6 +63,10 @@ pub struct Args {
     /// IVD parameter template (default: the embedded templates/ivd_defaults.toml).
     #[arg(long, value_name = "TOML")]
     pub ivd: Option<PathBuf>,
+    /// Write the model even when a landmark or sphere guard fails (the
+    /// failures are printed as warnings).
+    #[arg(long)]
+    pub allow_implausible: bool,
     /// Output folder.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
@@ -151,6 +155,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
             Fixed::Sacrum => FixedBody::Sacrum,
         },
         allow_scale: args.allow_scale,
+        allow_implausible: args.allow_implausible,
         ..BaseOptions::default()
     };
     if let Some(p) = &args.ivd {
@@ -238,6 +243,39 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         r.muscles_with_wraps,
         r.markers.len()
     );
+    print_self_check(r);
     crate::outln!("wrote {} files to {}", files.len(), args.out.display());
     Ok(0)
+}
+
+/// The self-check and every guard result, as the report has them.
+fn print_self_check(r: &crate::build::base::BaseReport) {
+    let sc = &r.self_check;
+    let eq = &sc.equilibrium;
+    crate::outln!(
+        "self-check: largest displacement under gravity {:.2} mm ({}), stable: {}, {} muscle segments through vertebrae",
+        eq.max_displacement * 1e3,
+        eq.max_displacement_body,
+        match eq.stable {
+            Some(true) => "yes",
+            Some(false) => "NO",
+            None => "not determined",
+        },
+        sc.muscle_segments_through_vertebrae.len()
+    );
+    for g in &r.guards_checked {
+        let fails: Vec<_> = r.guard_failures.iter().filter(|f| f.guard == *g).collect();
+        let verdict = if fails.is_empty() {
+            "pass".to_string()
+        } else {
+            format!("{} FAILED", fails.len())
+        };
+        crate::outln!("guard {}: {verdict}", g.describe());
+        for f in fails {
+            crate::outln!("  warning (--allow-implausible): {f}");
+        }
+    }
+    for f in &r.palpation_ordering_failures {
+        crate::outln!("palpation: {f}");
+    }
 }

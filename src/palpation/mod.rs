@@ -115,6 +115,17 @@ pub struct VertebraPalpation {
     /// Radius of that least-squares sphere.
     pub centre_radius: f64,
     pub findings: Vec<Finding>,
+    /// How the centre's sphere was fitted.
+    pub centre_fit: CentreFit,
+}
+
+/// The least-squares sphere fit behind the vertebral centre.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CentreFit {
+    /// Anterior-surface nodes used.
+    pub nodes: usize,
+    /// RMS of the nodes' distances to the sphere (m).
+    pub rms: f64,
 }
 
 impl VertebraPalpation {
@@ -126,6 +137,17 @@ impl VertebraPalpation {
     /// Does any finding have error severity?
     pub fn has_errors(&self) -> bool {
         self.findings.iter().any(|f| f.severity == Severity::Error)
+    }
+
+    /// The same palpation after a rigid motion of the mesh.
+    pub fn transformed(&self, iso: &Isometry3<f64>) -> VertebraPalpation {
+        let mut out = self.clone();
+        out.frame = iso * self.frame;
+        out.centre = iso * self.centre;
+        for l in out.landmarks.values_mut() {
+            l.point = iso * l.point;
+        }
+        out
     }
 
     /// A landmark expressed in the vertebra's own frame.
@@ -236,7 +258,7 @@ pub fn palpate_vertebra(
     let mut findings = Vec::new();
     place_endplate_landmarks(&st, level, &mut landmarks, &mut findings);
     place_pedicles(&ctx, &st, level, &mut landmarks)?;
-    let (centre, radius) = centre_of(&ctx, &st)?;
+    let (centre, radius, centre_fit) = centre_of(&ctx, &st)?;
     let lm = &st.lm;
     let sec = landmarks[&Code::SEC].point;
     let iec = landmarks[&Code::IEC].point;
@@ -260,6 +282,7 @@ pub fn palpate_vertebra(
         centre: lm.to_mesh_point(&centre),
         centre_radius: radius,
         findings,
+        centre_fit,
     };
     checks::anatomy_findings(&st, sym_cost, &mut out);
     out.findings.extend(protocol_findings(&out));
@@ -322,7 +345,8 @@ fn place_pedicles(
     out: &mut BTreeMap<Code, PalpatedLandmark>,
 ) -> Result<()> {
     for (side, top, bot) in [(1.0, Code::PTR, Code::PBR), (-1.0, Code::PTL, Code::PBL)] {
-        let p = pedicle::pedicle_section(&st.lm, &st.walls, side).ok_or_else(|| {
+        let x_cut = pedicle::pedicle_cut_x(&st.sup_pts, &st.inf_pts);
+        let p = pedicle::pedicle_section(&st.lm, x_cut, side).ok_or_else(|| {
             Error::invalid(
                 ctx,
                 format!(
@@ -339,24 +363,22 @@ fn place_pedicles(
 }
 
 /// The vertebral centre and sphere radius (local coordinates).
-fn centre_of(ctx: &str, st: &BodyState) -> Result<(Point3<f64>, f64)> {
-    let (s, e) = (&st.sup_pts, &st.inf_pts);
-    let rim = 0.25
-        * ((s.front - s.back).norm()
-            + (s.right - s.left).norm()
-            + (e.front - e.back).norm()
-            + (e.right - e.left).norm())
-        * 0.5;
-    let (sphere, _n) = pedicle::vertebral_centre(
-        &st.lm, &st.walls, &st.sup, &st.inf, &s.centre, &e.centre, rim,
-    )
-    .ok_or_else(|| {
-        Error::invalid(
-            ctx,
-            "vertebral centre: too few anterior-surface nodes of the body for a sphere fit",
-        )
-    })?;
-    Ok((sphere.centre, sphere.radius))
+fn centre_of(ctx: &str, st: &BodyState) -> Result<(Point3<f64>, f64, CentreFit)> {
+    let (sphere, n) =
+        pedicle::vertebral_centre(&st.lm, &st.sup_pts, &st.inf_pts).ok_or_else(|| {
+            Error::invalid(
+                ctx,
+                "vertebral centre: too few anterior-surface nodes of the body for a sphere fit",
+            )
+        })?;
+    Ok((
+        sphere.centre,
+        sphere.radius,
+        CentreFit {
+            nodes: n,
+            rms: sphere.rms,
+        },
+    ))
 }
 
 /// A rotation's columns, for tests and callers wanting the axes.

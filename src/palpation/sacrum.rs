@@ -18,49 +18,69 @@ use crate::mesh::{MeshQuery, TriMesh};
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use std::collections::BTreeMap;
 
-/// Connected groups of the given faces (sharing an edge).
-fn components(lm: &LocalMesh, faces: &[usize]) -> Vec<Vec<usize>> {
-    let mut parent: Vec<usize> = (0..faces.len()).collect();
-    fn root(p: &mut [usize], i: usize) -> usize {
-        let mut r = i;
-        while p[r] != r {
-            r = p[r];
-        }
-        p[i] = r;
-        r
-    }
-    let mut edge_owner: BTreeMap<[u32; 2], usize> = BTreeMap::new();
-    for (i, &f) in faces.iter().enumerate() {
-        let t = lm.tris[f];
+/// Edge-adjacent faces of every face.
+fn neighbours(lm: &LocalMesh) -> Vec<Vec<usize>> {
+    let mut edge_faces: BTreeMap<[u32; 2], Vec<usize>> = BTreeMap::new();
+    for (f, t) in lm.tris.iter().enumerate() {
         for j in 0..3 {
             let e = [t[j].min(t[(j + 1) % 3]), t[j].max(t[(j + 1) % 3])];
-            if let Some(&k) = edge_owner.get(&e) {
-                let (a, b) = (root(&mut parent, i), root(&mut parent, k));
-                parent[a] = b;
-            } else {
-                edge_owner.insert(e, i);
-            }
+            edge_faces.entry(e).or_default().push(f);
         }
     }
-    let mut groups: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
-    for (i, &f) in faces.iter().enumerate() {
-        let r = root(&mut parent, i);
-        groups.entry(r).or_default().push(f);
+    let mut out = vec![Vec::new(); lm.tris.len()];
+    for fs in edge_faces.values() {
+        for &a in fs {
+            out[a].extend(fs.iter().copied().filter(|&b| b != a));
+        }
     }
-    groups.into_values().collect()
+    out
 }
 
-/// The plateau patch: cranial-facing midline faces, grouped; the largest,
-/// or the one nearest L5's inferior endplate centre (local coordinates).
-fn plateau_patch(lm: &LocalMesh, l5_iec: Option<Point3<f64>>) -> Option<Vec<usize>> {
-    let zs = lm.verts.iter().map(|p| p.z.abs()).fold(0.0, f64::max);
+/// Largest angle between a face of a flat patch and the patch's seed.
+const FLAT_DEG: f64 = 12.0;
+
+/// Flat cranial patches: faces facing within 50 deg of cranial, grown from
+/// the largest remaining face over edge neighbours whose normals stay
+/// within [`FLAT_DEG`] of the seed's.
+fn flat_patches(lm: &LocalMesh) -> Vec<Vec<usize>> {
     let cos50 = 50f64.to_radians().cos();
-    let cand: Vec<usize> = (0..lm.tris.len())
-        .filter(|&f| lm.normals[f].y >= cos50 && lm.centroids[f].z.abs() < 0.3 * zs)
+    let cos_flat = FLAT_DEG.to_radians().cos();
+    let nb = neighbours(lm);
+    let mut cand: Vec<usize> = (0..lm.tris.len())
+        .filter(|&f| lm.normals[f].y >= cos50)
         .collect();
-    let groups = components(lm, &cand);
+    // Seeds by decreasing area (ties by index): deterministic.
+    cand.sort_by(|&a, &b| lm.areas[b].total_cmp(&lm.areas[a]).then(a.cmp(&b)));
+    let mut taken = vec![false; lm.tris.len()];
+    let mut patches = Vec::new();
+    for &seed in &cand {
+        if taken[seed] {
+            continue;
+        }
+        let n0 = lm.normals[seed];
+        let mut patch = vec![seed];
+        taken[seed] = true;
+        let mut i = 0;
+        while i < patch.len() {
+            for &g in &nb[patch[i]] {
+                if !taken[g] && lm.normals[g].y >= cos50 && lm.normals[g].dot(&n0) >= cos_flat {
+                    taken[g] = true;
+                    patch.push(g);
+                }
+            }
+            i += 1;
+        }
+        patch.sort_unstable();
+        patches.push(patch);
+    }
+    patches
+}
+
+/// The plateau patch: the largest flat cranial patch; with L5 given, the
+/// largest whose centre lies within `reach` of L5's inferior endplate
+/// centre (local coordinates).
+fn plateau_patch(lm: &LocalMesh, l5: Option<(Point3<f64>, f64)>) -> Option<Vec<usize>> {
     let area = |g: &Vec<usize>| g.iter().map(|&f| lm.areas[f]).sum::<f64>();
-    let max_area = groups.iter().map(area).fold(0.0, f64::max);
     let centroid = |g: &Vec<usize>| {
         Point3::from(
             g.iter().fold(Vector3::zeros(), |s, &f| {
@@ -68,34 +88,57 @@ fn plateau_patch(lm: &LocalMesh, l5_iec: Option<Point3<f64>>) -> Option<Vec<usiz
             }) / area(g),
         )
     };
-    match l5_iec {
-        Some(t) => groups
-            .into_iter()
-            .filter(|g| area(g) >= 0.1 * max_area)
-            .min_by(|a, b| {
-                (centroid(a) - t)
-                    .norm()
-                    .total_cmp(&(centroid(b) - t).norm())
-            }),
-        None => groups
-            .into_iter()
-            .max_by(|a, b| area(a).total_cmp(&area(b))),
-    }
+    let patches = flat_patches(lm);
+    let near: Vec<&Vec<usize>> = match l5 {
+        Some((iec, reach)) => patches
+            .iter()
+            .filter(|g| (centroid(g) - iec).norm() <= reach)
+            .collect(),
+        None => patches.iter().collect(),
+    };
+    let pool = if near.is_empty() {
+        patches.iter().collect()
+    } else {
+        near
+    };
+    pool.into_iter()
+        .max_by(|a, b| area(a).total_cmp(&area(b)))
+        .cloned()
 }
 
-/// The plateau region by the endplate rule around the patch.
+/// The plateau plane (area-weighted least-squares plane through the
+/// patch's face centroids, normal cranial) and the region by the endplate
+/// rule around the patch.
 fn plateau_region(lm: &LocalMesh, patch: &[usize]) -> Option<Endplate> {
     let a: f64 = patch.iter().map(|&f| lm.areas[f]).sum();
-    let n = patch
+    if a.is_nan() || a <= 0.0 {
+        return None;
+    }
+    let c = patch.iter().fold(Vector3::zeros(), |s, &f| {
+        s + lm.centroids[f].coords * lm.areas[f]
+    }) / a;
+    let cov = patch.iter().fold(nalgebra::Matrix3::zeros(), |m, &f| {
+        let d = lm.centroids[f].coords - c;
+        m + d * d.transpose() * lm.areas[f]
+    });
+    let mean_n = patch
         .iter()
-        .fold(Vector3::zeros(), |s, &f| s + lm.normals[f] * lm.areas[f])
-        .try_normalize(1e-12)?;
-    let mut hs: Vec<f64> = patch
-        .iter()
-        .map(|&f| n.dot(&lm.centroids[f].coords))
-        .collect();
-    hs.sort_by(f64::total_cmp);
-    let d = hs[hs.len() / 2];
+        .fold(Vector3::zeros(), |s, &f| s + lm.normals[f] * lm.areas[f]);
+    // A single face (or a strip) does not span a plane: its mean normal.
+    let eig = cov.symmetric_eigen();
+    let mut ev: Vec<usize> = vec![0, 1, 2];
+    ev.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
+    let n = if eig.eigenvalues[ev[1]] > 1e-3 * eig.eigenvalues[ev[2]] {
+        let n: Vector3<f64> = eig.eigenvectors.column(ev[0]).into_owned();
+        if n.dot(&mean_n) < 0.0 {
+            -n
+        } else {
+            n
+        }
+    } else {
+        mean_n.try_normalize(1e-12)?
+    };
+    let d = n.dot(&c);
     let (mut lo, mut hi) = (
         Point3::new(f64::MAX, 0.0, f64::MAX),
         Point3::new(f64::MIN, 0.0, f64::MIN),
@@ -117,7 +160,7 @@ fn plateau_region(lm: &LocalMesh, patch: &[usize]) -> Option<Endplate> {
         })
         .collect();
     let area = faces.iter().map(|&f| lm.areas[f]).sum();
-    (a > 0.0 && !faces.is_empty()).then_some(Endplate {
+    (!faces.is_empty()).then_some(Endplate {
         faces,
         normal: n,
         offset: d,
@@ -148,10 +191,14 @@ pub fn palpate_sacrum(
     let c = prepared.area_centroid().unwrap_or(prepared.vertices[0]);
     let origin = c - n * (n.dot(&c.coords) - plane.offset);
     let lm = LocalMesh::new(&prepared, frame_rotation(&hint.anterior, &n), origin);
-    let l5_iec = facing_l5
-        .and_then(|l5| l5.landmarks.get(&Code::IEC))
-        .map(|l| lm.to_mesh.inverse() * l.point);
-    let patch = plateau_patch(&lm, l5_iec).ok_or_else(|| {
+    // L5's inferior endplate centre and its reach (1.5 x its depth).
+    let l5 = facing_l5.and_then(|l5| {
+        let iec = l5.landmarks.get(&Code::IEC)?.point;
+        let depth =
+            (l5.landmarks.get(&Code::IA)?.point - l5.landmarks.get(&Code::IP)?.point).norm();
+        Some((lm.to_mesh.inverse() * iec, 1.5 * depth))
+    });
+    let patch = plateau_patch(&lm, l5).ok_or_else(|| {
         Error::invalid(ctx, "SEC: no cranial-facing patch on the sacrum's midline")
     })?;
     let ep = plateau_region(&lm, &patch)
@@ -160,7 +207,7 @@ pub fn palpate_sacrum(
         .ok_or_else(|| Error::invalid(ctx, "SEC: the sacral plateau region is degenerate"))?;
     let rot = plateau_rotation(&ep.normal);
     let mut findings = Vec::new();
-    let mut landmarks = plateau_landmarks(&lm, &ep, &pts, &rot, facing_l5, &mut findings)?;
+    let mut landmarks = plateau_landmarks(&lm, &ep, &pts, facing_l5, &mut findings)?;
     for l in landmarks.values_mut() {
         l.point = lm.to_mesh_point(&l.point);
     }
@@ -175,6 +222,7 @@ pub fn palpate_sacrum(
         centre: lm.to_mesh_point(&centre_local),
         centre_radius: 0.25 * (pts.right - pts.left).norm(),
         findings,
+        centre_fit: super::CentreFit::default(),
     };
     out.findings.extend(protocol_findings(&out));
     Ok(out)
@@ -185,7 +233,6 @@ fn plateau_landmarks(
     lm: &LocalMesh,
     ep: &Endplate,
     pts: &EndplatePoints,
-    rot: &Rotation3<f64>,
     facing_l5: Option<&VertebraPalpation>,
     findings: &mut Vec<Finding>,
 ) -> Result<BTreeMap<Code, PalpatedLandmark>> {
@@ -216,27 +263,25 @@ fn plateau_landmarks(
         code: Some(SA),
         severity: Severity::Warning,
         message: format!(
-            "the sacral plateau is too coarse ({} faces, {:.1} mm deep): SA, SP, SR, SL keep the layout of the L5 inferior endplate",
+            "the sacral plateau is too coarse ({} faces, {:.1} mm deep): SEC, SA, SP, SR, SL are L5's inferior endplate landmarks projected onto the plateau plane",
             ep.faces.len(),
             depth * 1e3
         ),
     });
-    let q = lm.query()?;
-    let iec = l5
-        .local(IEC)
-        .ok_or_else(|| Error::invalid("palpation of S1", "L5 has no IEC"))?;
-    for (c, from) in [(SA, IA), (SP, IP), (SR, IR), (SL, IL)] {
-        let Some(p) = l5.local(from) else { continue };
-        let mut v = p - iec;
-        v.y = 0.0;
-        let target = pts.centre + rot * v;
-        let on = q.closest_point(&target).point;
+    // The plateau plane n . p = offset; L5's inferior landmarks dropped onto it.
+    let to_local = lm.to_mesh.inverse();
+    for (c, from) in [(SEC, IEC), (SA, IA), (SP, IP), (SR, IR), (SL, IL)] {
+        let Some(l) = l5.landmarks.get(&from) else {
+            continue;
+        };
+        let p = to_local * l.point;
+        let on = p - ep.normal * (ep.normal.dot(&p.coords) - ep.offset);
         out.insert(
             c,
             landmark(
                 on,
                 0.5,
-                Some(format!("layout of L5_{from} on a coarse plateau")),
+                Some(format!("L5_{from} projected onto a coarse plateau")),
             ),
         );
     }

@@ -14,9 +14,11 @@
 //! 3. swap in a mean sacrum ([`sacrum`]);
 //! 4. rebuild every IVD joint as a 6-DoF CustomJoint with a coincident
 //!    BushingForce ([`joints`], parameters from [`template`]);
-//! 5. fit a wrapping sphere to each vertebral body and add PathWraps
-//!    ([`wrap`]);
-//! 6. palpate the landmark markers on the model's own meshes ([`palpate`]);
+//! 5. palpate every vertebra with the palpation engine
+//!    ([`crate::palpation`]): its landmarks become the markers, its
+//!    vertebral centre (thesis sphere rule) the centre of the vertebral-body
+//!    wrapping sphere; add PathWraps ([`wrap`]);
+//! 6. the S1 plateau markers by the engine's sacrum rule;
 //! 7. self-check ([`check`]) and draw the report views ([`views`]).
 //!
 //! [`build_base`] computes everything in memory and writes nothing; meshes
@@ -25,6 +27,7 @@
 
 pub mod centres;
 pub mod check;
+pub mod guards;
 pub mod joints;
 pub mod kin;
 pub mod palpate;
@@ -43,8 +46,9 @@ use crate::osim::builders;
 use crate::osim::model::{Geometry, Model};
 use crate::osim::xml::Node;
 use crate::osim::Document;
+use crate::palpation::{self, FrameHint, VertebraPalpation};
 use kin::{Kinematics, Values};
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use sanity::{SanityRow, Segment};
 use std::collections::{BTreeMap, BTreeSet};
 pub use template::IvdParams;
@@ -78,6 +82,8 @@ pub struct BaseOptions {
     pub max_sacrum_rms: f64,
     /// File name given to the swapped-in sacrum mesh.
     pub sacrum_file: String,
+    /// Write the model even when a guard fails (failures become warnings).
+    pub allow_implausible: bool,
 }
 
 impl Default for BaseOptions {
@@ -91,6 +97,7 @@ impl Default for BaseOptions {
             ivd: IvdParams::defaults(),
             max_sacrum_rms: 0.012,
             sacrum_file: "sacrum_mean.vtp".into(),
+            allow_implausible: false,
         }
     }
 }
@@ -134,7 +141,13 @@ pub struct BaseReport {
     pub path_wraps_added: usize,
     pub muscles_with_wraps: usize,
     pub markers: Vec<MarkerRow>,
+    /// Every finding of the palpation engine (warnings and errors).
     pub palpation_ordering_failures: Vec<String>,
+    /// Guards checked per vertebra ([`guards::Guard::ALL`]) and their failures.
+    pub guards_checked: Vec<guards::Guard>,
+    pub guard_failures: Vec<guards::GuardFailure>,
+    /// Whether failures were allowed (`--allow-implausible`).
+    pub allow_implausible: bool,
     pub self_check: check::SelfCheck,
 }
 
@@ -641,71 +654,16 @@ pub fn build_base(
         }
     }
 
-    // ---- 6. spheres
-    let mut spheres = Vec::new();
-    for v in &vs {
-        let ctx = format!("vertebra {} ({}, mesh {})", v.level, v.body, v.mesh_file);
-        let (nodes, source_desc, reg_rms) = match opts.body_meshes.get(&v.level) {
-            Some((name, bm)) => {
-                let (moved, rms) = wrap::register_body_mesh(&ctx, bm, &v.query)?;
-                (
-                    wrap::anterior_nodes(&format!("{ctx}, body mesh {name}"), &moved)?,
-                    format!("body-only mesh {name} registered onto {}", v.mesh_file),
-                    Some(rms * 1e3),
-                )
-            }
-            None => {
-                let region = palpate::body_region(&ctx, &v.query, &v.seg)?;
-                let sub = region.submesh(&v.mesh);
-                (
-                    wrap::anterior_nodes(&ctx, &sub)?,
-                    format!("vertebral body cut from {}", v.mesh_file),
-                    None,
-                )
-            }
-        };
-        // Plausibility: centre inside the vertebra, radius at most the body depth.
-        let depth = palpate::body_region(&ctx, &v.query, &v.seg)
-            .map(|r| r.x_anterior - r.x_posterior)
-            .unwrap_or(f64::MAX);
-        let plausible = |s: &crate::mesh::Sphere| v.query.contains(&s.centre) && s.radius <= depth;
-        let mut s = wrap::fit_nodes(&ctx, &nodes).ok();
-        let mut nodes = nodes;
-        let mut source_desc = source_desc;
-        if nodes.len() < wrap::MIN_NODES || !s.as_ref().map(plausible).unwrap_or(false) {
-            let body = match opts.body_meshes.get(&v.level) {
-                Some((_, bm)) => wrap::register_body_mesh(&ctx, bm, &v.query)?.0,
-                None => palpate::body_region(&ctx, &v.query, &v.seg)?.submesh(&v.mesh),
-            };
-            let relaxed = wrap::anterior_nodes_relaxed(&ctx, &body)?;
-            if let Ok(s2) = wrap::fit_nodes(&ctx, &relaxed) {
-                if plausible(&s2) || s.is_none() {
-                    s = Some(s2);
-                    nodes = relaxed;
-                    source_desc.push_str(" (relaxed node rule)");
-                }
-            }
-        }
-        let s = s.ok_or_else(|| {
-            Error::invalid(&ctx, "no sphere could be fitted to the anterior wall")
-        })?;
-        spheres.push(wrap::SphereRow {
-            level: v.level.to_string(),
-            body: v.body.clone(),
-            name: format!("{}_body_sphere", v.level),
-            centre: [s.centre.x, s.centre.y, s.centre.z],
-            radius_fit: s.radius,
-            radius_no_overlap: s.radius,
-            radius: s.radius,
-            rms_mm: s.rms * 1e3,
-            nodes: nodes.len(),
-            centre_inside_mesh: v.query.contains(&s.centre),
-            source: source_desc,
-            body_mesh_registration_rms_mm: reg_rms,
-            muscles: vec![],
-            muscles_refused: vec![],
-        });
-    }
+    // ---- 6. palpation engine: landmarks and vertebral-body spheres; guards
+    let palps = palpate_vertebrae(&vs)?;
+    let guard_failures: Vec<guards::GuardFailure> =
+        palps.iter().flat_map(guards::check_vertebra).collect();
+    refuse_implausible(&guard_failures, opts.allow_implausible)?;
+    let mut spheres: Vec<wrap::SphereRow> = vs
+        .iter()
+        .zip(&palps)
+        .map(|(v, p)| body_sphere(v, p, opts.body_meshes.contains_key(&v.level)))
+        .collect();
 
     // ---- 7. wrapping assignment on the assembled model
     let prefixes: Vec<String> = rebuilt
@@ -864,19 +822,13 @@ pub fn build_base(
     }
 
     // ---- 8. palpation -> markers
-    let mut markers = Vec::new();
     let mut ordering = Vec::new();
     let mut marker_els = Vec::new();
-    for v in &vs {
-        let ctx = format!("vertebra {} ({}, mesh {})", v.level, v.body, v.mesh_file);
-        let p = palpate::palpate_vertebra(&ctx, &v.query, &v.seg)?;
-        for f in &p.ordering_failures {
-            ordering.push(format!("{}: {f}", v.level));
-        }
-        for code in Code::ALL {
-            if let Some(pt) = p.points.get(&code) {
-                markers.push((v.level, code, v.body.clone(), *pt, &v.query));
-            }
+    let mut markers = Vec::new();
+    for (v, p) in vs.iter().zip(&palps) {
+        ordering.extend(p.findings.iter().map(|f| f.to_string()));
+        for (code, l) in &p.landmarks {
+            markers.push((v.level, *code, v.body.clone(), l.point, &v.query));
         }
     }
     let sacrum_query = MeshQuery::new(&sacrum_mesh)
@@ -887,17 +839,14 @@ pub fn build_base(
             .find(|(u, _, _)| *u == Level::L5)
             .map(|(_, _, i)| *i)
             .ok_or_else(|| Error::invalid(&gfile, "no L5-S1 joint"))?;
-        let p = palpate::palpate_sacrum(
-            &format!("sacrum mesh {sacrum_file}"),
-            &sacrum_query,
-            &frames[i].parent_in_body,
-        )?;
-        for f in &p.ordering_failures {
-            ordering.push(format!("S1: {f}"));
-        }
+        let pose = kin0.body_poses(&defaults)?;
+        let l5 = vs.iter().zip(&palps).find(|(v, _)| v.level == Level::L5);
+        let p = palpate_sacrum_of(&sacrum_mesh, &frames[i].parent_in_body, l5, &pose)
+            .map_err(|e| Error::invalid(format!("sacrum mesh {sacrum_file}"), e.to_string()))?;
+        ordering.extend(p.findings.iter().map(|f| f.to_string()));
         for code in Code::SACRUM_REQUIRED {
-            if let Some(pt) = p.points.get(&code) {
-                markers.push((Level::S1, code, "sacrum".into(), *pt, &sacrum_query));
+            if let Some(l) = p.landmarks.get(&code) {
+                markers.push((Level::S1, code, "sacrum".into(), l.point, &sacrum_query));
             }
         }
     }
@@ -982,6 +931,9 @@ pub fn build_base(
         muscles_with_wraps,
         markers: marker_rows,
         palpation_ordering_failures: ordering,
+        guards_checked: guards::Guard::ALL.to_vec(),
+        guard_failures,
+        allow_implausible: opts.allow_implausible,
         self_check,
     };
     Ok(BaseModel {
@@ -990,4 +942,83 @@ pub fn build_base(
         report,
         views,
     })
+}
+
+/// The palpation engine on every vertebra mesh (each in its body frame).
+fn palpate_vertebrae(vs: &[Vert]) -> Result<Vec<VertebraPalpation>> {
+    vs.iter()
+        .map(|v| {
+            palpation::palpate_vertebra(&v.mesh, v.level, &FrameHint::body_frame()).map_err(|e| {
+                Error::invalid(
+                    format!("vertebra {} ({}, mesh {})", v.level, v.body, v.mesh_file),
+                    e.to_string(),
+                )
+            })
+        })
+        .collect()
+}
+
+/// The vertebral-body wrapping sphere: centred on the vertebral centre,
+/// with the radius of its least-squares sphere (shrunk later if needed).
+fn body_sphere(v: &Vert, p: &VertebraPalpation, body_mesh_given: bool) -> wrap::SphereRow {
+    let mut source = format!(
+        "vertebral centre by the palpation engine (thesis sphere rule) on {}",
+        v.mesh_file
+    );
+    if body_mesh_given {
+        source.push_str("; the body-only mesh given is not used for the centre");
+    }
+    wrap::SphereRow {
+        level: v.level.to_string(),
+        body: v.body.clone(),
+        name: format!("{}_body_sphere", v.level),
+        centre: [p.centre.x, p.centre.y, p.centre.z],
+        radius_fit: p.centre_radius,
+        radius_no_overlap: p.centre_radius,
+        radius: p.centre_radius,
+        rms_mm: p.centre_fit.rms * 1e3,
+        nodes: p.centre_fit.nodes,
+        centre_inside_mesh: v.query.contains(&p.centre),
+        source,
+        body_mesh_registration_rms_mm: None,
+        muscles: vec![],
+        muscles_refused: vec![],
+    }
+}
+
+/// The S1 plateau on the sacrum mesh (sacrum body frame): the hint is the
+/// L5-S1 joint's parent frame; L5's palpation, carried into the sacrum's
+/// frame at the default pose, selects the plateau and gives the coarse
+/// layout.
+fn palpate_sacrum_of(
+    mesh: &TriMesh,
+    joint: &Isometry3<f64>,
+    l5: Option<(&Vert, &VertebraPalpation)>,
+    pose: &BTreeMap<String, Isometry3<f64>>,
+) -> Result<VertebraPalpation> {
+    let hint = FrameHint {
+        anterior: joint.rotation * Vector3::x(),
+        cranial: joint.rotation * Vector3::y(),
+    };
+    let facing = l5.and_then(|(v, p)| {
+        let to_sacrum = pose.get("sacrum")?.inverse() * pose.get(&v.body)?;
+        Some(p.transformed(&to_sacrum))
+    });
+    palpation::palpate_sacrum(mesh, &hint, facing.as_ref())
+}
+
+/// Refuse a base whose landmarks break the protocol (unless allowed).
+fn refuse_implausible(failures: &[guards::GuardFailure], allow: bool) -> Result<()> {
+    if failures.is_empty() || allow {
+        return Ok(());
+    }
+    let list: Vec<String> = failures.iter().map(|f| f.to_string()).collect();
+    Err(Error::invalid(
+        "base",
+        format!(
+            "refusing to write a base model whose landmarks break the palpation protocol ({} guard failures; --allow-implausible writes it with these as warnings):\n  {}",
+            failures.len(),
+            list.join("\n  ")
+        ),
+    ))
 }
