@@ -4,4 +4,7 @@
 # shrink and the time per experiment. Usage: benches/diagnose_dev.sh [DEV_DIR]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo run --release --example diagnose_dev -- "${1:-../shared/diagnose-dev}"
+# PROFILE=dev uses the dev profile (crate opt-level 1, dependencies 3) instead of a release build
+release=--release
+[ "${PROFILE:-release}" = dev ] && release=
+cargo run $release --example diagnose_dev -- "${1:-../shared/diagnose-dev}"

@@ -7,4 +7,7 @@
 # Usage: benches/diagnose_means.sh [DEV_DIR] [PER_LABEL] [SEED] [primary]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo run --release --example diagnose_means -- "${1:-../shared/diagnose-dev}" "${2:-6}" "${3:-2026}" ${4:-}
+# PROFILE=dev uses the dev profile (crate opt-level 1, dependencies 3) instead of a release build
+release=--release
+[ "${PROFILE:-release}" = dev ] && release=
+cargo run $release --example diagnose_means -- "${1:-../shared/diagnose-dev}" "${2:-6}" "${3:-2026}" ${4:-}

@@ -86,9 +86,15 @@ fn assert_diagnosis_schema(d: &serde_json::Value, exp: &Experiment, name: &str) 
     let v = &d["verdict"];
     let effect = v["effect"].as_str().expect("verdict.effect is a string");
     assert!(
-        EFFECTS.contains(&effect) || effect == "unidentifiable",
+        EFFECTS.contains(&effect) || effect == "unidentifiable" || effect == "other",
         "{name}: verdict.effect {effect}"
     );
+    for e in v["effects"].as_array().expect("verdict.effects is a list") {
+        let n = e["effect"].as_str().expect("effects[].effect is a string");
+        assert!(EFFECTS.contains(&n), "{name}: effects[] {n}");
+        let share = e["share"].as_f64().expect("effects[].share is a number");
+        assert!(share <= 1.0 + 1e-9, "{name}: share {share}");
+    }
     let conf = v["confidence"]
         .as_f64()
         .expect("verdict.confidence is a number");
@@ -350,6 +356,8 @@ fn synthetic_experiments_on_other_specimens_get_their_label() {
     let tmp = tempfile::tempdir().unwrap();
     let base = SynthSpec {
         effect: Effect::None,
+        second: None,
+        oov: None,
         loaded_body: "lumbar2".into(),
         fixed_body: "sacrum".into(),
         size: 0.5,
@@ -393,6 +401,8 @@ fn synthetic_generation_is_deterministic() {
     let tmp = tempfile::tempdir().unwrap();
     let spec = SynthSpec {
         effect: Effect::JointPoseError,
+        second: None,
+        oov: None,
         loaded_body: "lumbar2".into(),
         fixed_body: "sacrum".into(),
         size: 0.7,
@@ -403,21 +413,179 @@ fn synthetic_generation_is_deterministic() {
         perturb_specimen: true,
         seed: 5,
     };
-    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
-    synth::write(&specimen, &spec, &a).unwrap();
-    synth::write(&specimen, &spec, &b).unwrap();
-    for f in ["experiment.toml", "kinematics.csv", "specimen.osim"] {
-        assert_eq!(
-            std::fs::read(a.join(f)).unwrap(),
-            std::fs::read(b.join(f)).unwrap(),
-            "{f}"
+    // one effect, two effects, and each out-of-vocabulary effect
+    let mut specs = vec![
+        spec.clone(),
+        SynthSpec {
+            second: Some(Effect::CoupledStiffness),
+            ..spec.clone()
+        },
+    ];
+    for o in synth::Oov::ALL {
+        specs.push(SynthSpec {
+            effect: Effect::None,
+            oov: Some(o),
+            ..spec.clone()
+        });
+    }
+    let mut tables = Vec::new();
+    for (i, spec) in specs.iter().enumerate() {
+        let (a, b) = (
+            tmp.path().join(format!("a{i}")),
+            tmp.path().join(format!("b{i}")),
         );
+        synth::write(&specimen, spec, &a).unwrap();
+        synth::write(&specimen, spec, &b).unwrap();
+        for f in ["experiment.toml", "kinematics.csv", "specimen.osim"] {
+            assert_eq!(
+                std::fs::read(a.join(f)).unwrap(),
+                std::fs::read(b.join(f)).unwrap(),
+                "{i}: {f}"
+            );
+        }
+        tables.push(std::fs::read_to_string(a.join("kinematics.csv")).unwrap());
+    }
+    // every effect changes the measurements
+    for i in 0..tables.len() {
+        for j in i + 1..tables.len() {
+            assert_ne!(tables[i], tables[j], "specs {i} and {j}");
+        }
     }
     // the perturbed specimen is another specimen: its joint frames moved
     assert_ne!(
-        std::fs::read(a.join("specimen.osim")).unwrap(),
+        std::fs::read(tmp.path().join("a0/specimen.osim")).unwrap(),
         std::fs::read(dev13.join("specimen.osim")).unwrap()
     );
+    // the sets are seeded: the same seed gives the same specs
+    let specimens = vec![("dev-13".to_string(), vec!["lumbar2".to_string()])];
+    let label = |v: Vec<(usize, SynthSpec)>| -> Vec<String> {
+        v.iter()
+            .map(|(_, s)| format!("{:?} {:?} {:?} {}", s.effect, s.second, s.oov, s.seed))
+            .collect()
+    };
+    assert_eq!(
+        label(synth::pair_set(30, 9, &specimens)),
+        label(synth::pair_set(30, 9, &specimens))
+    );
+    assert_eq!(
+        label(synth::oov_set(20, 9, &specimens)),
+        label(synth::oov_set(20, 9, &specimens))
+    );
+    // the pair set covers the fifteen pairs twice in 30 experiments
+    let pairs = synth::pair_set(30, 9, &specimens);
+    for (a, b) in synth::effect_pairs() {
+        let n = pairs
+            .iter()
+            .filter(|(_, s)| s.effect == a && s.second == Some(b))
+            .count();
+        assert_eq!(n, 2, "{a:?} + {b:?}");
+    }
+}
+
+/// A short (L2-S1) synthetic experiment of `spec` with `seed`, diagnosed.
+fn short_synth(
+    spec: SynthSpec,
+    dir: &Path,
+) -> Option<(synth::Truth, osim_spine::diagnose::select::Outcome)> {
+    let specimen = dev("dev-13")?.join("specimen.osim");
+    let truth = synth::write(&specimen, &spec, dir).unwrap();
+    let exp = Experiment::read(dir).unwrap();
+    let o = diagnose(&exp, &quiet()).unwrap();
+    println!(
+        "{}: [{}] verdict {} ({:.3}), effects {:?}, reasons {:?}",
+        dir.display(),
+        truth.notes,
+        o.verdict,
+        o.confidence,
+        o.effects
+            .iter()
+            .map(|e| (e.effect.name(), e.share))
+            .collect::<Vec<_>>(),
+        o.reasons
+    );
+    Some((truth, o))
+}
+
+fn short_spec(effect: Effect, seed: u64) -> SynthSpec {
+    SynthSpec {
+        effect,
+        second: None,
+        oov: None,
+        loaded_body: "lumbar2".into(),
+        fixed_body: "sacrum".into(),
+        size: 0.8,
+        noise_deg: 0.02,
+        noise_mm: 0.02,
+        translations: true,
+        follower: false,
+        perturb_specimen: true,
+        seed,
+    }
+}
+
+// Two effects at once: both in verdict.effects with their shares of the
+// held-out gap (adding up to what the pair closes), the primary first and
+// named by verdict.effect; the augmented model carries both.
+#[test]
+fn two_effects_are_both_reported_with_their_shares() {
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = SynthSpec {
+        second: Some(Effect::AsymmetricStiffness),
+        ..short_spec(Effect::LevelDependentStiffness, 21)
+    };
+    let Some((truth, o)) = short_synth(spec, &tmp.path().join("pair")) else {
+        return;
+    };
+    let named: Vec<Effect> = o.effects.iter().map(|e| e.effect).collect();
+    assert!(
+        named.contains(&truth.effect) && named.contains(&truth.second.unwrap()),
+        "{named:?}"
+    );
+    assert_eq!(
+        o.verdict,
+        osim_spine::diagnose::select::Verdict::Effect(named[0])
+    );
+    assert!(o.effects[0].share >= o.effects[1].share);
+    let r = &o.remaining;
+    assert!((o.effects[0].share + o.effects[1].share - r.closed).abs() < 1e-9);
+    let pair = &o.pairs[o.chosen_pair.unwrap()];
+    assert!(pair.accepted && pair.win >= 0.95);
+    assert_eq!(o.augmented().family.effects().len(), 2);
+    let exp = Experiment::read(tmp.path().join("pair")).unwrap();
+    let json = osim_spine::diagnose::report::diagnosis_json(&o, &exp, None);
+    assert_diagnosis_schema(&json, &exp, "pair");
+    assert_eq!(json["verdict"]["effects"].as_array().unwrap().len(), 2);
+    assert!(
+        json["heldout"]["primary_alone"]["shrink"].as_f64().unwrap()
+            < json["heldout"]["shrink"].as_f64().unwrap()
+    );
+}
+
+// An effect outside the vocabulary (stiffness softened by the loading
+// history): `other`, with the structure of what is left, not a name.
+#[test]
+fn an_effect_outside_the_vocabulary_is_other_with_its_structure() {
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = SynthSpec {
+        oov: Some(synth::Oov::HistoryStiffness),
+        ..short_spec(Effect::None, 22)
+    };
+    let Some((_, o)) = short_synth(spec, &tmp.path().join("oov")) else {
+        return;
+    };
+    assert_eq!(o.verdict, "other");
+    let r = &o.remaining;
+    assert!(
+        r.misfit(osim_spine::diagnose::select::ALPHA) >= osim_spine::diagnose::select::OTHER_MISFIT
+    );
+    assert!(o.reasons[0].contains("structured"), "{:?}", o.reasons);
+    let exp = Experiment::read(tmp.path().join("oov")).unwrap();
+    let json = osim_spine::diagnose::report::diagnosis_json(&o, &exp, None);
+    assert_eq!(json["verdict"]["effect"], "other");
+    assert!(!json["remaining"]["structure"]
+        .as_array()
+        .unwrap()
+        .is_empty());
 }
 
 /// The full synthetic withheld set (42 experiments, seven labels, both dev
@@ -530,8 +698,19 @@ fn noise_is_stated_estimated_or_an_assumed_floor_never_zero() {
         line.contains("translations not measured") && !line.contains(" mm"),
         "{line}"
     );
-    // the asymmetry cannot be tested by a split of one magnitude per direction
-    assert!(o.design.is_untestable("asymmetric_stiffness"));
+    // one magnitude per direction: K-fold over (case, level) rows keeps the
+    // asymmetry testable; primary rotations only leave coupling and the
+    // joint pose untestable, and the report says which measurement would
+    assert_eq!(o.design.folds, osim_spine::diagnose::design::FOLDS);
+    assert!(!o.design.is_untestable("asymmetric_stiffness"));
+    for e in [
+        "nonlinear_stiffness",
+        "coupled_stiffness",
+        "joint_pose_error",
+    ] {
+        assert!(o.design.is_untestable(e), "{e}: {:?}", o.design.untestable);
+        assert!(o.design.missing.iter().any(|m| m.effect == e), "{e}");
+    }
     // stated: [measurement] rotation_sd (a mean of 4 specimens: SE = SD / 2)
     let t = std::fs::read_to_string(table.join("experiment.toml")).unwrap();
     let stated = t.replace(
@@ -583,4 +762,44 @@ fn noise_is_stated_estimated_or_an_assumed_floor_never_zero() {
     let r = prior[0].unwrap().unwrap();
     assert_eq!(r.source, NoiseSource::Replicates);
     assert!((r.sigma - 0.02 / 2f64.sqrt()).abs() < 1e-4, "{}", r.sigma);
+}
+
+// A published table of means (one magnitude per direction, primary
+// rotations only, no sd_* columns, n_specimens = 10): the K-fold design
+// keeps level-dependent stiffness testable and names it, the noise is the
+// assumed spread of means (never 0, none for the unmeasured translations),
+// and the report says what the design cannot separate.
+#[test]
+fn a_published_table_of_means_names_level_dependent_stiffness() {
+    use osim_spine::diagnose::noise::NoiseSource;
+    let Some(dev13) = dev("dev-13") else { return };
+    let specimens = vec![
+        ("dev-13".to_string(), vec!["lumbar1".to_string()]),
+        ("dev-07".to_string(), vec!["thoracic12".to_string()]),
+    ];
+    // the seventh of the acceptance set (benches/diagnose_means.sh): L5-S1 x0.5
+    let (si, spec) = synth::means_set(6, 2026, &specimens, true)[7].clone();
+    assert_eq!(
+        (si, spec.effect, spec.with_sd),
+        (0, Effect::LevelDependentStiffness, false)
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("means");
+    synth::write_means(&dev13.join("specimen.osim"), &spec, &dir).unwrap();
+    let exp = Experiment::read(&dir).unwrap();
+    let o = diagnose(&exp, &quiet()).unwrap();
+    println!(
+        "verdict {} ({:.3}); {:?}",
+        o.verdict, o.confidence, o.reasons
+    );
+    assert_eq!(o.verdict, "level_dependent_stiffness");
+    assert_eq!(o.design.folds, osim_spine::diagnose::design::FOLDS);
+    let rot = o.noise_model.rotation.unwrap();
+    assert_eq!(rot.source, NoiseSource::AssumedSpread);
+    assert!(o.sim.cells.iter().all(|c| c.sd.is_some_and(|s| s > 0.0)));
+    assert!(o.noise_model.translation.is_none());
+    let line = osim_spine::diagnose::report::separable_line(&o);
+    assert!(line.contains("cannot test: nonlinear_stiffness"), "{line}");
+    let json = osim_spine::diagnose::report::diagnosis_json(&o, &exp, None);
+    assert_diagnosis_schema(&json, &exp, "means");
 }

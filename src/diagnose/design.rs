@@ -86,12 +86,17 @@ pub struct Design {
     pub heldout: Vec<usize>,
     /// How the held-out cases were chosen.
     pub rule: String,
+    /// Number of folds of a K-fold design over (case, level) rows (0: a
+    /// single split into `train` and `heldout` cases).
+    pub folds: usize,
     /// Effects the design cannot test at all, with the reason.
     pub untestable: Vec<(String, String)>,
     /// Load cases that would make them testable.
     pub missing: Vec<MissingCase>,
     /// True when a follower-load case exists.
     pub has_follower: bool,
+    /// True when some translation is measured (see [`Design::note_measurement`]).
+    pub translations: bool,
 }
 
 /// Format a number as the ids do (`2.5`, `7.5`, `5`).
@@ -148,15 +153,20 @@ impl IdStyle {
     }
 }
 
-impl Design {
-    /// Analyse the cases.
-    pub fn new(cases: &[LoadCase]) -> Design {
-        let info: Vec<CaseInfo> = cases.iter().map(CaseInfo::of).collect();
-        let style = IdStyle::learn(&info);
-        let has_follower = info.iter().any(|c| c.follower > 0.0);
-        let mut untestable = Vec::new();
-        let mut missing = Vec::new();
-        // magnitudes and signs per axis (pure-moment and follower cases alike)
+/// Folds of the K-fold design over (case, level) rows.
+pub const FOLDS: usize = 6;
+
+/// What a design leaves untestable and the load cases that would test it.
+#[derive(Default)]
+struct Gaps {
+    untestable: Vec<(String, String)>,
+    missing: Vec<MissingCase>,
+}
+
+impl Gaps {
+    /// Single magnitudes and single directions of each loaded axis.
+    fn of_axes(info: &[CaseInfo], style: &IdStyle) -> Gaps {
+        let mut g = Gaps::default();
         let mut nonlinear_gaps = Vec::new();
         let mut sign_gaps = Vec::new();
         for a in 0..3 {
@@ -167,111 +177,134 @@ impl Design {
             let mags = distinct(on.iter().map(|c| c.magnitude));
             let signs: BTreeSet<i8> = on.iter().map(|c| c.sign).collect();
             if mags.len() < 2 {
-                let m = mags.first().copied().unwrap_or(1.0);
                 nonlinear_gaps.push(AXIS_NAMES[a]);
-                for &sg in &signs {
-                    for other in [m / 2.0, 2.0 * m] {
-                        missing.push(MissingCase {
-                            case: style.id(a, sg, other),
-                            effect: "nonlinear_stiffness".into(),
-                            reason: format!(
-                                "a single moment magnitude ({} N m) about {}: a deflection-dependent stiffness is absorbed by a linear one; a second magnitude separates them",
-                                fmt_num(m),
-                                AXIS_NAMES[a]
-                            ),
-                        });
-                    }
-                }
+                g.second_magnitude(style, a, mags.first().copied().unwrap_or(1.0), &signs);
             }
             if signs.len() < 2 {
                 sign_gaps.push(AXIS_NAMES[a]);
-                let have = *signs.iter().next().unwrap_or(&1);
-                for &m in &mags {
-                    missing.push(MissingCase {
-                        case: style.id(a, -have, m),
-                        effect: "asymmetric_stiffness".into(),
-                        reason: format!(
-                            "moments about {} in one direction only: the stiffness of the other side is never loaded",
-                            AXIS_NAMES[a]
-                        ),
-                    });
-                }
+                g.other_direction(style, a, &mags, *signs.iter().next().unwrap_or(&1));
             }
         }
         if !nonlinear_gaps.is_empty() {
-            untestable.push((
-                "nonlinear_stiffness".to_string(),
-                format!(
-                    "a single moment magnitude about {}",
-                    nonlinear_gaps.join(", ")
-                ),
-            ));
+            let why = format!(
+                "a single moment magnitude about {}",
+                nonlinear_gaps.join(", ")
+            );
+            g.untestable.push(("nonlinear_stiffness".to_string(), why));
         }
         if !sign_gaps.is_empty() {
-            untestable.push((
-                "asymmetric_stiffness".to_string(),
-                format!("one moment direction only about {}", sign_gaps.join(", ")),
-            ));
+            let why = format!("one moment direction only about {}", sign_gaps.join(", "));
+            g.untestable.push(("asymmetric_stiffness".to_string(), why));
         }
-        if !has_follower {
-            untestable.push((
+        if !info.iter().any(|c| c.follower > 0.0) {
+            g.untestable.push((
                 "preload_stiffening".to_string(),
                 "no follower-load case: stiffness under compression is never probed".to_string(),
             ));
         }
+        g
+    }
+
+    /// The cases of a second magnitude (half and twice `m`) about axis `a`.
+    fn second_magnitude(&mut self, style: &IdStyle, a: usize, m: f64, signs: &BTreeSet<i8>) {
+        for &sg in signs {
+            for other in [m / 2.0, 2.0 * m] {
+                self.missing.push(MissingCase {
+                    case: style.id(a, sg, other),
+                    effect: "nonlinear_stiffness".into(),
+                    reason: format!(
+                        "a single moment magnitude ({} N m) about {}: a deflection-dependent stiffness is absorbed by a linear one; a second magnitude separates them",
+                        fmt_num(m),
+                        AXIS_NAMES[a]
+                    ),
+                });
+            }
+        }
+    }
+
+    /// The cases of the other direction about axis `a`.
+    fn other_direction(&mut self, style: &IdStyle, a: usize, mags: &[f64], have: i8) {
+        for &m in mags {
+            self.missing.push(MissingCase {
+                case: style.id(a, -have, m),
+                effect: "asymmetric_stiffness".into(),
+                reason: format!(
+                    "moments about {} in one direction only: the stiffness of the other side is never loaded",
+                    AXIS_NAMES[a]
+                ),
+            });
+        }
+    }
+}
+
+/// The extrapolation split: the largest magnitude of every axis with two
+/// or more, and every case under the largest of two or more follower
+/// loads, are held out. Returns the held-out flags and the rule's parts
+/// (empty when the design has no such regime).
+fn extrapolation_split(info: &[CaseInfo]) -> (Vec<bool>, Vec<String>) {
+    let mut held = vec![false; info.len()];
+    let mut rules = Vec::new();
+    for a in 0..3 {
+        let on: Vec<usize> = (0..info.len())
+            .filter(|&i| info[i].axis == Some(a))
+            .collect();
+        let mags = distinct(on.iter().map(|&i| info[i].magnitude));
+        if mags.len() >= 2 {
+            let top = mags[mags.len() - 1];
+            for &i in &on {
+                held[i] |= same(info[i].magnitude, top);
+            }
+            rules.push(format!("{} moments of {} N m", AXIS_NAMES[a], fmt_num(top)));
+        }
+    }
+    let fls = distinct(info.iter().map(|c| c.follower).filter(|f| *f > 0.0));
+    if fls.len() >= 2 {
+        let top = fls[fls.len() - 1];
+        for (i, c) in info.iter().enumerate() {
+            held[i] |= same(c.follower, top);
+        }
+        rules.push(format!(
+            "every case under the {} N follower load",
+            fmt_num(top)
+        ));
+    }
+    (held, rules)
+}
+
+impl Design {
+    /// Analyse the cases.
+    pub fn new(cases: &[LoadCase]) -> Design {
+        let info: Vec<CaseInfo> = cases.iter().map(CaseInfo::of).collect();
+        let style = IdStyle::learn(&info);
+        let has_follower = info.iter().any(|c| c.follower > 0.0);
+        let Gaps {
+            mut untestable,
+            mut missing,
+        } = Gaps::of_axes(&info, &style);
         // held-out split: largest magnitude of every axis, largest follower load
-        let mut held = vec![false; info.len()];
-        let mut rules = Vec::new();
-        for a in 0..3 {
-            let on: Vec<usize> = (0..info.len())
-                .filter(|&i| info[i].axis == Some(a))
-                .collect();
-            let mags = distinct(on.iter().map(|&i| info[i].magnitude));
-            if mags.len() >= 2 {
-                let top = mags[mags.len() - 1];
-                for &i in &on {
-                    if same(info[i].magnitude, top) {
-                        held[i] = true;
-                    }
-                }
-                rules.push(format!("{} moments of {} N m", AXIS_NAMES[a], fmt_num(top)));
-            }
-        }
-        let fls = distinct(info.iter().map(|c| c.follower).filter(|f| *f > 0.0));
-        if fls.len() >= 2 {
-            let top = fls[fls.len() - 1];
-            for (i, c) in info.iter().enumerate() {
-                if same(c.follower, top) {
-                    held[i] = true;
-                }
-            }
-            rules.push(format!(
-                "every case under the {} N follower load",
-                fmt_num(top)
-            ));
-        }
-        let mut train: Vec<usize> = (0..info.len()).filter(|&i| !held[i]).collect();
+        let (held, rules) = extrapolation_split(&info);
+        let train: Vec<usize> = (0..info.len()).filter(|&i| !held[i]).collect();
         // every loaded axis must stay in the training set
         let axis_ok = (0..3).all(|a| {
             !info.iter().any(|c| c.axis == Some(a))
                 || train.iter().any(|&i| info[i].axis == Some(a))
         });
-        let rule;
         if rules.is_empty() || !axis_ok || train.is_empty() {
-            // no extrapolation regime: interleave (every other case of each axis group)
-            held = vec![false; info.len()];
-            for a in [Some(0), Some(1), Some(2), None] {
-                let on: Vec<usize> = (0..info.len()).filter(|&i| info[i].axis == a).collect();
-                for (k, &i) in on.iter().enumerate() {
-                    if k % 2 == 1 {
-                        held[i] = true;
-                    }
-                }
-            }
-            train = (0..info.len()).filter(|&i| !held[i]).collect();
-            rule = "interleaved: every other case of each load axis (the design has no second magnitude or follower load to extrapolate to)".to_string();
-        } else {
-            rule = format!("held out: {}; fitted on the rest", rules.join("; "));
+            // no extrapolation regime: K-fold over (case, level) rows
+            let all: Vec<usize> = (0..info.len()).collect();
+            return Design {
+                cases: info,
+                train: all.clone(),
+                heldout: all,
+                rule: format!(
+                    "{FOLDS}-fold cross-validation over (case, level) rows: fold f holds out the row of case c at level l when (c + l) mod {FOLDS} = f, so each fold keeps every level and both directions of every axis in training, and every row is predicted once by a fit that never saw it (the design has no second magnitude or follower load to extrapolate to)"
+                ),
+                folds: FOLDS,
+                untestable,
+                missing,
+                has_follower,
+                translations: true,
+            };
         }
         let heldout = (0..info.len()).filter(|&i| held[i]).collect();
         split_gaps(&info, &train, &style, &mut untestable, &mut missing);
@@ -279,16 +312,74 @@ impl Design {
             cases: info,
             train,
             heldout,
-            rule,
+            rule: format!("held out: {}; fitted on the rest", rules.join("; ")),
+            folds: 0,
             untestable,
             missing,
             has_follower,
+            translations: true,
         }
+    }
+
+    /// True when a joint-centre offset (joint pose error) rests on the
+    /// follower-load cases alone: with no translation measured, a joint
+    /// centre moved relative to the follower guides cannot be told from
+    /// guides placed off the joint centres (a rig error outside the
+    /// vocabulary); translations would separate them.
+    pub fn offsets_confounded_with_guides(&self) -> bool {
+        self.has_follower && !self.translations
     }
 
     /// True when the effect is untestable by design.
     pub fn is_untestable(&self, effect: &str) -> bool {
         self.untestable.iter().any(|(e, _)| e == effect)
+    }
+
+    /// The fold that holds out the row of `case` at `level` (K-fold
+    /// designs only).
+    pub fn fold_of(&self, case: usize, level: usize) -> Option<usize> {
+        (self.folds > 0).then(|| (case + level) % self.folds)
+    }
+
+    /// Effects the measured quantities cannot show, given which DoFs
+    /// (`rx .. tz`) are measured in each case: coupling shows in the
+    /// rotations about the axes that were not loaded, and a joint pose
+    /// error under pure moments only in those or in the translations (a
+    /// misplaced centre does not change the rotation a pure moment causes,
+    /// a tilted axis changes it to second order only); follower loads and
+    /// forces make the centre matter.
+    pub fn note_measurement(&mut self, measured: &[[bool; 6]]) {
+        let off_axis = self.cases.iter().zip(measured).any(|(c, m)| match c.axis {
+            Some(a) => (0..3).any(|d| d != a && m[d]),
+            None => m[..3].iter().any(|&x| x),
+        });
+        let translations = measured.iter().any(|m| m[3..].iter().any(|&x| x));
+        self.translations = translations;
+        let what = "the rotations about the unloaded axes (rx, ry, rz of every case)";
+        if !off_axis {
+            self.untestable.push((
+                "coupled_stiffness".into(),
+                "only the rotation about each load axis is measured: a coupling shows in the rotations about the other axes".into(),
+            ));
+            self.missing.push(MissingCase {
+                case: what.into(),
+                effect: "coupled_stiffness".into(),
+                reason:
+                    "coupled motion separates an off-diagonal stiffness from a softer diagonal one"
+                        .into(),
+            });
+        }
+        if !off_axis && !translations && !self.has_follower {
+            self.untestable.push((
+                "joint_pose_error".into(),
+                "pure moments with only the primary rotations measured: a misplaced joint centre does not change them and a tilted axis only to second order".into(),
+            ));
+            self.missing.push(MissingCase {
+                case: format!("{what}, the translations (tx, ty, tz), or follower-load cases"),
+                effect: "joint_pose_error".into(),
+                reason: "a moved joint centre or axis shows in coupled rotations, translations and the moment a follower load exerts".into(),
+            });
+        }
     }
 }
 
@@ -393,7 +484,7 @@ mod tests {
     }
 
     #[test]
-    fn one_magnitude_per_direction_makes_asymmetry_untestable_by_the_split() {
+    fn one_magnitude_per_direction_gives_k_folds_that_keep_both_directions() {
         let mut cs = Vec::new();
         for (a, n) in AXIS_NAMES.iter().enumerate() {
             for (s, sg) in [(-1.0, "neg"), (1.0, "pos")] {
@@ -404,21 +495,70 @@ mod tests {
         }
         let d = Design::new(&cs);
         assert!(d.is_untestable("nonlinear_stiffness"));
-        assert!(
-            d.is_untestable("asymmetric_stiffness"),
-            "{:?}",
-            d.untestable
-        );
         let names: Vec<&str> = d.missing.iter().map(|m| m.case.as_str()).collect();
         assert!(
             names.contains(&"FE_pos_5") && names.contains(&"FE_neg_5"),
             "{names:?}"
         );
-        // level-dependent stiffness stays testable: every axis is trained
+        // K-fold over (case, level) rows: asymmetry and level-dependent
+        // stiffness stay testable
+        assert_eq!(d.folds, FOLDS);
+        assert!(
+            !d.is_untestable("asymmetric_stiffness"),
+            "{:?}",
+            d.untestable
+        );
         assert!(!d.is_untestable("level_dependent_stiffness"));
-        for a in 0..3 {
-            assert!(d.train.iter().any(|&i| d.cases[i].axis == Some(a)));
+        let levels = 5;
+        for f in 0..FOLDS {
+            let held: Vec<(usize, usize)> = (0..cs.len())
+                .flat_map(|c| (0..levels).map(move |l| (c, l)))
+                .filter(|&(c, l)| d.fold_of(c, l) == Some(f))
+                .collect();
+            // at most one row of a level, and never both directions of an
+            // axis at one level, are held out in a fold
+            for l in 0..levels {
+                assert!(held.iter().filter(|h| h.1 == l).count() <= 1, "fold {f}");
+            }
+            for a in 0..3 {
+                for l in 0..levels {
+                    let both = [2 * a, 2 * a + 1].iter().all(|c| held.contains(&(*c, l)));
+                    assert!(!both, "fold {f} axis {a} level {l}");
+                }
+            }
         }
+        // every row is held out by exactly one fold
+        for c in 0..cs.len() {
+            for l in 0..levels {
+                assert!(d.fold_of(c, l).is_some_and(|f| f < FOLDS));
+            }
+        }
+    }
+
+    #[test]
+    fn primary_rotations_only_leave_coupling_and_pose_untestable() {
+        let mut cs = Vec::new();
+        for (a, n) in AXIS_NAMES.iter().enumerate() {
+            for (s, sg) in [(-1.0, "neg"), (1.0, "pos")] {
+                let mut v = [0.0; 3];
+                v[a] = s * 7.5;
+                cs.push(case(&format!("{n}_{sg}_7.5"), v, 0.0));
+            }
+        }
+        // only the rotation about each case's load axis
+        let primary: Vec<[bool; 6]> = (0..cs.len())
+            .map(|c| std::array::from_fn(|d| d == c / 2))
+            .collect();
+        let mut d = Design::new(&cs);
+        d.note_measurement(&primary);
+        assert!(d.is_untestable("coupled_stiffness"));
+        assert!(d.is_untestable("joint_pose_error"));
+        assert!(d.missing.iter().any(|m| m.effect == "coupled_stiffness"));
+        // all three rotations measured: both testable again
+        let mut d = Design::new(&cs);
+        d.note_measurement(&vec![[true, true, true, false, false, false]; cs.len()]);
+        assert!(!d.is_untestable("coupled_stiffness"));
+        assert!(!d.is_untestable("joint_pose_error"));
     }
 
     #[test]

@@ -23,9 +23,10 @@
 //! | `joint_pose_error` / `pose` | per level rotation vector and offset (mm) of both joint frames | idem |
 //! | `preload_stiffening` | `beta = exp(b)` (1/m): rotational `M = k th (1 + beta max(0, -delta_y))` | ExpressionBasedBushingForce |
 
+use super::law::{LawParts, OneSided};
 use super::sim::Sim;
-use crate::error::{Error, Result};
-use crate::solver::{BushingModel, Curve, Expr, System};
+use crate::error::Result;
+use crate::solver::{BushingModel, Curve, System};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
@@ -53,6 +54,20 @@ impl Effect {
             Effect::CoupledStiffness => "coupled_stiffness",
             Effect::JointPoseError => "joint_pose_error",
             Effect::PreloadStiffening => "preload_stiffening",
+        }
+    }
+    /// Order in which effects build a mixed law: level factors first
+    /// (the others scale with the local stiffness), curves before the
+    /// one-sided terms added to them.
+    pub fn order(&self) -> u8 {
+        match self {
+            Effect::None => 0,
+            Effect::LevelDependentStiffness => 1,
+            Effect::NonlinearStiffness => 2,
+            Effect::AsymmetricStiffness => 3,
+            Effect::CoupledStiffness => 4,
+            Effect::JointPoseError => 5,
+            Effect::PreloadStiffening => 6,
         }
     }
     /// Every effect but `none`.
@@ -124,6 +139,10 @@ impl Kind {
             Kind::Preload => "preload",
         }
     }
+    /// Order in which effects build a mixed law (see [`Effect::order`]).
+    pub fn order(&self) -> u8 {
+        self.effect().order()
+    }
 }
 
 const DOF3: [&str; 3] = ["rx", "ry", "rz"];
@@ -141,7 +160,13 @@ pub struct Family {
     pub x0: Vec<f64>,
     pub lo: Vec<f64>,
     pub hi: Vec<f64>,
+    /// A second effect's family (mixed effects): its own parameters follow
+    /// this family's in `x`, its global block is this one's.
+    pub add: Option<Box<Family>>,
 }
+
+/// Box of the global log-factors: e^4 ~ 55 either way.
+const GBOX: f64 = 4.0;
 
 /// What a parameter vector means, level by level.
 #[derive(Debug, Clone)]
@@ -151,7 +176,7 @@ pub struct Variant {
     /// Rigid change `T` of each level's joint frames (both frames become
     /// `X * T`), identity when unchanged.
     pub frames: Vec<Option<Isometry3<f64>>>,
-    /// The preload expressions, when the family writes expressions.
+    /// The expressions of the levels whose law is an expression law.
     pub expressions: Vec<Option<[String; 6]>>,
 }
 
@@ -183,43 +208,57 @@ impl Family {
     ) -> Family {
         let mut f = Family {
             kind,
-            mask: mask.clone(),
+            mask,
             offsets,
             names: Vec::new(),
             x0: Vec::new(),
             lo: Vec::new(),
             hi: Vec::new(),
+            add: None,
         };
-        let push = |f: &mut Family, name: String, x0: f64, lo: f64, hi: f64| {
-            f.names.push(name);
-            f.x0.push(x0.clamp(lo, hi));
-            f.lo.push(lo);
-            f.hi.push(hi);
-        };
-        let gbox = 4.0; // factor e^4 ~ 55 either way
+        // the global block (per level and DoF for LevelPerDof)
         if kind != Kind::LevelPerDof {
             for (d, g) in start_global.iter().enumerate() {
-                push(&mut f, format!("log_k_{}", DOF3[d]), *g, -gbox, gbox);
+                f.push(format!("log_k_{}", DOF3[d]), *g, -GBOX, GBOX);
             }
         }
+        f.push_kind_params(sim, start_global);
+        f
+    }
+
+    /// Append a parameter (start clamped into its box).
+    fn push(&mut self, name: String, x0: f64, lo: f64, hi: f64) {
+        self.names.push(name);
+        self.x0.push(x0.clamp(lo, hi));
+        self.lo.push(lo);
+        self.hi.push(hi);
+    }
+
+    /// Names of the levels of the mask.
+    fn masked_levels<'a>(&'a self, sim: &'a Sim) -> impl Iterator<Item = &'a str> + 'a {
+        sim.levels
+            .iter()
+            .zip(&self.mask)
+            .filter(|p| *p.1)
+            .map(|p| p.0.name.as_str())
+    }
+
+    /// The kind's own parameters (after the global block).
+    fn push_kind_params(&mut self, sim: &Sim, start_global: [f64; 3]) {
         let scale = rotation_scale(sim);
-        match kind {
+        let levels: Vec<String> = self.masked_levels(sim).map(String::from).collect();
+        match self.kind {
             Kind::Baseline => {}
             Kind::LevelScalar => {
                 for l in sim.levels.iter().skip(1) {
-                    push(&mut f, format!("{}.log_m", l.name), 0.0, -3.0, 3.0);
+                    self.push(format!("{}.log_m", l.name), 0.0, -3.0, 3.0);
                 }
             }
             Kind::LevelPerDof => {
                 for l in &sim.levels {
                     for (d, g) in start_global.iter().enumerate() {
-                        push(
-                            &mut f,
-                            format!("{}.log_k_{}", l.name, DOF3[d]),
-                            *g,
-                            -gbox,
-                            gbox,
-                        );
+                        let name = format!("{}.log_k_{}", l.name, DOF3[d]);
+                        self.push(name, *g, -GBOX, GBOX);
                     }
                 }
             }
@@ -227,100 +266,120 @@ impl Family {
                 // lambda = 1/a; start where the curve stiffens by ~20% at the largest rotation
                 for d in 0..3 {
                     let l0 = (1.0 / scale[d]).ln();
-                    push(
-                        &mut f,
-                        format!("log_lambda_{}", DOF3[d]),
-                        l0,
-                        l0 - 6.0,
-                        l0 + 3.0,
-                    );
+                    self.push(format!("log_lambda_{}", DOF3[d]), l0, l0 - 6.0, l0 + 3.0);
                 }
             }
             Kind::NonlinearCubic => {
                 // c = k exp(s) / scale^2: start at ~10% extra stiffness at the largest rotation
-                for d in 0..3 {
-                    push(
-                        &mut f,
-                        format!("log_c_{}", DOF3[d]),
-                        (0.1f64).ln(),
-                        -12.0,
-                        5.0,
-                    );
+                for d in DOF3 {
+                    self.push(format!("log_c_{d}"), (0.1f64).ln(), -12.0, 5.0);
                 }
             }
             Kind::AsymmetricBilinear => {
-                for d in 0..3 {
-                    push(
-                        &mut f,
-                        format!("log_kpos_over_kneg_{}", DOF3[d]),
-                        0.0,
-                        -3.0,
-                        3.0,
-                    );
+                for d in DOF3 {
+                    self.push(format!("log_kpos_over_kneg_{d}"), 0.0, -3.0, 3.0);
                 }
             }
             Kind::AsymmetricPerLevel => {
-                for l in sim.levels.iter().zip(&mask).filter(|p| *p.1).map(|p| p.0) {
+                for l in &levels {
                     for d in DOF3 {
-                        push(
-                            &mut f,
-                            format!("{}.log_kpos_over_kneg_{d}", l.name),
-                            0.0,
-                            -3.0,
-                            3.0,
-                        );
+                        self.push(format!("{l}.log_kpos_over_kneg_{d}"), 0.0, -3.0, 3.0);
                     }
                 }
             }
             Kind::CoupledUniform => {
                 for n in ["xy", "xz", "yz"] {
-                    push(&mut f, format!("rho_{n}"), 0.0, -0.8, 0.8);
+                    self.push(format!("rho_{n}"), 0.0, -0.8, 0.8);
                 }
             }
             Kind::CoupledPerLevel | Kind::CoupledLocal => {
-                for l in sim.levels.iter().zip(&mask).filter(|p| *p.1).map(|p| p.0) {
+                for l in &levels {
                     for n in ["xy", "xz", "yz"] {
-                        push(&mut f, format!("{}.rho_{n}", l.name), 0.0, -0.8, 0.8);
+                        self.push(format!("{l}.rho_{n}"), 0.0, -0.8, 0.8);
                     }
                 }
             }
             Kind::JointRotation | Kind::JointPose | Kind::JointLocal => {
-                for l in sim.levels.iter().zip(&mask).filter(|p| *p.1).map(|p| p.0) {
+                for l in &levels {
                     for a in ["x", "y", "z"] {
-                        push(&mut f, format!("{}.rot_{a}_rad", l.name), 0.0, -0.4, 0.4);
+                        self.push(format!("{l}.rot_{a}_rad"), 0.0, -0.4, 0.4);
                     }
-                    if offsets {
+                    if self.offsets {
                         for a in ["x", "y", "z"] {
-                            push(
-                                &mut f,
-                                format!("{}.offset_{a}_mm", l.name),
-                                0.0,
-                                -10.0,
-                                10.0,
-                            );
+                            self.push(format!("{l}.offset_{a}_mm"), 0.0, -10.0, 10.0);
                         }
                     }
                 }
             }
-            Kind::Preload => {
-                // beta * (largest axial compression) starts at 0.2
-                let k_ty = sim
-                    .k_nominal
-                    .iter()
-                    .map(|k| k[4])
-                    .fold(f64::INFINITY, f64::min);
-                let fmax = max_follower(sim);
-                let dy = (fmax / k_ty).max(1e-7);
-                push(
-                    &mut f,
-                    "log_beta_per_m".into(),
-                    (0.2 / dy).ln(),
-                    (1e-3 / dy).ln(),
-                    (20.0 / dy).ln(),
-                );
-            }
+            Kind::Preload => self.push_preload(sim),
         }
+    }
+
+    /// The preload gain: `beta * (largest axial compression)` starts at 0.2.
+    fn push_preload(&mut self, sim: &Sim) {
+        let k_ty = sim
+            .k_nominal
+            .iter()
+            .map(|k| k[4])
+            .fold(f64::INFINITY, f64::min);
+        let fmax = max_follower(sim);
+        let dy = (fmax / k_ty).max(1e-7);
+        self.push(
+            "log_beta_per_m".into(),
+            (0.2 / dy).ln(),
+            (1e-3 / dy).ln(),
+            (20.0 / dy).ln(),
+        );
+    }
+
+    /// Two effects at once: `a` and `b` (fitted alone at `xa`, `xb`, of
+    /// different effects) in one family started from both fits. The global
+    /// block is `a`'s or `b`'s (the level-dependent one's when there is one,
+    /// since its law is built first); the other family adds its own
+    /// parameters after it.
+    pub fn pair(a: &Family, xa: &[f64], b: &Family, xb: &[f64]) -> Family {
+        let ((base, xbase), (add, xadd)) = if b.kind.order() < a.kind.order() {
+            ((b, xb), (a, xa))
+        } else {
+            ((a, xa), (b, xb))
+        };
+        let mut f = base.clone();
+        f.add = None;
+        f.x0 = xbase.to_vec();
+        let mut second = add.clone();
+        second.add = None;
+        second.x0 = xadd.to_vec();
+        for i in second.n_global()..second.n() {
+            let x0 = xadd.get(i).copied().unwrap_or(second.x0[i]);
+            f.push(second.names[i].clone(), x0, second.lo[i], second.hi[i]);
+        }
+        f.add = Some(Box::new(second));
         f
+    }
+
+    /// The effects the family adds (two for a pair).
+    pub fn effects(&self) -> Vec<Effect> {
+        let mut v = vec![self.kind.effect()];
+        v.extend(self.add.as_ref().map(|a| a.kind.effect()));
+        v
+    }
+
+    /// Label of the variant (`a+b` for a pair).
+    pub fn label(&self) -> String {
+        match &self.add {
+            Some(a) => format!("{}+{}", self.kind.label(), a.kind.label()),
+            None => self.kind.label().to_string(),
+        }
+    }
+
+    /// Size of the global block (0 for LevelPerDof, whose per-level block
+    /// replaces it).
+    fn n_global(&self) -> usize {
+        if self.kind == Kind::LevelPerDof {
+            0
+        } else {
+            3
+        }
     }
 
     /// The fitted parameters `x` in physical units, keyed by name with the
@@ -402,154 +461,144 @@ impl Family {
         block
     }
 
-    /// Level `li`'s linear stiffness under parameters `x`: the nominal
-    /// `kn` with the rotational terms scaled by exp of the shared (or, per
-    /// DoF and level, own) log-factors, and the level factor of
-    /// `LevelScalar`.
-    fn level_stiffness(&self, kn: [f64; 6], li: usize, x: &[f64]) -> [f64; 6] {
+    /// Every level's linear parts from the global block of `x` (per level
+    /// and DoF for LevelPerDof): the nominal rotational stiffness scaled by
+    /// exp of the log-factors, translations nominal. The reference
+    /// stiffness is the global one (for LevelPerDof the geometric mean of
+    /// the levels').
+    fn initial_parts(&self, sim: &Sim, x: &[f64]) -> Vec<LawParts> {
         let get = |i: usize| x.get(i).copied().unwrap_or(0.0);
-        let mut k = kn;
-        for d in 0..3 {
-            let i = if self.kind == Kind::LevelPerDof {
-                3 * li + d
-            } else {
-                d
-            };
-            k[d] = kn[d] * get(i).exp();
-        }
-        if self.kind == Kind::LevelScalar && li > 0 {
-            let m = get(3 + li - 1).exp();
-            for kd in k.iter_mut().take(3) {
-                *kd *= m;
+        let mut parts: Vec<LawParts> = (0..sim.levels.len())
+            .map(|li| {
+                let kn = sim.k_nominal[li];
+                let mut k = kn;
+                for d in 0..3 {
+                    let i = if self.kind == Kind::LevelPerDof {
+                        3 * li + d
+                    } else {
+                        d
+                    };
+                    k[d] = kn[d] * get(i).exp();
+                }
+                LawParts::new(k, sim.nominal[li].damping())
+            })
+            .collect();
+        if self.kind == Kind::LevelPerDof && !parts.is_empty() {
+            let n = parts.len() as f64;
+            for d in 0..3 {
+                let g = (parts.iter().map(|p| p.k[d].ln()).sum::<f64>() / n).exp();
+                parts.iter_mut().for_each(|p| p.k_ref[d] = g);
             }
         }
-        k
+        parts
     }
 
-    /// The laws and frames of parameters `x`.
-    pub fn variant(&self, sim: &Sim, x: &[f64]) -> Result<Variant> {
-        let nl = sim.levels.len();
-        let get = |i: usize| x.get(i).copied().unwrap_or(0.0);
+    /// Add this family's effect, of own parameters `own` (after the global
+    /// block), to every level's parts and joint frames.
+    fn apply(
+        &self,
+        sim: &Sim,
+        own: &[f64],
+        parts: &mut [LawParts],
+        frames: &mut [Option<Isometry3<f64>>],
+    ) {
+        let get = |i: usize| own.get(i).copied().unwrap_or(0.0);
         let scale = rotation_scale(sim);
-        let mut laws = Vec::with_capacity(nl);
-        let mut frames = vec![None; nl];
-        let mut expressions = vec![None; nl];
-        let block = self.block_index(nl);
-        for li in 0..nl {
-            let damping = sim.nominal[li].damping();
-            let k = self.level_stiffness(sim.k_nominal[li], li, x);
-            let linear = |k: [f64; 6]| BushingModel::Linear {
-                rot_stiffness: Vector3::new(k[0], k[1], k[2]),
-                trans_stiffness: Vector3::new(k[3], k[4], k[5]),
-                rot_damping: Vector3::new(damping[0], damping[1], damping[2]),
-                trans_damping: Vector3::new(damping[3], damping[4], damping[5]),
-            };
-            let trans_curves = |k: [f64; 6]| -> [Curve; 3] {
-                [
-                    Curve::Linear { k: k[3] },
-                    Curve::Linear { k: k[4] },
-                    Curve::Linear { k: k[5] },
-                ]
-            };
-            let law = match self.kind {
-                Kind::Baseline | Kind::LevelScalar | Kind::LevelPerDof => linear(k),
-                Kind::NonlinearSinh
-                | Kind::NonlinearCubic
-                | Kind::AsymmetricBilinear
-                | Kind::AsymmetricPerLevel => {
-                    let rot: [Curve; 3] = std::array::from_fn(|d| {
-                        if self.kind == Kind::AsymmetricPerLevel {
-                            // one-sided stiffening: a > 0 stiffens the positive
-                            // side, a < 0 the negative side, by exp(|a|)
-                            let a = block[li].map(|b| get(3 + 3 * b + d)).unwrap_or(0.0);
-                            let f = a.abs().exp();
-                            return if a >= 0.0 {
-                                Curve::Bilinear {
-                                    k_neg: k[d],
-                                    k_pos: k[d] * f,
-                                }
-                            } else {
-                                Curve::Bilinear {
-                                    k_neg: k[d] * f,
-                                    k_pos: k[d],
-                                }
-                            };
-                        }
-                        let s = get(3 + d);
-                        match self.kind {
-                            Kind::NonlinearSinh => Curve::Sinh {
-                                k: k[d],
-                                a: (-s).exp(),
-                            },
-                            Kind::NonlinearCubic => Curve::Cubic {
-                                k: k[d],
-                                c: k[d] * s.exp() / (scale[d] * scale[d]),
-                            },
-                            _ => Curve::Bilinear {
-                                k_neg: k[d],
-                                k_pos: k[d] * s.exp(),
-                            },
-                        }
-                    });
-                    let [t0, t1, t2] = trans_curves(k);
-                    let [r0, r1, r2] = rot;
-                    BushingModel::PerDof {
-                        curves: Box::new([r0, r1, r2, t0, t1, t2]),
-                        damping,
+        let block = self.block_index(parts.len());
+        for (li, p) in parts.iter_mut().enumerate() {
+            match self.kind {
+                Kind::Baseline | Kind::LevelPerDof => {}
+                Kind::LevelScalar if li > 0 => {
+                    let m = get(li - 1).exp();
+                    for kd in p.k.iter_mut().take(3) {
+                        *kd *= m;
+                    }
+                }
+                Kind::LevelScalar => {}
+                // the deflection scale follows the level's own compliance
+                // (factor 1 without a level effect)
+                Kind::NonlinearSinh => {
+                    for d in 0..3 {
+                        let r = p.k_ref[d] / p.k[d];
+                        let (k, a) = (p.k[d], (-get(d)).exp() * r);
+                        p.rot[d] = Some(Curve::Sinh { k, a });
+                    }
+                }
+                Kind::NonlinearCubic => {
+                    for d in 0..3 {
+                        let (k, r) = (p.k[d], p.k[d] / p.k_ref[d]);
+                        let c = k * get(d).exp() / (scale[d] * scale[d]) * (r * r);
+                        p.rot[d] = Some(Curve::Cubic { k, c });
+                    }
+                }
+                Kind::AsymmetricBilinear => {
+                    for d in 0..3 {
+                        one_sided(p, d, true, get(d).exp());
+                    }
+                }
+                Kind::AsymmetricPerLevel => {
+                    // one-sided stiffening: a > 0 stiffens the positive
+                    // side, a < 0 the negative side, by exp(|a|)
+                    for d in 0..3 {
+                        let a = block[li].map(|b| get(3 * b + d)).unwrap_or(0.0);
+                        one_sided(p, d, a >= 0.0, a.abs().exp());
                     }
                 }
                 Kind::CoupledUniform | Kind::CoupledPerLevel | Kind::CoupledLocal => {
                     let off = match (self.kind, block[li]) {
-                        (Kind::CoupledUniform, _) => Some(3),
-                        (_, Some(b)) => Some(3 + 3 * b),
+                        (Kind::CoupledUniform, _) => Some(0),
+                        (_, Some(b)) => Some(3 * b),
                         _ => None,
                     };
                     // K_ij = rho_ij sqrt(k_i k_j) (shared with calibration's coupled form)
-                    let rho = std::array::from_fn(|n| off.map(|o| get(o + n)).unwrap_or(0.0));
-                    BushingModel::Coupled {
-                        stiffness: crate::calibrate::forms::coupled_matrix(&k, rho),
-                        damping,
-                    }
+                    p.rho = Some(std::array::from_fn(|n| {
+                        off.map(|o| get(o + n)).unwrap_or(0.0)
+                    }));
                 }
                 Kind::JointRotation | Kind::JointPose | Kind::JointLocal => {
-                    let per = if self.offsets { 6 } else { 3 };
                     if let Some(b) = block[li] {
-                        let o = 3 + per * b;
-                        let w = Vector3::new(get(o), get(o + 1), get(o + 2));
-                        let t = if self.offsets {
-                            Vector3::new(get(o + 3), get(o + 4), get(o + 5)) * 1e-3
-                        } else {
-                            Vector3::zeros()
-                        };
-                        frames[li] = Some(Isometry3::from_parts(
-                            Translation3::from(t),
-                            UnitQuaternion::from_scaled_axis(w),
-                        ));
-                    }
-                    linear(k)
-                }
-                Kind::Preload => {
-                    let beta = get(3).exp();
-                    let ex = preload_expressions(&k, beta);
-                    let parsed: Vec<Expr> = ex
-                        .iter()
-                        .map(|s| {
-                            Expr::parse(s).map_err(|e| {
-                                Error::invalid("preload expression", format!("{s}: {e}"))
-                            })
-                        })
-                        .collect::<Result<_>>()?;
-                    let exprs: [Expr; 6] = parsed
-                        .try_into()
-                        .map_err(|_| Error::invalid("preload expression", "six expressions"))?;
-                    expressions[li] = Some(ex);
-                    BushingModel::Expression {
-                        exprs: Box::new(exprs),
-                        damping,
+                        frames[li] = Some(self.frame_change(&get, b));
                     }
                 }
-            };
+                Kind::Preload => p.beta = Some(get(0).exp()),
+            }
+        }
+    }
+
+    /// The rigid change of the joint frames of block `b` (pose kinds): a
+    /// rotation vector (rad) and, with offsets, a translation (mm).
+    fn frame_change(&self, get: &dyn Fn(usize) -> f64, b: usize) -> Isometry3<f64> {
+        let per = if self.offsets { 6 } else { 3 };
+        let o = per * b;
+        let w = Vector3::new(get(o), get(o + 1), get(o + 2));
+        let t = if self.offsets {
+            Vector3::new(get(o + 3), get(o + 4), get(o + 5)) * 1e-3
+        } else {
+            Vector3::zeros()
+        };
+        Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_scaled_axis(w))
+    }
+
+    /// The laws and frames of parameters `x`: the linear parts of the
+    /// global block, this family's effect, then the added family's.
+    pub fn variant(&self, sim: &Sim, x: &[f64]) -> Result<Variant> {
+        let nl = sim.levels.len();
+        let mut parts = self.initial_parts(sim, x);
+        let mut frames = vec![None; nl];
+        let add_len = self.add.as_ref().map(|a| a.n() - a.n_global()).unwrap_or(0);
+        let split = self.n().saturating_sub(add_len);
+        let own = x.get(self.n_global()..split.min(x.len())).unwrap_or(&[]);
+        self.apply(sim, own, &mut parts, &mut frames);
+        if let Some(a) = &self.add {
+            let own = x.get(split.min(x.len())..).unwrap_or(&[]);
+            a.apply(sim, own, &mut parts, &mut frames);
+        }
+        let mut laws = Vec::with_capacity(nl);
+        let mut expressions = Vec::with_capacity(nl);
+        for p in &parts {
+            let (law, ex) = p.model()?;
             laws.push(law);
+            expressions.push(ex);
         }
         Ok(Variant {
             laws,
@@ -562,6 +611,30 @@ impl Family {
     pub fn system(&self, sim: &Sim, x: &[f64]) -> Result<System> {
         let v = self.variant(sim, x)?;
         apply_variant(sim, &v)
+    }
+}
+
+/// A one-sided stiffening of rotational DoF `d` by `factor` on the
+/// positive (or negative) side: a bilinear curve on a linear DoF, an
+/// added one-sided term on a curved one (mixed effects).
+fn one_sided(p: &mut LawParts, d: usize, positive: bool, factor: f64) {
+    let k = p.k[d];
+    match p.rot[d] {
+        None => {
+            let (k_neg, k_pos) = if positive {
+                (k, k * factor)
+            } else {
+                (k * factor, k)
+            };
+            p.rot[d] = Some(Curve::Bilinear { k_neg, k_pos });
+        }
+        Some(_) => {
+            p.one_sided[d] = Some(OneSided {
+                positive,
+                threshold: 0.0,
+                factor,
+            })
+        }
     }
 }
 

@@ -50,6 +50,10 @@ pub struct Fitted {
     pub iterations: usize,
     /// Parameters on a bound at the end.
     pub at_bound: usize,
+    /// Out-of-fold predictions of every row (K-fold designs: each row
+    /// predicted by the fit of the fold that held it out); `None` for a
+    /// single split, whose held-out cases `pred` already predicts unseen.
+    pub heldout_pred: Option<Vec<[f64; 6]>>,
 }
 
 impl Fitted {
@@ -57,6 +61,13 @@ impl Fitted {
     pub fn residual(&self, sim: &Sim, cell: usize) -> f64 {
         let c = &sim.cells[cell];
         self.pred[c.row][c.dof] - c.measured
+    }
+
+    /// Residual of a held-out cell as predicted without it (out of fold).
+    pub fn heldout_residual(&self, sim: &Sim, cell: usize) -> f64 {
+        let c = &sim.cells[cell];
+        let pred = self.heldout_pred.as_ref().unwrap_or(&self.pred);
+        pred[c.row][c.dof] - c.measured
     }
 }
 
@@ -130,6 +141,7 @@ pub fn fit(
         x: res.x,
         pred,
         iterations: res.iterations,
+        heldout_pred: None,
     })
 }
 

@@ -7,8 +7,13 @@
 //! |---|---|
 //! | `sim` | [`sim::Sim`]: the experiment as simulated (levels, prepared loads, measured cells), predictions of a model variant |
 //! | `family` | [`family::Family`]: baseline and candidate effects as parametric extensions (laws, joint frames) |
+//! | `law` | [`law::LawParts`]: one level's law from what the effects contribute (native law for one, an expression law for several) |
 //! | `fit` | weighted least squares of a family on the training cells (LM, finite-difference Jacobian) |
 //! | `design` | [`design::Design`]: case structure, held-out split, effects the design cannot test |
+//! | `stages` | the fits of a diagnosis: candidates on the training cells, per fold of a K-fold design (out-of-fold predictions), mixed-effect pairs |
+//! | `gap` | the held-out gap: held-out cells, RMSE, where the baseline's gap sits |
+//! | `mixed` | two effects fitted together, kept when they explain significantly more of the held-out gap; the share of each (`verdict.effects`) |
+//! | `other` | what the augmented model leaves of the held-out gap and its structure (by level, DoF, load, protocol order): the `other` verdict |
 //! | `select` | [`select::diagnose`]: the procedure, noise estimate, criterion, verdict, gap decomposition |
 //! | `synth` | synthetic labelled experiments (truth = nominal + one random effect, solved by the crate's solver, plus noise) for testing generality |
 //! | `report` | `diagnosis.json`, Markdown, SVG figures, the improved `.osim` |
@@ -16,10 +21,15 @@
 pub mod design;
 pub mod family;
 pub mod fit;
+pub mod gap;
+pub mod law;
+pub mod mixed;
 pub mod noise;
+pub mod other;
 pub mod report;
 pub mod select;
 pub mod sim;
+pub mod stages;
 pub mod synth;
 
 use crate::calibrate::experiment::Experiment;

@@ -26,10 +26,9 @@ fn r4(x: f64) -> f64 {
     }
 }
 
-/// `diagnosis.json`.
-pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -> Value {
-    let ranked: Vec<Value> = o
-        .ranked
+/// `verdict.ranked`: the best variant of each effect, by score.
+fn ranked_json(o: &Outcome) -> Vec<Value> {
+    o.ranked
         .iter()
         .map(|&i| {
             let s = &o.stats[i];
@@ -37,9 +36,147 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
                    "earns": s.earns, "n_params": s.n_params, "p_train": s.p_train,
                    "dchi2_train": r4(s.dchi2_train), "dchi2_heldout": r4(s.dchi2_heldout)})
         })
+        .collect()
+}
+
+/// Every fitted family's statistics and parameters (physical units).
+fn candidates_json(o: &Outcome) -> Vec<Value> {
+    o.stats
+        .iter()
+        .map(|s| {
+            json!({"family": s.family.label(), "effect": s.effect.name(), "n_params": s.n_params,
+                   "chi2_train": r4(s.chi2_train), "chi2_heldout": r4(s.chi2_heldout),
+                   "heldout_rotation_rmse": r4(s.heldout_rot_rmse),
+                   "dchi2_train": r4(s.dchi2_train), "p_train": s.p_train, "dbic_train": r4(s.dbic_train),
+                   "dchi2_heldout": r4(s.dchi2_heldout), "score": r4(s.score), "earns": s.earns,
+                   "iterations": s.iterations, "params": s.params.iter().map(|(k, v)| (k.clone(), r4(*v))).collect::<std::collections::BTreeMap<_, _>>()})
+        })
+        .collect()
+}
+
+/// The aggregates of the baseline's held-out gap.
+fn tables_json(o: &Outcome) -> serde_json::Map<String, Value> {
+    o.gap_tables()
+        .into_iter()
+        .map(|(k, v)| {
+            let rows = v
+                .iter()
+                .map(|s| json!({"key": s.key, "share": r4(s.share)}))
+                .collect();
+            (k, Value::Array(rows))
+        })
+        .collect()
+}
+
+/// The `heldout` block: cases, rotation RMSE and shrink (with every
+/// effect reported), translations, per level and DoF, and the primary
+/// effect alone when two are reported.
+fn heldout_json(o: &Outcome) -> Value {
+    let (b, a) = o.heldout_rmse();
+    let shrink = if b > 0.0 { 1.0 - a / b } else { 0.0 };
+    let held: Vec<&str> = o
+        .design
+        .heldout
+        .iter()
+        .map(|&i| o.design.cases[i].id.as_str())
         .collect();
-    let gap = o.gap_cells(exp);
-    let gap_json: Vec<Value> = gap
+    let per: Vec<Value> = o
+        .per_level_dof()
+        .iter()
+        .map(|r| {
+            json!({"level": r.level, "dof": r.dof, "baseline_rmse": r4(r.baseline_rmse),
+                   "augmented_rmse": r4(r.augmented_rmse), "shrink": r4(r.shrink)})
+        })
+        .collect();
+    let trans = o.heldout_trans_rmse().map(|(b, a)| {
+        json!({"baseline_rmse": r4(b), "augmented_rmse": r4(a), "shrink": if b > 0.0 { r4(1.0 - a / b) } else { 0.0 }, "units": "mm"})
+    });
+    json!({
+        "cases": held,
+        "folds": o.design.folds,
+        "baseline_rmse": r4(b),
+        "augmented_rmse": r4(a),
+        "shrink": r4(shrink),
+        "units": "deg: RMSE over every measured rotational cell (rx, ry, rz) of the held-out cases (each predicted by a fit that never saw it)",
+        "translations": trans,
+        "per_level_dof": per,
+        "primary_alone": primary_alone(o),
+    })
+}
+
+/// Quantities that were not measured where the two best candidates
+/// predict values furthest apart (in units of the noise, the rig floor
+/// for an unmeasured class): the measurements that would separate them.
+pub fn separating_measurements(o: &Outcome) -> Vec<Value> {
+    let [a, b] = match o.ranked.as_slice() {
+        [a, b, ..] => [*a, *b],
+        _ => return Vec::new(),
+    };
+    let (fa, fb) = (&o.fits[a], &o.fits[b]);
+    let measured: std::collections::BTreeSet<(usize, usize)> =
+        o.sim.cells.iter().map(|c| (c.row, c.dof)).collect();
+    let sigma = |d: usize| {
+        let class = if d < 3 {
+            o.noise_model.rotation
+        } else {
+            o.noise_model.translation
+        };
+        class.map(|c| c.sigma).unwrap_or(if d < 3 {
+            super::noise::FLOOR_DEG
+        } else {
+            super::noise::FLOOR_MM
+        })
+    };
+    let mut best: Vec<(f64, usize, usize, f64)> = Vec::new();
+    for (row, (pa, pb)) in fa.pred.iter().zip(&fb.pred).enumerate() {
+        for d in (0..6).filter(|d| !measured.contains(&(row, *d))) {
+            let diff = pa[d] - pb[d];
+            best.push((diff.abs() / sigma(d), row, d, diff));
+        }
+    }
+    best.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)).then(x.2.cmp(&y.2)));
+    let names = format!(
+        "{} vs {}",
+        o.stats[a].effect.name(),
+        o.stats[b].effect.name()
+    );
+    best.iter()
+        .filter(|x| x.0 >= 2.0)
+        .take(3)
+        .map(|&(z, row, d, diff)| {
+            let r = &o.sim.levels[o.sim.cells.iter().find(|c| c.row == row).map(|c| c.level).unwrap_or(0)];
+            let case = o.sim.cells.iter().find(|c| c.row == row).map(|c| c.case).unwrap_or(0);
+            json!({"case": o.design.cases.get(case).map(|c| c.id.as_str()).unwrap_or(""),
+                   "upper": r.upper_name, "lower": r.lower_name, "dof": DOF_NAMES[d],
+                   "effect": names, "difference": r4(diff),
+                   "reason": format!("not measured: the two fitted models predict values {:.3} {} apart ({z:.1} noise SD)",
+                                     diff.abs(), if d < 3 { "deg" } else { "mm" })})
+        })
+        .collect()
+}
+
+/// `where`: the cells carrying the held-out gap; for `unidentifiable` the
+/// load cases or measurements that would separate the candidates.
+fn where_json(o: &Outcome, gap_json: &[Value], missing: &[Value]) -> Vec<Value> {
+    if o.verdict != "unidentifiable" {
+        return gap_json.to_vec();
+    }
+    let mut w = missing.to_vec();
+    w.extend(separating_measurements(o));
+    if w.is_empty() {
+        w.push(json!({
+            "case": "a second moment magnitude in both directions, the rotations about the unloaded axes and the translations of every case, and follower-load series",
+            "effect": o.ranked.iter().take(2).map(|&i| o.stats[i].effect.name()).collect::<Vec<_>>().join(" vs "),
+            "reason": o.reasons.join("; "),
+        }));
+    }
+    w
+}
+
+/// `diagnosis.json`.
+pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -> Value {
+    let gap_json: Vec<Value> = o
+        .gap_cells(exp)
         .iter()
         .take(TOP_CELLS)
         .map(|g| {
@@ -53,101 +190,102 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
         .iter()
         .map(|m| json!({"case": m.case, "effect": m.effect, "reason": m.reason}))
         .collect();
-    let mut where_ = gap_json.clone();
-    if o.verdict == "unidentifiable" {
-        // the load cases (or measurements) that would separate the candidates
-        where_ = missing.clone();
-        if where_.is_empty() {
-            where_.push(json!({
-                "case": "translations (tx, ty, tz) of every case, and follower-load series of the moment cases",
-                "effect": "coupled_stiffness vs joint_pose_error",
-                "reason": o.reasons.join("; "),
-            }));
-        }
-    }
-    let (b, a) = o.heldout_rmse();
-    let shrink = if b > 0.0 { 1.0 - a / b } else { 0.0 };
-    let held: Vec<&str> = o
-        .design
-        .heldout
-        .iter()
-        .map(|&i| o.design.cases[i].id.as_str())
-        .collect();
     let train: Vec<&str> = o
         .design
         .train
         .iter()
         .map(|&i| o.design.cases[i].id.as_str())
         .collect();
-    let per: Vec<Value> = o
-        .per_level_dof()
-        .iter()
-        .map(|r| {
-            json!({"level": r.level, "dof": r.dof, "baseline_rmse": r4(r.baseline_rmse),
-                   "augmented_rmse": r4(r.augmented_rmse), "shrink": r4(r.shrink)})
-        })
-        .collect();
-    let tables: serde_json::Map<String, Value> = o
-        .gap_tables()
-        .into_iter()
-        .map(|(k, v)| {
-            (
-                k,
-                Value::Array(
-                    v.iter()
-                        .map(|s| json!({"key": s.key, "share": r4(s.share)}))
-                        .collect(),
-                ),
-            )
-        })
-        .collect();
-    let trans = o.heldout_trans_rmse().map(|(b, a)| {
-        json!({"baseline_rmse": r4(b), "augmented_rmse": r4(a), "shrink": if b > 0.0 { r4(1.0 - a / b) } else { 0.0 }, "units": "mm"})
-    });
-    let candidates: Vec<Value> = o
-        .stats
-        .iter()
-        .map(|s| {
-            json!({"family": s.family.label(), "effect": s.effect.name(), "n_params": s.n_params,
-                   "chi2_train": r4(s.chi2_train), "chi2_heldout": r4(s.chi2_heldout),
-                   "heldout_rotation_rmse": r4(s.heldout_rot_rmse),
-                   "dchi2_train": r4(s.dchi2_train), "p_train": s.p_train, "dbic_train": r4(s.dbic_train),
-                   "dchi2_heldout": r4(s.dchi2_heldout), "score": r4(s.score), "earns": s.earns,
-                   "iterations": s.iterations, "params": s.params.iter().map(|(k, v)| (k.clone(), r4(*v))).collect::<std::collections::BTreeMap<_, _>>()})
-        })
-        .collect();
+    let params = |f: &crate::diagnose::fit::Fitted| -> std::collections::BTreeMap<String, f64> {
+        f.family
+            .physical_params(&o.sim, &f.x)
+            .into_iter()
+            .map(|(k, v)| (k, r4(v)))
+            .collect()
+    };
     json!({
         "verdict": {
             "effect": o.verdict,
             "confidence": r4(o.confidence),
-            "ranked": ranked,
-            "family": o.chosen.map(|i| o.stats[i].family.label()),
+            "effects": o.effects.iter().map(|e| json!({"effect": e.effect.name(), "share": r4(e.share), "family": e.family})).collect::<Vec<_>>(),
+            "ranked": ranked_json(o),
+            "family": o.augmented().family.label(),
             "reasons": o.reasons,
         },
-        "where": where_,
+        "where": where_json(o, &gap_json, &missing),
         "gap_cells": gap_json,
-        "gap_tables": tables,
-        "heldout": {
-            "cases": held,
-            "baseline_rmse": r4(b),
-            "augmented_rmse": r4(a),
-            "shrink": r4(shrink),
-            "units": "deg: RMSE over every measured rotational cell (rx, ry, rz) of the held-out cases",
-            "translations": trans,
-            "per_level_dof": per,
-        },
+        "gap_tables": tables_json(o),
+        "heldout": heldout_json(o),
+        "pairs": pairs_json(o),
+        "remaining": remaining_json(o),
         "design": {
             "rule": o.design.rule,
             "train_cases": train,
+            "separable": separable_line(o),
+            "separating_measurements": separating_measurements(o),
         },
         "untestable": o.design.untestable.iter().map(|(e, w)| json!({"effect": e, "reason": w})).collect::<Vec<_>>(),
         "missing_cases": missing,
         "noise": noise_json(o),
-        "baseline": {"params": o.baseline.family.physical_params(&o.sim, &o.baseline.x).into_iter().map(|(k, v)| (k, r4(v))).collect::<std::collections::BTreeMap<_, _>>()},
-        "candidates": candidates,
+        "baseline": {"params": params(&o.baseline)},
+        "augmented": {"family": o.augmented().family.label(), "params": params(o.augmented())},
+        "candidates": candidates_json(o),
         "model": model_file,
         "experiment": exp.name,
     })
+}
+
+/// With two effects reported, the held-out rotation RMSE and shrink of the
+/// primary effect alone (the `heldout` figures are those with both).
+fn primary_alone(o: &Outcome) -> Value {
+    let (Some(_), Some(i)) = (o.chosen_pair, o.chosen) else {
+        return Value::Null;
+    };
+    let (b, _) = o.heldout_rmse();
+    let a = o.stats[i].heldout_rot_rmse;
+    json!({"family": o.stats[i].family.label(), "augmented_rmse": r4(a),
+           "shrink": if b > 0.0 { r4(1.0 - a / b) } else { 0.0 }})
+}
+
+/// Every pair of effects fitted together and how it compares.
+fn pairs_json(o: &Outcome) -> Value {
+    let v: Vec<Value> = o
+        .pairs
+        .iter()
+        .map(|p| {
+            json!({"effects": p.effects.map(|e| e.name()), "family": p.fit.family.label(),
+                   "chi2_train": r4(p.chi2_train), "chi2_heldout": r4(p.chi2_heldout),
+                   "dchi2_train_over_better_member": r4(p.dchi2_train), "p_train": p.p_train,
+                   "dchi2_heldout_over_best_single": r4(p.dchi2_heldout),
+                   "win_probability": r4(p.win), "accepted": p.accepted,
+                   "params": p.fit.family.physical_params(&o.sim, &p.fit.x).into_iter().map(|(k, v)| (k, r4(v))).collect::<std::collections::BTreeMap<_, _>>()})
+        })
+        .collect();
+    Value::Array(v)
+}
+
+/// What the augmented model leaves of the held-out gap: its size against
+/// the noise and its structure (the three most significant groupings,
+/// five groups each).
+fn remaining_json(o: &Outcome) -> Value {
+    let r = &o.remaining;
+    let structure: Vec<Value> = r
+        .structure
+        .iter()
+        .take(3)
+        .map(|s| {
+            let groups: Vec<Value> = s
+                .groups
+                .iter()
+                .take(5)
+                .map(|g| json!({"key": g.key, "cells": g.cells, "mean_residual_noise_units": r4(g.mean), "share": r4(g.share)}))
+                .collect();
+            json!({"by": s.by, "f": r4(s.f), "p": s.p, "groups": groups})
+        })
+        .collect();
+    json!({"model": r.model, "cells": r.cells, "chi2": r4(r.chi2), "reduced_chi2": r4(r.reduced_chi2),
+           "p_noise": r.p_noise, "closed": r4(r.closed), "p_structure": r.p_structure(),
+           "structure": structure})
 }
 
 /// Body-fixed X-Y-Z angles of a rotation (OpenSim `orientation`).
@@ -513,28 +651,42 @@ pub fn curves_svg(o: &Outcome, _exp: &Experiment) -> String {
         s,
         r##"<text x="40" y="{:.0}">black dots: measured (large: held out); blue: baseline; red: augmented ({})</text>"##,
         ph + 60.0,
-        esc(o
-            .chosen
-            .map(|i| o.stats[i].family.label())
-            .unwrap_or("none"))
+        esc(&o.augmented().family.label())
     );
     s.push_str("</svg>\n");
     s
 }
 
-/// Which candidate effects the design's held-out split can test.
+/// Which candidate effects the design's held-out split can test, and for
+/// those it cannot, the load cases or measurements that would test them.
 pub fn separable_line(o: &Outcome) -> String {
     let (can, cannot): (Vec<_>, Vec<_>) = super::family::Effect::CANDIDATES
         .iter()
         .map(|e| e.name())
         .partition(|e| !o.design.is_untestable(e));
+    let needs = |e: &str| -> String {
+        let cases: Vec<&str> = o
+            .design
+            .missing
+            .iter()
+            .filter(|m| m.effect == e)
+            .map(|m| m.case.as_str())
+            .take(4)
+            .collect();
+        if cases.is_empty() {
+            e.to_string()
+        } else {
+            format!("{e} (would need: {})", cases.join(", "))
+        }
+    };
+    let cannot: Vec<String> = cannot.iter().map(|e| needs(e)).collect();
     format!(
         "The held-out design can test: {}; it cannot test: {}.",
         can.join(", "),
         if cannot.is_empty() {
             "-".to_string()
         } else {
-            cannot.join(", ")
+            cannot.join("; ")
         }
     )
 }
@@ -590,12 +742,126 @@ pub fn params_line(o: &Outcome) -> String {
     let p = f.family.physical_params(&o.sim, &f.x);
     format!(
         "Fitted parameters ({}): {}",
-        f.family.kind.label(),
+        f.family.label(),
         p.iter()
             .map(|(k, v)| format!("{k} = {v:.4}"))
             .collect::<Vec<_>>()
             .join(", ")
     )
+}
+
+/// The effects reported with their shares of the held-out gap, and the
+/// pairs of effects tried.
+fn effects_md(m: &mut String, o: &Outcome) {
+    if !o.effects.is_empty() {
+        let list: Vec<String> = o
+            .effects
+            .iter()
+            .map(|e| {
+                format!(
+                    "`{}` ({}) {:.0}%",
+                    e.effect.name(),
+                    e.family,
+                    100.0 * e.share
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            m,
+            "\nEffects and the share of the held-out gap each explains: {}.",
+            list.join(", ")
+        );
+    }
+    if o.pairs.is_empty() {
+        return;
+    }
+    let _ = writeln!(m, "\n| pair | dchi2 train over better member | p train | dchi2 held-out over best single | P(stays better) | accepted |\n|---|---|---|---|---|---|");
+    for p in &o.pairs {
+        let _ = writeln!(
+            m,
+            "| {} + {} | {:.1} | {:.2e} | {:.1} | {:.3} | {} |",
+            p.effects[0].name(),
+            p.effects[1].name(),
+            p.dchi2_train,
+            p.p_train,
+            p.dchi2_heldout,
+            p.win,
+            if p.accepted { "yes" } else { "no" }
+        );
+    }
+}
+
+/// What the augmented model leaves of the held-out gap, and its structure.
+fn remaining_md(m: &mut String, o: &Outcome) {
+    let r = &o.remaining;
+    let _ = writeln!(
+        m,
+        "\n## What is left\n\nThe augmented model ({}) closes {:.0}% of the baseline's held-out chi-square and leaves {:.1} over {} cells (reduced {:.2}, P(noise) {:.2e}); structure of the rest, most significant first:\n",
+        r.model, 100.0 * r.closed, r.chi2, r.cells, r.reduced_chi2, r.p_noise
+    );
+    for s in r.structure.iter().take(3) {
+        let groups: Vec<String> = s
+            .groups
+            .iter()
+            .take(4)
+            .map(|g| format!("{} {:+.2} ({:.0}%)", g.key, g.mean, 100.0 * g.share))
+            .collect();
+        let _ = writeln!(
+            m,
+            "- by {} (F {:.1}, p {:.1e}): {}",
+            s.by,
+            s.f,
+            s.p,
+            groups.join(", ")
+        );
+    }
+}
+
+/// The design: the held-out rule, what it can and cannot test, and the
+/// load cases or measurements that would.
+fn design_md(m: &mut String, o: &Outcome) {
+    let _ = writeln!(m, "\n## Design\n\n{}\n", o.design.rule);
+    let _ = writeln!(
+        m,
+        "Training cases: {}; held-out cases: {}.\n",
+        o.design.train.len(),
+        o.design.heldout.len()
+    );
+    let _ = writeln!(m, "{}\n", separable_line(o));
+    if !o.design.untestable.is_empty() {
+        let _ = writeln!(m, "Untestable by design:\n");
+        for (e, w) in &o.design.untestable {
+            let _ = writeln!(m, "- `{e}`: {w}");
+        }
+        let _ = writeln!(
+            m,
+            "\nLoad cases or measurements that would make them testable:\n"
+        );
+        for c in &o.design.missing {
+            let _ = writeln!(m, "- `{}` ({}): {}", c.case, c.effect, c.reason);
+        }
+        let _ = writeln!(m);
+    }
+    let sep = separating_measurements(o);
+    if !sep.is_empty() {
+        let _ = writeln!(
+            m,
+            "Unmeasured quantities that would separate the two best candidates:\n"
+        );
+        for x in &sep {
+            let _ = writeln!(
+                m,
+                "- {} at {}/{} in `{}` ({}): {}",
+                x["dof"].as_str().unwrap_or(""),
+                x["upper"].as_str().unwrap_or(""),
+                x["lower"].as_str().unwrap_or(""),
+                x["case"].as_str().unwrap_or(""),
+                x["effect"].as_str().unwrap_or(""),
+                x["reason"].as_str().unwrap_or("")
+            );
+        }
+        let _ = writeln!(m);
+    }
 }
 
 /// The Markdown report.
@@ -610,25 +876,8 @@ pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
     for r in &o.reasons {
         let _ = writeln!(m, "- {r}");
     }
-    let _ = writeln!(m, "\n## Design\n\n{}\n", o.design.rule);
-    let _ = writeln!(
-        m,
-        "Training cases: {}; held-out cases: {}.\n",
-        o.design.train.len(),
-        o.design.heldout.len()
-    );
-    let _ = writeln!(m, "{}\n", separable_line(o));
-    if !o.design.untestable.is_empty() {
-        let _ = writeln!(m, "Untestable by design:\n");
-        for (e, w) in &o.design.untestable {
-            let _ = writeln!(m, "- `{e}`: {w}");
-        }
-        let _ = writeln!(m, "\nLoad cases that would make them testable:\n");
-        for c in &o.design.missing {
-            let _ = writeln!(m, "- `{}` ({}): {}", c.case, c.effect, c.reason);
-        }
-        let _ = writeln!(m);
-    }
+    effects_md(&mut m, o);
+    design_md(&mut m, o);
     let _ = writeln!(m, "{}\n", noise_line(o));
     let _ = writeln!(m, "{}\n", params_line(o));
     let _ = writeln!(m, "## Candidates\n\n| family | effect | params | dchi2 train | p train | dchi2 held-out | score | earns |\n|---|---|---|---|---|---|---|---|");
@@ -647,6 +896,7 @@ pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
             if s.earns { "yes" } else { "no" }
         );
     }
+    remaining_md(&mut m, o);
     let (b, a) = o.heldout_rmse();
     let _ = writeln!(m, "\n## How far: held-out rotation RMSE\n\nbaseline {:.4} deg, augmented {:.4} deg, shrink {:.3}.\n", b, a, if b > 0.0 { 1.0 - a / b } else { 0.0 });
     let _ = writeln!(

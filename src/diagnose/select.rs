@@ -30,14 +30,17 @@
 //! closing less than [`DECISIVE_SHRINK`] of the held-out gap; (b) data: the
 //! runner-up's score within [`INDISTINGUISHABLE`] of the winner's.
 
-use super::design::{Design, AXIS_NAMES};
-use super::family::{Effect, Family, Kind};
-use super::fit::{dominant_level, fit, kinds, Fitted, Weights};
+use super::design::Design;
+use super::family::{Effect, Kind};
+use super::fit::{kinds, Fitted, Weights};
+use super::gap::{chi2_of, rmse, rotations};
+use super::mixed::{fit_pairs, pair_shares, single_share, EffectShare, PairCtx, PairFit};
 use super::noise;
+use super::other::{remaining, Remaining};
 use super::sim::Sim;
-use crate::calibrate::experiment::{Experiment, DOF_NAMES};
+use super::stages::{fit_design, progress_bar, FitCtx, Fits, Split};
+use crate::calibrate::experiment::Experiment;
 use crate::error::Result;
-use rayon::prelude::*;
 use serde::Serialize;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::collections::BTreeMap;
@@ -49,9 +52,23 @@ pub const HELDOUT_MIN: f64 = 3.84;
 /// Score margin under which the two best effects are indistinguishable.
 pub const INDISTINGUISHABLE: f64 = 6.0;
 
-/// Held-out shrink a candidate needs to be reported while some effect is
-/// untestable by design.
+/// Fraction of the baseline's held-out excess over the noise a model
+/// must close to be reported while some effect is untestable by design.
 pub const DECISIVE_SHRINK: f64 = 0.5;
+
+/// `other`: reduced chi-square the augmented model must leave on the
+/// held-out cells.
+pub const OTHER_REDUCED_CHI2: f64 = 4.0;
+
+/// `other`: largest fraction of the baseline's held-out chi-square the
+/// augmented model may close (with [`OTHER_REDUCED_CHI2`]).
+pub const OTHER_CLOSED: f64 = 0.8;
+
+/// `other`: structured misfit ratio of the augmented model's residuals
+/// (see [`Remaining::misfit`]). Chosen on the development set,
+/// the standard synthetic set and the out-of-vocabulary tuning seed 7
+/// (largest in-vocabulary value 1.28).
+pub const OTHER_MISFIT: f64 = 1.5;
 
 /// Options.
 #[derive(Debug, Clone)]
@@ -81,6 +98,9 @@ pub enum Verdict {
     Effect(Effect),
     /// The load cases cannot separate the candidates.
     Unidentifiable,
+    /// Something outside the vocabulary: the best candidate leaves a
+    /// structured held-out gap well above the noise.
+    Other,
 }
 
 impl Verdict {
@@ -90,6 +110,27 @@ impl Verdict {
             Verdict::None => "none",
             Verdict::Effect(e) => e.name(),
             Verdict::Unidentifiable => "unidentifiable",
+            Verdict::Other => "other",
+        }
+    }
+
+    /// The verdict of a name of `diagnosis.json` (`None` for an unknown one).
+    pub fn from_name(name: &str) -> Option<Verdict> {
+        match name {
+            "unidentifiable" => Some(Verdict::Unidentifiable),
+            "other" => Some(Verdict::Other),
+            _ => std::iter::once(Effect::None)
+                .chain(Effect::CANDIDATES)
+                .find(|e| e.name() == name)
+                .map(Verdict::of),
+        }
+    }
+
+    /// The verdict naming `e` (`none` for [`Effect::None`]).
+    pub fn of(e: Effect) -> Verdict {
+        match e {
+            Effect::None => Verdict::None,
+            e => Verdict::Effect(e),
         }
     }
 }
@@ -195,202 +236,20 @@ pub struct Outcome {
     pub verdict: Verdict,
     pub confidence: f64,
     /// The family used for the held-out comparison and the improved model
-    /// (None for `none`).
+    /// (None for `none`); the primary effect's when two are reported.
     pub chosen: Option<usize>,
     pub reasons: Vec<String>,
-}
-
-fn chi2_of(sim: &Sim, f: &Fitted, cells: &[usize], w: Weights) -> f64 {
-    cells
-        .iter()
-        .map(|&c| (f.residual(sim, c) * w.cell(&sim.cells[c])).powi(2))
-        .sum()
-}
-
-fn rmse(sim: &Sim, f: &Fitted, cells: &[usize]) -> f64 {
-    if cells.is_empty() {
-        return f64::NAN;
-    }
-    (cells
-        .iter()
-        .map(|&c| f.residual(sim, c).powi(2))
-        .sum::<f64>()
-        / cells.len() as f64)
-        .sqrt()
-}
-
-/// Training and held-out cells (indices into `sim.cells`) of a design.
-struct Split {
-    train: Vec<usize>,
-    heldout: Vec<usize>,
-}
-
-impl Split {
-    fn of(sim: &Sim, design: &Design) -> Split {
-        let in_train: Vec<bool> = (0..sim.loads.len())
-            .map(|i| design.train.contains(&i))
-            .collect();
-        let (train, heldout) =
-            (0..sim.cells.len()).partition(|&c| in_train.get(sim.cells[c].case) == Some(&true));
-        Split { train, heldout }
-    }
-}
-
-/// The progress bar (hidden without `opts.progress`).
-fn progress_bar(opts: &Options, len: u64) -> indicatif::ProgressBar {
-    if !opts.progress {
-        return indicatif::ProgressBar::hidden();
-    }
-    let pb = indicatif::ProgressBar::new(len);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    pb.set_message("baseline");
-    pb
-}
-
-/// What every fit of one diagnosis shares.
-struct FitCtx<'a> {
-    sim: &'a Sim,
-    design: &'a Design,
-    split: &'a Split,
-    w: Weights,
-    opts: &'a Options,
-    pb: &'a indicatif::ProgressBar,
-}
-
-impl FitCtx<'_> {
-    /// Fit families in parallel on the training cells.
-    fn fit_all(&self, families: Vec<Family>) -> Result<Vec<Fitted>> {
-        families
-            .into_par_iter()
-            .map(|f| {
-                let r = fit(
-                    self.sim,
-                    f,
-                    &self.split.train,
-                    &self.design.train,
-                    self.w,
-                    self.opts.max_iterations,
-                );
-                self.pb.inc(1);
-                r
-            })
-            .collect::<Vec<Result<Fitted>>>()
-            .into_iter()
-            .collect()
-    }
-}
-
-/// Second stage, local pose: the pose family at the level that carries
-/// most of the rotation-only pose fit, started from it.
-fn local_pose_family(ctx: &FitCtx, rot: &Fitted, g: [f64; 3], offsets: bool) -> Result<Family> {
-    let sim = ctx.sim;
-    let lj = dominant_level(sim, rot, &ctx.split.train, &ctx.design.train, 3)?;
-    let mut mask = vec![false; sim.levels.len()];
-    mask[lj] = true;
-    let mut loc = Family::masked(Kind::JointLocal, sim, g, mask, offsets);
-    if let Some(x) = loc.x0.get_mut(..3) {
-        x.copy_from_slice(&rot.x[..3]);
-    }
-    for k in 0..3 {
-        if let (Some(v), Some(r)) = (loc.x0.get_mut(3 + k), rot.x.get(3 + 3 * lj + k)) {
-            *v = *r;
-        }
-    }
-    Ok(loc)
-}
-
-/// Second stage, pose with offsets, started from the rotation-only fit.
-fn pose_offsets_family(sim: &Sim, rot: &Fitted, g: [f64; 3]) -> Family {
-    let mut pose = Family::new(Kind::JointPose, sim, g);
-    pose.x0[..3].copy_from_slice(&rot.x[..3]);
-    for li in 0..sim.levels.len() {
-        for k in 0..3 {
-            pose.x0[3 + 6 * li + k] = rot.x[3 + 3 * li + k];
-        }
-    }
-    pose
-}
-
-/// Second stage, per-level one-sided stiffening, started from the global
-/// bilinear fit (a stiffer negative side, a < 0, lowers the global factor).
-fn asym_per_level_family(sim: &Sim, ab: &Fitted, g: [f64; 3]) -> Family {
-    let mut pl = Family::new(Kind::AsymmetricPerLevel, sim, g);
-    for k in 0..3 {
-        if let (Some(v), Some(r), Some(a)) = (pl.x0.get_mut(k), ab.x.get(k), ab.x.get(3 + k)) {
-            *v = *r + a.min(0.0);
-        }
-    }
-    for li in 0..sim.levels.len() {
-        for k in 0..3 {
-            if let (Some(v), Some(r)) = (pl.x0.get_mut(3 + 3 * li + k), ab.x.get(3 + k)) {
-                *v = *r;
-            }
-        }
-    }
-    pl
-}
-
-/// Second stage, coupling at the level that carries most of the per-level
-/// coupling fit, started from it.
-fn local_coupling_family(ctx: &FitCtx, cp: &Fitted, g: [f64; 3]) -> Result<Family> {
-    let sim = ctx.sim;
-    let lc = dominant_level(sim, cp, &ctx.split.train, &ctx.design.train, 3)?;
-    let mut mask = vec![false; sim.levels.len()];
-    mask[lc] = true;
-    let mut loc = Family::masked(Kind::CoupledLocal, sim, g, mask, false);
-    for k in 0..6 {
-        let src = if k < 3 { k } else { 3 + 3 * lc + (k - 3) };
-        if let (Some(v), Some(r)) = (loc.x0.get_mut(k), cp.x.get(src)) {
-            *v = *r;
-        }
-    }
-    Ok(loc)
-}
-
-/// The second-stage families, each started from a first-stage fit.
-fn stage2_families(
-    ctx: &FitCtx,
-    fits: &[Fitted],
-    g: [f64; 3],
-    offsets: bool,
-) -> Result<Vec<Family>> {
-    let find = |k: Kind| fits.iter().find(|f| f.family.kind == k);
-    let mut out = Vec::new();
-    if let Some(rot) = find(Kind::JointRotation) {
-        out.push(local_pose_family(ctx, rot, g, offsets)?);
-        if offsets {
-            out.push(pose_offsets_family(ctx.sim, rot, g));
-        }
-    }
-    if let Some(ab) = find(Kind::AsymmetricBilinear) {
-        out.push(asym_per_level_family(ctx.sim, ab, g));
-    }
-    if let Some(cp) = find(Kind::CoupledPerLevel) {
-        out.push(local_coupling_family(ctx, cp, g)?);
-    }
-    Ok(out)
-}
-
-/// Baseline and every candidate family fitted on the training cells.
-fn fit_families(ctx: &FitCtx, offsets: bool) -> Result<(Fitted, Vec<Fitted>)> {
-    let sim = ctx.sim;
-    let baseline = ctx
-        .fit_all(vec![Family::new(Kind::Baseline, sim, [0.0; 3])])?
-        .remove(0);
-    ctx.pb.set_message("candidates");
-    let g = [baseline.x[0], baseline.x[1], baseline.x[2]];
-    let first: Vec<Family> = kinds(ctx.design.has_follower)
-        .into_iter()
-        .map(|k| Family::new(k, sim, g))
-        .collect();
-    let mut fits = ctx.fit_all(first)?;
-    ctx.pb.set_message("pose offsets, local variants");
-    let more = ctx.fit_all(stage2_families(ctx, &fits, g, offsets)?)?;
-    fits.extend(more);
-    Ok((baseline, fits))
+    /// Every pair of effects fitted together.
+    pub pairs: Vec<PairFit>,
+    /// The pair reported (index into `pairs`): the augmented model then
+    /// carries both effects.
+    pub chosen_pair: Option<usize>,
+    /// `verdict.effects`: the effect(s) reported with the share of the
+    /// held-out gap each explains (the primary first).
+    pub effects: Vec<EffectShare>,
+    /// What the augmented model leaves of the held-out gap, and its
+    /// structure (the basis of `other`).
+    pub remaining: Remaining,
 }
 
 /// Selection statistics of every fit against the baseline (noise weights `w`).
@@ -403,14 +262,14 @@ fn candidate_stats(
     w: Weights,
 ) -> Vec<CandidateStats> {
     let n = split.train.len() as f64;
-    let chi_b_tr = chi2_of(sim, baseline, &split.train, w);
-    let chi_b_ho = chi2_of(sim, baseline, &split.heldout, w);
+    let chi_b_tr = chi2_of(sim, baseline, &split.train, w, false);
+    let chi_b_ho = chi2_of(sim, baseline, &split.heldout, w, true);
     let ho_rot: Vec<usize> = rotations(sim, &split.heldout);
     let p0 = baseline.x.len();
     fits.iter()
         .map(|f| {
-            let chi_tr = chi2_of(sim, f, &split.train, w);
-            let chi_ho = chi2_of(sim, f, &split.heldout, w);
+            let chi_tr = chi2_of(sim, f, &split.train, w, false);
+            let chi_ho = chi2_of(sim, f, &split.heldout, w, true);
             let dp = (f.x.len() - p0).max(1) as f64;
             let d_tr = chi_b_tr - chi_tr;
             let p_train = if d_tr > 0.0 {
@@ -427,7 +286,7 @@ fn candidate_stats(
                 n_params: f.x.len(),
                 chi2_train: chi_tr,
                 chi2_heldout: chi_ho,
-                heldout_rot_rmse: rmse(sim, f, &ho_rot),
+                heldout_rot_rmse: rmse(sim, f, &ho_rot, true),
                 dchi2_train: d_tr,
                 p_train,
                 dbic_train: dbic,
@@ -438,15 +297,6 @@ fn candidate_stats(
                 params: f.family.physical_params(sim, &f.x),
             }
         })
-        .collect()
-}
-
-/// The rotational cells among `cells`.
-fn rotations(sim: &Sim, cells: &[usize]) -> Vec<usize> {
-    cells
-        .iter()
-        .copied()
-        .filter(|&c| sim.cells[c].dof < 3)
         .collect()
 }
 
@@ -470,8 +320,10 @@ fn rank_effects(stats: &[CandidateStats], n_train: usize) -> Vec<usize> {
 struct Decision {
     verdict: Verdict,
     chosen: Option<usize>,
+    chosen_pair: Option<usize>,
     confidence: f64,
     reasons: Vec<String>,
+    effects: Vec<EffectShare>,
 }
 
 /// Held-out residuals (noise units) of the baseline and of every fit.
@@ -486,7 +338,7 @@ impl HeldoutResiduals {
             split
                 .heldout
                 .iter()
-                .map(|&c| f.residual(sim, c) * w.cell(&sim.cells[c]))
+                .map(|&c| f.heldout_residual(sim, c) * w.cell(&sim.cells[c]))
                 .collect()
         };
         HeldoutResiduals {
@@ -496,153 +348,395 @@ impl HeldoutResiduals {
     }
 }
 
-/// Decide when some effect earns its parameters: the top one, unless the
-/// runner-up is as good or an untestable effect could carry the gap.
-/// `b_rot` is the baseline's held-out rotation RMSE.
-fn decide_effect(
-    split: &Split,
-    b_rot: f64,
-    stats: &[CandidateStats],
-    ranked: &[usize],
-    earning: &[usize],
-    design_gaps: &[&(String, String)],
-    hr: &HeldoutResiduals,
-) -> Decision {
-    let top = earning[0];
-    let n_ho = split.heldout.len().max(1) as f64;
-    let t = (stats[top].chi2_heldout / n_ho).max(1.0);
-    let top_score = stats[top].score;
-    let confidence = calibrated_confidence(stats, ranked, top, &hr.fits, &hr.base, t);
+/// Everything a decision reads.
+struct Evidence<'a> {
+    design: &'a Design,
+    split: &'a Split,
+    stats: &'a [CandidateStats],
+    ranked: &'a [usize],
+    earning: &'a [usize],
+    pairs: &'a [PairFit],
+    /// Effects the design cannot test (not preload stiffening, whose
+    /// absence of follower loads only leaves it untested).
+    design_gaps: Vec<&'a (String, String)>,
+    hr: HeldoutResiduals,
+    /// The baseline's held-out chi-square.
+    chi_b: f64,
+}
+
+impl Evidence<'_> {
+    /// Cells held out.
+    fn n_ho(&self) -> f64 {
+        self.split.heldout.len().max(1) as f64
+    }
+
+    /// Fraction of the baseline's held-out excess over the noise
+    /// (`chi_b - n`) that a model of held-out chi-square `chi` closes
+    /// (1 when the baseline is within the noise).
+    fn excess_closed(&self, chi: f64) -> f64 {
+        let excess = self.chi_b - self.n_ho();
+        if excess <= 0.0 {
+            1.0
+        } else {
+            (self.chi_b - chi) / excess
+        }
+    }
+
+    /// The accepted pair with the lowest held-out chi-square.
+    fn best_pair(&self) -> Option<usize> {
+        (0..self.pairs.len())
+            .filter(|&i| self.pairs[i].accepted)
+            .min_by(|&a, &b| {
+                let (pa, pb) = (&self.pairs[a], &self.pairs[b]);
+                pa.chi2_heldout.total_cmp(&pb.chi2_heldout)
+            })
+    }
+}
+
+/// A joint pose error with joint-centre offsets (fit `chosen`) seen
+/// through follower loads only: as likely a misplaced follower guide, two
+/// explanations the data cannot separate (confidence halved).
+fn guides_confound(ev: &Evidence, verdict: Verdict, chosen: usize) -> bool {
+    let offsets = ev.stats[chosen].family != Kind::JointRotation;
+    verdict == Verdict::Effect(Effect::JointPoseError)
+        && offsets
+        && ev.design.offsets_confounded_with_guides()
+}
+
+/// Decide when some effect earns its parameters: the top one (with a
+/// second effect when a pair of them is accepted), unless the runner-up
+/// is as good or an untestable effect could carry the gap.
+fn decide_effect(ev: &Evidence) -> Decision {
+    let stats = ev.stats;
+    let top = ev.earning[0];
+    let t = (stats[top].chi2_heldout / ev.n_ho()).max(1.0);
+    let mut confidence = calibrated_confidence(stats, ev.ranked, top, &ev.hr.fits, &ev.hr.base, t);
+    let pair = ev.best_pair();
+    let (effects, chosen, model_chi) = match pair {
+        Some(p) => {
+            let pf = &ev.pairs[p];
+            let effects = pair_shares(pf, stats, ev.chi_b);
+            let primary = pf.members[if stats[pf.members[0]].effect == effects[0].effect {
+                0
+            } else {
+                1
+            }];
+            confidence = confidence.min(pf.win);
+            (effects, primary, pf.chi2_heldout)
+        }
+        None => (
+            vec![single_share(&stats[top], ev.chi_b)],
+            top,
+            stats[top].chi2_heldout,
+        ),
+    };
     let mut reasons = Vec::new();
-    if let Some(&second) = earning.get(1) {
-        if top_score - stats[second].score < INDISTINGUISHABLE * t {
+    if let Some(&second) = ev.earning.get(1) {
+        let both = pair.is_some_and(|p| {
+            let m = ev.pairs[p].members;
+            m.contains(&top) && m.contains(&second)
+        });
+        if !both && stats[top].score - stats[second].score < INDISTINGUISHABLE * t {
             reasons.push(format!(
                 "{} and {} explain the gap equally well (scores {:.1} and {:.1})",
                 stats[top].effect.name(),
                 stats[second].effect.name(),
-                top_score,
+                stats[top].score,
                 stats[second].score
             ));
         }
     }
     // an effect the design cannot test could carry the gap too: only a
-    // candidate that closes most of the held-out gap excludes it
-    let top_shrink = if b_rot > 0.0 {
-        1.0 - stats[top].heldout_rot_rmse / b_rot
-    } else {
-        0.0
-    };
-    if top_shrink < DECISIVE_SHRINK {
-        for (e, why) in design_gaps {
+    // model that closes most of the held-out excess over the noise excludes it
+    let closed = ev.excess_closed(model_chi);
+    if closed < DECISIVE_SHRINK {
+        for (e, why) in &ev.design_gaps {
             reasons.push(format!(
-                "{e} cannot be tested ({why}) and {} closes only {:.0}% of the held-out gap",
-                stats[top].effect.name(),
-                100.0 * top_shrink
+                "{e} cannot be tested ({why}) and {} closes only {:.0}% of the held-out gap above the noise",
+                effects[0].effect.name(),
+                100.0 * closed
             ));
         }
     }
     let verdict = if reasons.is_empty() {
-        Verdict::Effect(stats[top].effect)
+        Verdict::Effect(stats[chosen].effect)
     } else {
         Verdict::Unidentifiable
     };
+    if guides_confound(ev, verdict, chosen) {
+        confidence *= 0.5;
+        reasons.push("the joint-centre offsets rest on the follower-load cases: with no translation measured, joint centres moved relative to the follower guides cannot be told from guides placed off the joint centres (translations would separate them)".to_string());
+    }
     Decision {
         verdict,
-        chosen: Some(top),
+        chosen: Some(chosen),
+        chosen_pair: pair,
         confidence,
         reasons,
+        effects,
     }
 }
 
 /// Decide when no effect earns its parameters: `none`, or
 /// `unidentifiable` when the design leaves an effect untestable.
-fn decide_none(
-    split: &Split,
-    stats: &[CandidateStats],
-    ranked: &[usize],
-    design_gaps: &[&(String, String)],
-    hr: &HeldoutResiduals,
-    chi_b_ho: f64,
-) -> Decision {
-    if design_gaps.is_empty() {
-        let t = (chi_b_ho / split.heldout.len().max(1) as f64).max(1.0);
+fn decide_none(ev: &Evidence) -> Decision {
+    if ev.design_gaps.is_empty() {
+        let t = (ev.chi_b / ev.n_ho()).max(1.0);
         return Decision {
             verdict: Verdict::None,
             chosen: None,
-            confidence: none_confidence(stats, ranked, &hr.fits, &hr.base, t),
+            chosen_pair: None,
+            confidence: none_confidence(ev.stats, ev.ranked, &ev.hr.fits, &ev.hr.base, t),
             reasons: Vec::new(),
+            effects: Vec::new(),
         };
     }
     Decision {
         verdict: Verdict::Unidentifiable,
-        chosen: ranked.first().copied(),
+        chosen: ev.ranked.first().copied(),
+        chosen_pair: None,
         confidence: 0.0,
-        reasons: design_gaps
+        reasons: ev
+            .design_gaps
             .iter()
             .map(|(e, why)| format!("{e} cannot be tested: {why}"))
             .collect(),
+        effects: Vec::new(),
+    }
+}
+
+/// `other` instead of the decision `d` when what the augmented model
+/// leaves is structured and well above the noise: either the structured
+/// part of its residuals is at least half the unstructured scatter (a
+/// structured misfit ratio of [`OTHER_MISFIT`] or more, with p below
+/// [`ALPHA`]; independent of the noise estimate, which a wrong model
+/// inflates), or its held-out reduced chi-square reaches
+/// [`OTHER_REDUCED_CHI2`] (p below [`ALPHA`]) with structure, after closing
+/// less than [`OTHER_CLOSED`] of the baseline's. Otherwise the
+/// confidence is scaled by the unstructured share of the residuals
+/// (`1 / misfit`): significant structure says the named model may not be
+/// the whole story.
+fn other_or(d: Decision, rem: &Remaining) -> Decision {
+    let misfit = rem.misfit(ALPHA);
+    let p_structure = rem.p_structure();
+    let above = rem.p_noise < ALPHA && rem.reduced_chi2 >= OTHER_REDUCED_CHI2;
+    let large = above && rem.closed < OTHER_CLOSED && p_structure < ALPHA;
+    if misfit < OTHER_MISFIT && !large {
+        return Decision {
+            confidence: d.confidence / misfit,
+            ..d
+        };
+    }
+    let s = &rem.structure[0];
+    let top: Vec<String> = s
+        .groups
+        .iter()
+        .take(3)
+        .map(|g| {
+            format!(
+                "{} (mean {:+.1} noise SD, {:.0}%)",
+                g.key,
+                g.mean,
+                100.0 * g.share
+            )
+        })
+        .collect();
+    let mut reasons = vec![format!(
+        "what the best model ({}) leaves is structured: by {} of the {} residuals (misfit ratio {:.2}, p {:.1e}): {}; it closes {:.0}% of the held-out gap and leaves a reduced chi-square of {:.1}",
+        rem.model,
+        s.by,
+        s.cells.replace('_', "-"),
+        s.misfit,
+        s.p,
+        top.join(", "),
+        100.0 * rem.closed,
+        rem.reduced_chi2
+    )];
+    reasons.extend(d.reasons);
+    Decision {
+        verdict: Verdict::Other,
+        confidence: 1.0 - p_structure,
+        reasons,
+        ..d
+    }
+}
+
+/// Which DoFs (`rx .. tz`) each case measures at some level.
+fn measured_dofs(sim: &Sim) -> Vec<[bool; 6]> {
+    let mut m = vec![[false; 6]; sim.loads.len()];
+    for c in &sim.cells {
+        if let Some(x) = m.get_mut(c.case) {
+            x[c.dof] = true;
+        }
+    }
+    m
+}
+
+/// The experiment as simulated, its design and split, and the noise known
+/// before any fit.
+struct Setup {
+    sim: Sim,
+    design: Design,
+    split: Split,
+    prior: [Option<Option<noise::ClassNoise>>; 2],
+    /// Weights of the fits.
+    fw: Weights,
+}
+
+impl Setup {
+    /// Simulate, analyse the design, and read the noise stated, assumed
+    /// for means, or from replicates.
+    fn new(exp: &Experiment) -> Result<Setup> {
+        let mut sim = Sim::new(exp)?;
+        let mut design = Design::new(&exp.cases);
+        design.note_measurement(&measured_dofs(&sim));
+        let split = Split::of(&sim, &design);
+        let assumed = noise::assume_spread_of_means(&mut sim, exp.measurement.n_specimens);
+        let prior = noise::prior(&sim, &exp.cases, assumed);
+        let fw = noise::fit_weights(&prior);
+        Ok(Setup {
+            sim,
+            design,
+            split,
+            prior,
+            fw,
+        })
+    }
+
+    /// Joint offsets are pose parameters (translations or follower loads
+    /// can show them).
+    fn offsets(&self) -> bool {
+        self.sim.cells.iter().any(|c| c.dof >= 3) || self.design.has_follower
+    }
+
+    /// The progress bar over every fit of every run.
+    fn progress(&self, opts: &Options) -> indicatif::ProgressBar {
+        let n_kinds = kinds(self.design.has_follower).len() as u64;
+        let runs = self.design.folds as u64 + 1;
+        progress_bar(opts, (n_kinds + 4 + self.offsets() as u64) * runs)
+    }
+
+    /// The fits' shared data: the training cells of the design.
+    fn ctx<'a>(&'a self, opts: &Options, pb: &'a indicatif::ProgressBar) -> FitCtx<'a> {
+        FitCtx {
+            sim: &self.sim,
+            train_cells: self.split.train.clone(),
+            train_cases: self.design.train.clone(),
+            has_follower: self.design.has_follower,
+            w: self.fw,
+            max_iterations: opts.max_iterations,
+            pb,
+        }
+    }
+}
+
+/// The fit whose remaining gap decides `other`: the reported pair, the
+/// chosen effect, else the best-ranked candidate (the baseline without one).
+fn model_of<'a>(
+    d: &Decision,
+    fitted: &'a Fits,
+    pairs: &'a [PairFit],
+    ranked: &[usize],
+) -> &'a Fitted {
+    let pick = |i: Option<usize>| i.map(|i| &fitted.fits[i]).unwrap_or(&fitted.baseline);
+    match (d.chosen_pair, d.verdict) {
+        (Some(p), _) => &pairs[p].fit,
+        (None, Verdict::Effect(_)) => pick(d.chosen),
+        _ => pick(ranked.first().copied()),
     }
 }
 
 /// Run the diagnosis on an experiment.
 pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
-    let mut sim = Sim::new(exp)?;
-    let design = Design::new(&exp.cases);
-    let split = Split::of(&sim, &design);
-    // noise stated, assumed for means, or from replicates (known before
-    // any fit), and the fit weights
-    let assumed = noise::assume_spread_of_means(&mut sim, exp.measurement.n_specimens);
-    let prior = noise::prior(&sim, &exp.cases, assumed);
-    let fw = noise::fit_weights(&prior);
-    let offsets = sim.cells.iter().any(|c| c.dof >= 3) || design.has_follower;
-    let n_kinds = kinds(design.has_follower).len() as u64;
-    let pb = progress_bar(opts, n_kinds + 4 + offsets as u64);
-    let ctx = FitCtx {
-        sim: &sim,
-        design: &design,
-        split: &split,
-        w: fw,
-        opts,
-        pb: &pb,
-    };
-    // baseline and candidates on the training cases
-    let (baseline, fits) = fit_families(&ctx, offsets)?;
-    pb.finish_and_clear();
+    let su = Setup::new(exp)?;
+    let (sim, design, split) = (&su.sim, &su.design, &su.split);
+    let pb = su.progress(opts);
+    let ctx = su.ctx(opts, &pb);
+    // baseline and candidates on the training cases (and per fold)
+    let fitted = fit_design(&ctx, design, su.offsets())?;
     // the noise left to estimate: residuals of the best fit, or the floor
-    let every: Vec<&Fitted> = fits.iter().chain(std::iter::once(&baseline)).collect();
-    let noise_model = noise::complete(prior, &sim, &every, &split.train, fw);
+    let every: Vec<&Fitted> = fitted.fits.iter().chain([&fitted.baseline]).collect();
+    let noise_model = noise::complete(su.prior, sim, &every, &split.train, su.fw);
     let w = noise_model.weights();
-    // statistics, ranking and verdict
-    let stats = candidate_stats(&sim, &design, &split, &baseline, &fits, w);
+    // statistics, ranking, pairs of effects
+    let stats = candidate_stats(sim, design, split, &fitted.baseline, &fitted.fits, w);
     let ranked = rank_effects(&stats, split.train.len());
     let earning: Vec<usize> = ranked.iter().copied().filter(|&i| stats[i].earns).collect();
-    let design_gaps: Vec<&(String, String)> = design
-        .untestable
-        .iter()
-        .filter(|(e, _)| e != "preload_stiffening")
-        .collect();
-    let hr = HeldoutResiduals::of(&sim, &split, &baseline, &fits, w);
-    let d = if earning.is_empty() {
-        let chi_b_ho = chi2_of(&sim, &baseline, &split.heldout, w);
-        decide_none(&split, &stats, &ranked, &design_gaps, &hr, chi_b_ho)
-    } else {
-        let b_rot = rmse(&sim, &baseline, &rotations(&sim, &split.heldout));
-        decide_effect(&split, b_rot, &stats, &ranked, &earning, &design_gaps, &hr)
+    let pairs = pairs_of(&ctx, design, split, &fitted, &stats, &earning, w);
+    pb.finish_and_clear();
+    // the verdict
+    let ev = Evidence {
+        design,
+        split,
+        stats: &stats,
+        ranked: &ranked,
+        earning: &earning,
+        pairs: &pairs,
+        design_gaps: design
+            .untestable
+            .iter()
+            .filter(|(e, _)| e != "preload_stiffening")
+            .collect(),
+        hr: HeldoutResiduals::of(sim, split, &fitted.baseline, &fitted.fits, w),
+        chi_b: chi2_of(sim, &fitted.baseline, &split.heldout, w, true),
     };
+    let d = if earning.is_empty() {
+        decide_none(&ev)
+    } else {
+        decide_effect(&ev)
+    };
+    // what the augmented model leaves, and `other` when it is a structured gap
+    let model = model_of(&d, &fitted, &pairs, &ranked);
+    let given = noise_model
+        .rotation
+        .is_some_and(|c| c.source != noise::NoiseSource::Residuals);
+    let cells = (split.train.as_slice(), split.heldout.as_slice());
+    let rem = remaining(sim, design, cells, (w, given), model, ev.chi_b);
+    let d = other_or(d, &rem);
+    let Setup { sim, design, .. } = su;
     Ok(Outcome {
         sim,
         design,
         noise: w,
         noise_model,
-        baseline,
-        fits,
+        baseline: fitted.baseline,
+        fits: fitted.fits,
         stats,
         ranked,
         verdict: d.verdict,
         confidence: d.confidence,
         chosen: d.chosen,
         reasons: d.reasons,
+        pairs,
+        chosen_pair: d.chosen_pair,
+        effects: d.effects,
+        remaining: rem,
     })
+}
+
+/// The pairs of the best earning effects, fitted and compared with the
+/// best single one (none with fewer than two earning effects).
+fn pairs_of(
+    ctx: &FitCtx,
+    design: &Design,
+    split: &Split,
+    fitted: &Fits,
+    stats: &[CandidateStats],
+    earning: &[usize],
+    w: Weights,
+) -> Vec<PairFit> {
+    if earning.len() < 2 {
+        return Vec::new();
+    }
+    ctx.pb.set_message("pairs of effects");
+    let pc = PairCtx {
+        sim: ctx.sim,
+        split,
+        w,
+        stats,
+        top: earning[0],
+    };
+    fit_pairs(ctx, design, fitted, &pc, earning)
 }
 
 /// Probability that the criterion difference `delta` (twice a log-likelihood
@@ -729,210 +823,6 @@ fn none_confidence(
             win_probability(-stats[i].score, pred_base, pi, t)
         })
         .product()
-}
-
-impl Outcome {
-    /// Indices of held-out cells.
-    pub fn heldout_cells(&self) -> Vec<usize> {
-        let held: Vec<bool> = (0..self.sim.loads.len())
-            .map(|i| self.design.heldout.contains(&i))
-            .collect();
-        (0..self.sim.cells.len())
-            .filter(|&c| held[self.sim.cells[c].case])
-            .collect()
-    }
-
-    /// The augmented fit (the baseline when nothing is chosen).
-    pub fn augmented(&self) -> &Fitted {
-        self.chosen
-            .and_then(|i| self.fits.get(i))
-            .unwrap_or(&self.baseline)
-    }
-
-    /// Held-out rotation RMSE (deg) of the baseline and the augmented model.
-    pub fn heldout_rmse(&self) -> (f64, f64) {
-        let rot: Vec<usize> = self
-            .heldout_cells()
-            .into_iter()
-            .filter(|&c| self.sim.cells[c].dof < 3)
-            .collect();
-        (
-            rmse(&self.sim, &self.baseline, &rot),
-            rmse(&self.sim, self.augmented(), &rot),
-        )
-    }
-
-    /// Held-out translation RMSE (mm), when measured.
-    pub fn heldout_trans_rmse(&self) -> Option<(f64, f64)> {
-        let tr: Vec<usize> = self
-            .heldout_cells()
-            .into_iter()
-            .filter(|&c| self.sim.cells[c].dof >= 3)
-            .collect();
-        if tr.is_empty() {
-            return None;
-        }
-        Some((
-            rmse(&self.sim, &self.baseline, &tr),
-            rmse(&self.sim, self.augmented(), &tr),
-        ))
-    }
-
-    /// Cells of the baseline's held-out gap, by share of its chi-square.
-    pub fn gap_cells(&self, exp: &Experiment) -> Vec<GapCell> {
-        let cells = self.heldout_cells();
-        let w = self.noise;
-        let total: f64 = cells
-            .iter()
-            .map(|&c| (self.baseline.residual(&self.sim, c) * w.cell(&self.sim.cells[c])).powi(2))
-            .sum();
-        let mut out: Vec<GapCell> = cells
-            .iter()
-            .map(|&c| {
-                let cell = &self.sim.cells[c];
-                let r = self.baseline.residual(&self.sim, c);
-                let l = &self.sim.levels[cell.level];
-                GapCell {
-                    upper: l.upper_name.clone(),
-                    lower: l.lower_name.clone(),
-                    level: l.name.clone(),
-                    dof: DOF_NAMES[cell.dof].to_string(),
-                    case: exp
-                        .cases
-                        .get(cell.case)
-                        .map(|c| c.id.clone())
-                        .unwrap_or_default(),
-                    share: if total > 0.0 {
-                        (r * w.cell(cell)).powi(2) / total
-                    } else {
-                        0.0
-                    },
-                    residual: r,
-                }
-            })
-            .collect();
-        out.sort_by(|a, b| b.share.total_cmp(&a.share).then(a.case.cmp(&b.case)));
-        out
-    }
-
-    /// Aggregates of the baseline's held-out gap: by level, DoF, load axis,
-    /// magnitude, and by sign parity (the odd part `(r+ - r-)/2` and even
-    /// part `(r+ + r-)/2` of the residuals over +/- pairs of cases).
-    pub fn gap_tables(&self) -> BTreeMap<String, Vec<Share>> {
-        let cells = self.heldout_cells();
-        let w = self.noise;
-        let sq =
-            |c: usize| (self.baseline.residual(&self.sim, c) * w.cell(&self.sim.cells[c])).powi(2);
-        let total: f64 = cells.iter().map(|&c| sq(c)).sum::<f64>().max(1e-300);
-        let mut tables = BTreeMap::new();
-        let mut agg = |name: &str, key: &dyn Fn(usize) -> String| {
-            let mut m: BTreeMap<String, f64> = BTreeMap::new();
-            for &c in &cells {
-                *m.entry(key(c)).or_insert(0.0) += sq(c) / total;
-            }
-            let mut v: Vec<Share> = m
-                .into_iter()
-                .map(|(key, share)| Share { key, share })
-                .collect();
-            v.sort_by(|a, b| b.share.total_cmp(&a.share).then(a.key.cmp(&b.key)));
-            tables.insert(name.to_string(), v);
-        };
-        let sim = &self.sim;
-        let info = &self.design.cases;
-        agg("by_level", &|c| sim.levels[sim.cells[c].level].name.clone());
-        agg("by_dof", &|c| DOF_NAMES[sim.cells[c].dof].to_string());
-        agg("by_load_axis", &|c| {
-            info[sim.cells[c].case]
-                .axis
-                .map(|a| AXIS_NAMES[a].to_string())
-                .unwrap_or_else(|| "none".into())
-        });
-        agg("by_magnitude", &|c| {
-            let i = &info[sim.cells[c].case];
-            format!("{} N m, follower {} N", i.magnitude, i.follower)
-        });
-        // parity: pair each held-out case with its mirror (same axis, magnitude, follower, other sign)
-        let mut odd = 0.0;
-        let mut even = 0.0;
-        let mut unpaired = 0.0;
-        for &c in &cells {
-            let cell = &sim.cells[c];
-            let ic = &info[cell.case];
-            let Some(_) = ic.axis else {
-                unpaired += sq(c) / total;
-                continue;
-            };
-            let mirror = cells.iter().copied().find(|&o| {
-                let oc = &sim.cells[o];
-                let io = &info[oc.case];
-                oc.level == cell.level
-                    && oc.dof == cell.dof
-                    && io.axis == ic.axis
-                    && io.sign == -ic.sign
-                    && (io.magnitude - ic.magnitude).abs() < 1e-9
-                    && (io.follower - ic.follower).abs() < 1e-9
-            });
-            match mirror {
-                Some(o) if ic.sign > 0 => {
-                    let wd = w.cell(cell);
-                    let rp = self.baseline.residual(sim, c) * wd;
-                    let rm = self.baseline.residual(sim, o) * wd;
-                    // r+^2 + r-^2 = 2 odd^2 + 2 even^2
-                    odd += 2.0 * ((rp - rm) / 2.0).powi(2) / total;
-                    even += 2.0 * ((rp + rm) / 2.0).powi(2) / total;
-                }
-                Some(_) => {}
-                None => unpaired += sq(c) / total,
-            }
-        }
-        tables.insert(
-            "by_sign_parity".to_string(),
-            vec![
-                Share {
-                    key: "odd".into(),
-                    share: odd,
-                },
-                Share {
-                    key: "even".into(),
-                    share: even,
-                },
-                Share {
-                    key: "unpaired".into(),
-                    share: unpaired,
-                },
-            ],
-        );
-        tables
-    }
-
-    /// RMSE per level and DoF on the held-out cases.
-    pub fn per_level_dof(&self) -> Vec<LevelDofRmse> {
-        let cells = self.heldout_cells();
-        let aug = self.augmented();
-        let mut out = Vec::new();
-        for (li, l) in self.sim.levels.iter().enumerate() {
-            for d in 0..6 {
-                let cs: Vec<usize> = cells
-                    .iter()
-                    .copied()
-                    .filter(|&c| self.sim.cells[c].level == li && self.sim.cells[c].dof == d)
-                    .collect();
-                if cs.is_empty() {
-                    continue;
-                }
-                let b = rmse(&self.sim, &self.baseline, &cs);
-                let a = rmse(&self.sim, aug, &cs);
-                out.push(LevelDofRmse {
-                    level: l.name.clone(),
-                    dof: DOF_NAMES[d].to_string(),
-                    baseline_rmse: b,
-                    augmented_rmse: a,
-                    shrink: if b > 0.0 { 1.0 - a / b } else { 0.0 },
-                });
-            }
-        }
-        out
-    }
 }
 
 #[cfg(test)]

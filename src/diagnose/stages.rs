@@ -1,0 +1,291 @@
+//! The fits of one diagnosis: the baseline and every candidate family on
+//! the training cells (the first stage in parallel, the second-stage
+//! variants started from first-stage fits); in a K-fold design the same
+//! once more per fold, whose predictions of the rows it held out become
+//! the out-of-fold predictions of the full fits; and mixed-effect pairs
+//! started from two single-effect fits, fitted the same way.
+
+use super::design::Design;
+use super::family::{Family, Kind};
+use super::fit::{dominant_level, fit, kinds, Fitted, Weights};
+use super::select::Options;
+use super::sim::Sim;
+use crate::error::Result;
+use rayon::prelude::*;
+
+/// Training and held-out cells (indices into `sim.cells`) of a design (in
+/// a K-fold design both are every cell).
+pub struct Split {
+    pub train: Vec<usize>,
+    pub heldout: Vec<usize>,
+}
+
+impl Split {
+    /// The cells of the design's training and held-out cases.
+    pub fn of(sim: &Sim, design: &Design) -> Split {
+        let member = |set: &[usize]| -> Vec<usize> {
+            (0..sim.cells.len())
+                .filter(|&c| set.contains(&sim.cells[c].case))
+                .collect()
+        };
+        Split {
+            train: member(&design.train),
+            heldout: member(&design.heldout),
+        }
+    }
+}
+
+/// The progress bar (hidden without `opts.progress`).
+pub fn progress_bar(opts: &Options, len: u64) -> indicatif::ProgressBar {
+    if !opts.progress {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(len);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    pb.set_message("baseline");
+    pb
+}
+
+/// What every fit of one run shares: the data it may see.
+pub struct FitCtx<'a> {
+    pub sim: &'a Sim,
+    pub train_cells: Vec<usize>,
+    pub train_cases: Vec<usize>,
+    pub has_follower: bool,
+    pub w: Weights,
+    pub max_iterations: usize,
+    pub pb: &'a indicatif::ProgressBar,
+}
+
+impl FitCtx<'_> {
+    /// Fit families in parallel on the training cells.
+    fn fit_all(&self, families: Vec<Family>) -> Result<Vec<Fitted>> {
+        families
+            .into_par_iter()
+            .map(|f| {
+                let r = fit(
+                    self.sim,
+                    f,
+                    &self.train_cells,
+                    &self.train_cases,
+                    self.w,
+                    self.max_iterations,
+                );
+                self.pb.inc(1);
+                r
+            })
+            .collect::<Vec<Result<Fitted>>>()
+            .into_iter()
+            .collect()
+    }
+
+    /// The same data without the rows of fold `f`.
+    fn without_fold(&self, design: &Design, f: usize) -> Self {
+        let sim = self.sim;
+        FitCtx {
+            sim,
+            train_cells: self
+                .train_cells
+                .iter()
+                .copied()
+                .filter(|&c| design.fold_of(sim.cells[c].case, sim.cells[c].level) != Some(f))
+                .collect(),
+            train_cases: self.train_cases.clone(),
+            has_follower: self.has_follower,
+            w: self.w,
+            max_iterations: self.max_iterations,
+            pb: self.pb,
+        }
+    }
+}
+
+/// Second stage, local pose: the pose family at the level that carries
+/// most of the rotation-only pose fit, started from it.
+fn local_pose_family(ctx: &FitCtx, rot: &Fitted, g: [f64; 3], offsets: bool) -> Result<Family> {
+    let sim = ctx.sim;
+    let lj = dominant_level(sim, rot, &ctx.train_cells, &ctx.train_cases, 3)?;
+    let mut mask = vec![false; sim.levels.len()];
+    mask[lj] = true;
+    let mut loc = Family::masked(Kind::JointLocal, sim, g, mask, offsets);
+    if let Some(x) = loc.x0.get_mut(..3) {
+        x.copy_from_slice(&rot.x[..3]);
+    }
+    for k in 0..3 {
+        if let (Some(v), Some(r)) = (loc.x0.get_mut(3 + k), rot.x.get(3 + 3 * lj + k)) {
+            *v = *r;
+        }
+    }
+    Ok(loc)
+}
+
+/// Second stage, pose with offsets, started from the rotation-only fit.
+fn pose_offsets_family(sim: &Sim, rot: &Fitted, g: [f64; 3]) -> Family {
+    let mut pose = Family::new(Kind::JointPose, sim, g);
+    pose.x0[..3].copy_from_slice(&rot.x[..3]);
+    for li in 0..sim.levels.len() {
+        for k in 0..3 {
+            pose.x0[3 + 6 * li + k] = rot.x[3 + 3 * li + k];
+        }
+    }
+    pose
+}
+
+/// Second stage, per-level one-sided stiffening, started from the global
+/// bilinear fit (a stiffer negative side, a < 0, lowers the global factor).
+fn asym_per_level_family(sim: &Sim, ab: &Fitted, g: [f64; 3]) -> Family {
+    let mut pl = Family::new(Kind::AsymmetricPerLevel, sim, g);
+    for k in 0..3 {
+        if let (Some(v), Some(r), Some(a)) = (pl.x0.get_mut(k), ab.x.get(k), ab.x.get(3 + k)) {
+            *v = *r + a.min(0.0);
+        }
+    }
+    for li in 0..sim.levels.len() {
+        for k in 0..3 {
+            if let (Some(v), Some(r)) = (pl.x0.get_mut(3 + 3 * li + k), ab.x.get(3 + k)) {
+                *v = *r;
+            }
+        }
+    }
+    pl
+}
+
+/// Second stage, coupling at the level that carries most of the per-level
+/// coupling fit, started from it.
+fn local_coupling_family(ctx: &FitCtx, cp: &Fitted, g: [f64; 3]) -> Result<Family> {
+    let sim = ctx.sim;
+    let lc = dominant_level(sim, cp, &ctx.train_cells, &ctx.train_cases, 3)?;
+    let mut mask = vec![false; sim.levels.len()];
+    mask[lc] = true;
+    let mut loc = Family::masked(Kind::CoupledLocal, sim, g, mask, false);
+    for k in 0..6 {
+        let src = if k < 3 { k } else { 3 + 3 * lc + (k - 3) };
+        if let (Some(v), Some(r)) = (loc.x0.get_mut(k), cp.x.get(src)) {
+            *v = *r;
+        }
+    }
+    Ok(loc)
+}
+
+/// The second-stage families, each started from a first-stage fit.
+fn stage2_families(
+    ctx: &FitCtx,
+    fits: &[Fitted],
+    g: [f64; 3],
+    offsets: bool,
+) -> Result<Vec<Family>> {
+    let find = |k: Kind| fits.iter().find(|f| f.family.kind == k);
+    let mut out = Vec::new();
+    if let Some(rot) = find(Kind::JointRotation) {
+        out.push(local_pose_family(ctx, rot, g, offsets)?);
+        if offsets {
+            out.push(pose_offsets_family(ctx.sim, rot, g));
+        }
+    }
+    if let Some(ab) = find(Kind::AsymmetricBilinear) {
+        out.push(asym_per_level_family(ctx.sim, ab, g));
+    }
+    if let Some(cp) = find(Kind::CoupledPerLevel) {
+        out.push(local_coupling_family(ctx, cp, g)?);
+    }
+    Ok(out)
+}
+
+/// Baseline and every candidate family fitted on the training cells.
+fn fit_families(ctx: &FitCtx, offsets: bool) -> Result<(Fitted, Vec<Fitted>)> {
+    let sim = ctx.sim;
+    let baseline = ctx
+        .fit_all(vec![Family::new(Kind::Baseline, sim, [0.0; 3])])?
+        .remove(0);
+    ctx.pb.set_message("candidates");
+    let g = [baseline.x[0], baseline.x[1], baseline.x[2]];
+    let first: Vec<Family> = kinds(ctx.has_follower)
+        .into_iter()
+        .map(|k| Family::new(k, sim, g))
+        .collect();
+    let mut fits = ctx.fit_all(first)?;
+    ctx.pb.set_message("pose offsets, local variants");
+    let more = ctx.fit_all(stage2_families(ctx, &fits, g, offsets)?)?;
+    fits.extend(more);
+    Ok((baseline, fits))
+}
+
+/// Every fit of a diagnosis: the baseline and the candidates on the
+/// training cells and, in a K-fold design, on each fold.
+pub struct Fits {
+    pub baseline: Fitted,
+    pub fits: Vec<Fitted>,
+    /// Baseline and candidates of each fold (same order as `fits`).
+    pub folds: Vec<(Fitted, Vec<Fitted>)>,
+}
+
+/// Store fold `f`'s predictions of the rows it held out as `full`'s
+/// out-of-fold predictions.
+fn merge_fold(sim: &Sim, design: &Design, f: usize, full: &mut Fitted, fold: &Fitted) {
+    let rows = full.pred.len();
+    let ho = full
+        .heldout_pred
+        .get_or_insert_with(|| vec![[f64::NAN; 6]; rows]);
+    for c in &sim.cells {
+        if design.fold_of(c.case, c.level) == Some(f) {
+            ho[c.row] = fold.pred[c.row];
+        }
+    }
+}
+
+/// The baseline and every candidate on the training cells, then per fold.
+pub fn fit_design(ctx: &FitCtx, design: &Design, offsets: bool) -> Result<Fits> {
+    let (mut baseline, mut fits) = fit_families(ctx, offsets)?;
+    // each fold: the same fits without its rows (folds in parallel)
+    let folds: Vec<(Fitted, Vec<Fitted>)> = (0..design.folds)
+        .into_par_iter()
+        .map(|f| fit_families(&ctx.without_fold(design, f), offsets))
+        .collect::<Vec<Result<_>>>()
+        .into_iter()
+        .collect::<Result<_>>()?;
+    for (f, (b, fs)) in folds.iter().enumerate() {
+        merge_fold(ctx.sim, design, f, &mut baseline, b);
+        for (full, fold) in fits.iter_mut().zip(fs) {
+            merge_fold(ctx.sim, design, f, full, fold);
+        }
+    }
+    Ok(Fits {
+        baseline,
+        fits,
+        folds,
+    })
+}
+
+/// The pair of fits `ia` and `ib` (two effects) as one family started
+/// from both, fitted on the training cells and, in a K-fold design, on
+/// each fold from that fold's fits.
+pub fn fit_pair(
+    ctx: &FitCtx,
+    design: &Design,
+    fits: &Fits,
+    ia: usize,
+    ib: usize,
+) -> Result<Fitted> {
+    let pair = |set: &[Fitted]| {
+        let (a, b) = (&set[ia], &set[ib]);
+        Family::pair(&a.family, &a.x, &b.family, &b.x)
+    };
+    let mut full = ctx.fit_all(vec![pair(&fits.fits)])?.remove(0);
+    let folds: Vec<Fitted> = fits
+        .folds
+        .par_iter()
+        .enumerate()
+        .map(|(f, (_, fs))| {
+            let c = ctx.without_fold(design, f);
+            c.fit_all(vec![pair(fs)]).map(|mut v| v.remove(0))
+        })
+        .collect::<Vec<Result<_>>>()
+        .into_iter()
+        .collect::<Result<_>>()?;
+    for (f, fold) in folds.iter().enumerate() {
+        merge_fold(ctx.sim, design, f, &mut full, fold);
+    }
+    Ok(full)
+}
