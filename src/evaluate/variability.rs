@@ -22,7 +22,7 @@
 //!   inter-operator (groups = operators, one test per repetition) and
 //!   intra-operator (groups = repetitions, one test per operator);
 //!   Friedman when blocks are complete, Skillings-Mack otherwise
-//!   ([`super::stats`]); when p < 0.05 the one-to-many Nemenyi test against
+//!   ([`crate::landmarks::stats`]); when p < 0.05 the one-to-many Nemenyi test against
 //!   the first operator / first repetition;
 //! - `model_propagation` (with [`compute`]/[`run`] given a base model):
 //!   the thesis's Tables 5.6-5.8, one generated model per palpation
@@ -201,6 +201,7 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             format!("need at least 2 palpations, got {}", pals.len()),
         ));
     }
+    // Operators and their repetitions.
     let mut operators: BTreeMap<String, Vec<u32>> = BTreeMap::new();
     for p in pals {
         operators
@@ -211,16 +212,8 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
     for v in operators.values_mut() {
         v.sort_unstable();
     }
-    // Study origin: grand centroid.
-    let mut sum = Vector3::zeros();
-    let mut cnt = 0usize;
-    for p in pals {
-        for q in p.set.points.values() {
-            sum += q.coords;
-            cnt += 1;
-        }
-    }
-    let origin = sum / cnt.max(1) as f64;
+    // Study origin (the grand centroid) and the landmarks palpated.
+    let origin = grand_centroid(pals);
     let ids: Vec<LandmarkId> = {
         let mut v: Vec<LandmarkId> = pals
             .iter()
@@ -230,17 +223,63 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
         v.dedup();
         v
     };
-    // ---- IQRs
+    // Per-landmark IQRs with normality tests, and their summary (Table 5.5).
+    let (landmarks, normality) = landmark_iqrs(pals, &ids, &origin);
+    let summary = iqr_summary(&landmarks);
+    // Inter- and intra-operator comparisons: ICC(2,1) and Friedman tests.
+    let mut icc = Vec::new();
+    let mut friedman = Vec::new();
+    for c in &comparisons(pals, &operators) {
+        icc.extend(icc_entries(c, &ids, &origin));
+        friedman.extend(friedman_entries(c, &ids, &origin));
+    }
+    let rejected = normality.iter().filter(|n| n.p < 0.05).count();
+    Ok(VariabilityReport {
+        palpations: pals.len(),
+        operators,
+        units: "mm".into(),
+        axes: "X anterior-posterior, Y inferior-superior, Z left-right (OpenSim frame); Euclidean = distance from the grand centroid".into(),
+        landmarks,
+        summary,
+        icc,
+        normality,
+        normality_rejected_at_5pct: rejected,
+        friedman,
+        model_propagation: None,
+        notes: Vec::new(),
+    })
+}
+
+/// Centroid of every landmark of every palpation.
+fn grand_centroid(pals: &[PalpationSet]) -> Vector3<f64> {
+    let mut sum = Vector3::zeros();
+    let mut cnt = 0usize;
+    for p in pals {
+        for q in p.set.points.values() {
+            sum += q.coords;
+            cnt += 1;
+        }
+    }
+    sum / cnt.max(1) as f64
+}
+
+/// IQR per axis of each landmark palpated at least twice, and a
+/// Shapiro-Wilk test per axis of those palpated at least three times.
+fn landmark_iqrs(
+    pals: &[PalpationSet],
+    ids: &[LandmarkId],
+    origin: &Vector3<f64>,
+) -> (Vec<LandmarkIqr>, Vec<NormalityEntry>) {
     let mut landmarks = Vec::new();
     let mut normality = Vec::new();
-    for id in &ids {
+    for id in ids {
         let pts: Vec<_> = pals.iter().filter_map(|p| p.set.points.get(id)).collect();
         if pts.len() < 2 {
             continue;
         }
         let mut iqr = [0.0; 4];
         for (a, slot) in iqr.iter_mut().enumerate() {
-            let vals: Vec<f64> = pts.iter().map(|q| value(q, &origin, a)).collect();
+            let vals: Vec<f64> = pts.iter().map(|q| value(q, origin, a)).collect();
             *slot = stats::iqr(&vals).unwrap_or(f64::NAN);
             if vals.len() >= 3 {
                 if let Ok(sw) = stats::shapiro_wilk(&vals) {
@@ -260,6 +299,12 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             iqr_mm: iqr,
         });
     }
+    (landmarks, normality)
+}
+
+/// Median, IQR and maximum of the per-landmark IQRs for all, joint and
+/// scaling markers, per axis.
+fn iqr_summary(landmarks: &[LandmarkIqr]) -> Vec<IqrSummary> {
     let mut summary = Vec::new();
     for (group, filt) in [
         ("all", None),
@@ -283,7 +328,16 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             }
         }
     }
-    // ---- comparisons: (kind, within, ordered palpations)
+    summary
+}
+
+/// The comparisons: inter-operator per repetition number (operators in
+/// name order), intra-operator per operator (repetitions in order); each
+/// with at least two palpations.
+fn comparisons<'a>(
+    pals: &'a [PalpationSet],
+    operators: &BTreeMap<String, Vec<u32>>,
+) -> Vec<Comparison<'a>> {
     let mut comparisons: Vec<Comparison> = Vec::new();
     let reps: Vec<u32> = {
         let mut v: Vec<u32> = pals.iter().map(|p| p.repetition).collect();
@@ -313,113 +367,114 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             comparisons.push(("intra".into(), format!("operator {op}"), g));
         }
     }
+    comparisons
+}
+
+/// ICC(2,1) per marker group (joint, scaling) and axis of one comparison,
+/// over the landmarks every palpation of it has (at least two).
+fn icc_entries(c: &Comparison, ids: &[LandmarkId], origin: &Vector3<f64>) -> Vec<IccEntry> {
+    let (kind, within, g) = c;
     let mut icc = Vec::new();
-    let mut friedman = Vec::new();
-    for (kind, within, g) in &comparisons {
-        for (group, joint) in [("joint", true), ("scaling", false)] {
-            let targets: Vec<LandmarkId> = ids
-                .iter()
-                .filter(|i| i.code.is_joint_marker() == joint)
-                .filter(|i| g.iter().all(|(_, p)| p.set.points.contains_key(i)))
-                .copied()
-                .collect();
-            if targets.len() < 2 {
-                continue;
-            }
-            for (a, axis) in AXES.iter().enumerate() {
-                let rows: Vec<Vec<f64>> = targets
-                    .iter()
-                    .map(|t| {
-                        g.iter()
-                            .map(|(_, p)| value(&p.set.points[t], &origin, a))
-                            .collect()
-                    })
-                    .collect();
-                if let Ok(Icc { icc2_1, n, k, .. }) = stats::icc(&rows) {
-                    icc.push(IccEntry {
-                        kind: kind.clone(),
-                        within: within.clone(),
-                        group: group.into(),
-                        axis: axis.to_string(),
-                        targets: n,
-                        raters: k,
-                        icc2_1,
-                    });
-                }
-            }
+    for (group, joint) in [("joint", true), ("scaling", false)] {
+        let targets: Vec<LandmarkId> = ids
+            .iter()
+            .filter(|i| i.code.is_joint_marker() == joint)
+            .filter(|i| g.iter().all(|(_, p)| p.set.points.contains_key(i)))
+            .copied()
+            .collect();
+        if targets.len() < 2 {
+            continue;
         }
-        let levels: Vec<Level> = {
-            let mut v: Vec<Level> = ids.iter().map(|i| i.level).collect();
-            v.dedup();
-            v
-        };
-        for code in Code::ALL {
-            for (a, axis) in AXES.iter().enumerate() {
-                let y: Vec<Vec<Option<f64>>> = levels
-                    .iter()
-                    .map(|l| {
-                        g.iter()
-                            .map(|(_, p)| p.set.get(*l, code).map(|q| value(&q, &origin, a)))
-                            .collect()
-                    })
-                    .filter(|row: &Vec<Option<f64>>| {
-                        row.iter().filter(|v| v.is_some()).count() >= 2
-                    })
-                    .collect();
-                let Ok(t) = stats::friedman_blocked(&y) else {
-                    continue;
-                };
-                if !t.p.is_finite() {
-                    continue;
-                }
-                let names: Vec<String> = g.iter().map(|(n, _)| n.clone()).collect();
-                let posthoc = if t.p < 0.05 {
-                    stats::nemenyi_many_one(&y)
-                        .map(|v| {
-                            v.into_iter()
-                                .map(|m| PostHoc {
-                                    versus: names.get(m.group).cloned().unwrap_or_default(),
-                                    reference: names[0].clone(),
-                                    z: m.z,
-                                    p: m.p,
-                                })
-                                .collect()
-                        })
-                        .unwrap_or_default()
-                } else {
-                    Vec::new()
-                };
-                friedman.push(FriedmanEntry {
+        for (a, axis) in AXES.iter().enumerate() {
+            let rows: Vec<Vec<f64>> = targets
+                .iter()
+                .map(|t| {
+                    g.iter()
+                        .map(|(_, p)| value(&p.set.points[t], origin, a))
+                        .collect()
+                })
+                .collect();
+            if let Ok(Icc { icc2_1, n, k, .. }) = stats::icc(&rows) {
+                icc.push(IccEntry {
                     kind: kind.clone(),
                     within: within.clone(),
-                    marker: code,
+                    group: group.into(),
                     axis: axis.to_string(),
-                    method: t.method,
-                    statistic: t.statistic,
-                    df: t.df,
-                    p: t.p,
-                    blocks: t.blocks,
-                    groups: names,
-                    posthoc,
+                    targets: n,
+                    raters: k,
+                    icc2_1,
                 });
             }
         }
     }
-    let rejected = normality.iter().filter(|n| n.p < 0.05).count();
-    Ok(VariabilityReport {
-        palpations: pals.len(),
-        operators,
-        units: "mm".into(),
-        axes: "X anterior-posterior, Y inferior-superior, Z left-right (OpenSim frame); Euclidean = distance from the grand centroid".into(),
-        landmarks,
-        summary,
-        icc,
-        normality,
-        normality_rejected_at_5pct: rejected,
-        friedman,
-        model_propagation: None,
-        notes: Vec::new(),
-    })
+    icc
+}
+
+/// Friedman / Skillings-Mack tests per marker code and axis of one
+/// comparison, blocked by level (blocks with two or more values), with the
+/// Nemenyi many-to-one post hoc test when p < 0.05.
+fn friedman_entries(
+    c: &Comparison,
+    ids: &[LandmarkId],
+    origin: &Vector3<f64>,
+) -> Vec<FriedmanEntry> {
+    let (kind, within, g) = c;
+    let mut friedman = Vec::new();
+    let levels: Vec<Level> = {
+        let mut v: Vec<Level> = ids.iter().map(|i| i.level).collect();
+        v.dedup();
+        v
+    };
+    for code in Code::ALL {
+        for (a, axis) in AXES.iter().enumerate() {
+            let y: Vec<Vec<Option<f64>>> = levels
+                .iter()
+                .map(|l| {
+                    g.iter()
+                        .map(|(_, p)| p.set.get(*l, code).map(|q| value(&q, origin, a)))
+                        .collect()
+                })
+                .filter(|row: &Vec<Option<f64>>| row.iter().filter(|v| v.is_some()).count() >= 2)
+                .collect();
+            let Ok(t) = stats::friedman_blocked(&y) else {
+                continue;
+            };
+            if !t.p.is_finite() {
+                continue;
+            }
+            let names: Vec<String> = g.iter().map(|(n, _)| n.clone()).collect();
+            let posthoc = if t.p < 0.05 {
+                stats::nemenyi_many_one(&y)
+                    .map(|v| {
+                        v.into_iter()
+                            .map(|m| PostHoc {
+                                versus: names.get(m.group).cloned().unwrap_or_default(),
+                                reference: names[0].clone(),
+                                z: m.z,
+                                p: m.p,
+                            })
+                            .collect()
+                    })
+                    .unwrap_or_default()
+            } else {
+                Vec::new()
+            };
+            friedman.push(FriedmanEntry {
+                kind: kind.clone(),
+                within: within.clone(),
+                marker: code,
+                axis: axis.to_string(),
+                method: t.method,
+                statistic: t.statistic,
+                df: t.df,
+                p: t.p,
+                blocks: t.blocks,
+                groups: names,
+                posthoc,
+            });
+        }
+    }
+    friedman
 }
 
 /// SVG box plot of the per-landmark IQRs in X, Y, Z and Euclidean
