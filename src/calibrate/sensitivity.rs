@@ -293,16 +293,9 @@ pub fn perturbed_spec(
     Ok(s)
 }
 
-fn quantile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let pos = q * (sorted.len() - 1) as f64;
-    let i = pos.floor() as usize;
-    let f = pos - i as f64;
-    let a = sorted[i.min(sorted.len() - 1)];
-    let b = sorted[(i + 1).min(sorted.len() - 1)];
-    a + f * (b - a)
+/// Quantile `q` of `v` (type 7), NaN when empty.
+fn quantile(v: &[f64], q: f64) -> f64 {
+    crate::util::quantile(v, q).unwrap_or(f64::NAN)
 }
 
 fn pearson(x: &[f64], y: &[f64]) -> f64 {

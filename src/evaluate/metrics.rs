@@ -286,11 +286,6 @@ pub fn curve_compare(truth: &[(f64, f64)], model: &[(f64, f64)]) -> Option<Curve
     })
 }
 
-/// Quantile by linear interpolation (type 7) of unsorted data.
-pub fn quantile(x: &[f64], p: f64) -> Option<f64> {
-    crate::landmarks::stats::quantile(x, p)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -651,8 +651,8 @@ pub struct MeanSd {
 pub fn med_iqr(v: &[f64]) -> Option<MedIqr> {
     let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
     Some(MedIqr {
-        median: metrics::quantile(&v, 0.5)?,
-        iqr: metrics::quantile(&v, 0.75)? - metrics::quantile(&v, 0.25)?,
+        median: crate::util::median(&v)?,
+        iqr: crate::util::iqr(&v)?,
         n: v.len(),
     })
 }

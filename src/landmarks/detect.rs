@@ -104,19 +104,6 @@ fn opt<T: std::fmt::Display>(x: Option<T>) -> String {
     x.map(|v| v.to_string()).unwrap_or_else(|| "none".into())
 }
 
-fn median(v: &mut [f64]) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
-}
-
 /// First occurrence of each valid landmark, file coordinates.
 fn first_points(raw: &RawLandmarks) -> BTreeMap<LandmarkId, Vector3<f64>> {
     let mut m = BTreeMap::new();
@@ -132,8 +119,8 @@ fn first_points(raw: &RawLandmarks) -> BTreeMap<LandmarkId, Vector3<f64>> {
 pub fn detect(raw: &RawLandmarks) -> Detection {
     let pts = first_points(raw);
     // Units: measured vertebral dimensions over their published means.
-    let mut ratios = dimension_ratios(&pts);
-    let ratio = median(&mut ratios);
+    let ratios = dimension_ratios(&pts);
+    let ratio = crate::util::median(&ratios);
     let (detected_units, units_evidence) = units_of_ratio(ratio, ratios.len());
     // Declared units that the ratio contradicts give way to the detected ones.
     let units_contradicted = match (raw.declared_units, ratio) {
