@@ -835,16 +835,6 @@ impl StiffnessFamily {
     pub fn params_nominal(&self) -> Vec<f64> {
         self.params.iter().map(|p| p.nominal).collect()
     }
-
-    /// Override the bounds of parameters on stiffness DoF `d`.
-    pub fn set_bounds(&mut self, d: usize, lower: f64, upper: f64) {
-        for (j, entries) in self.map.iter().enumerate().take(self.n_linear) {
-            if entries.first().map(|e| e.1) == Some(d) {
-                self.params[j].lower = lower;
-                self.params[j].upper = upper;
-            }
-        }
-    }
 }
 
 impl StiffnessFamily {

@@ -300,32 +300,6 @@ impl System {
             bushing: pb,
         })
     }
-
-    /// Power of the loads at (q, u): their generalised force on the speeds
-    /// dotted with `u`.
-    pub fn load_power(
-        &self,
-        q: &[f64],
-        u: &[f64],
-        loads: &LoadSet,
-        ws: &mut Workspace,
-    ) -> Result<f64> {
-        self.check_inputs(q, loads, ws)?;
-        if u.len() != q.len() {
-            return Err(Error::invalid(
-                "solver",
-                "load power: one speed per free coordinate",
-            ));
-        }
-        ws.k64.q.copy_from_slice(q);
-        kinematics::forward_speeds(self, &mut ws.k64);
-        for w in ws.k64.w.iter_mut() {
-            *w = [Vector3::zeros(), Vector3::zeros()];
-        }
-        forces::load_wrenches(loads, &mut ws.k64);
-        forces::project(self, &mut ws.k64);
-        Ok(ws.k64.tau.iter().zip(u).map(|(t, v)| t * v).sum())
-    }
 }
 
 /// In-place Cholesky (lower triangle); false when not positive definite.

@@ -194,8 +194,6 @@ impl SystemId {
 pub struct System {
     pub(crate) id: SystemId,
     pub(crate) bodies: Vec<Body>,
-    /// spec body index -> system body index
-    pub(crate) body_map: Vec<usize>,
     pub(crate) coords: Vec<CoordinateSpec>,
     /// spec coordinate -> free dof index (None when locked or unused)
     pub(crate) coord_dof: Vec<Option<usize>>,
@@ -670,7 +668,6 @@ impl System {
             id: SystemId::new(&bodies, dof_coord.len(), bushings.len()),
             any_euler_speeds: bodies.iter().any(|b| b.joint.euler_speeds),
             bodies,
-            body_map,
             coords: spec.coordinates.clone(),
             coord_dof,
             dof_coord,
@@ -724,17 +721,9 @@ impl System {
     pub fn body_index(&self, name: &str) -> Option<usize> {
         self.bodies.iter().position(|b| b.name == name)
     }
-    /// Joint names in system order (the joint of each body).
-    pub fn joint_names(&self) -> impl Iterator<Item = &str> {
-        self.bodies.iter().map(|b| b.joint.name.as_str())
-    }
     /// The force law of bushing `i`.
     pub fn bushing_model(&self, i: usize) -> Option<&BushingModel> {
         self.bushings.get(i).map(|b| &b.model)
-    }
-    /// System body index of a spec body index.
-    pub fn body_of_spec(&self, spec_body: usize) -> Option<usize> {
-        self.body_map.get(spec_body).copied()
     }
     /// Body (system index) moved by free dof `i`.
     pub fn dof_body(&self, i: usize) -> Option<usize> {
