@@ -26,7 +26,7 @@ use super::forms::{self, CurveForm};
 use crate::calibrate::experiment::DOF_NAMES;
 use crate::error::{Error, Result};
 use crate::solver::scalar::Scalar;
-use crate::solver::{BushingModel, Curve, System, Workspace};
+use crate::solver::{BodyIndex, BushingModel, Curve, System, Workspace};
 use nalgebra::DMatrix;
 use num_dual::Dual64;
 use serde::Serialize;
@@ -203,10 +203,10 @@ pub struct Level {
     pub name: String,
     /// Bushing index in the system.
     pub bushing: usize,
-    /// Cranial body (system index).
-    pub upper: usize,
-    /// Caudal body (system index).
-    pub lower: usize,
+    /// Cranial body.
+    pub upper: BodyIndex,
+    /// Caudal body.
+    pub lower: BodyIndex,
     /// Names of the two bodies.
     pub upper_name: String,
     pub lower_name: String,
@@ -224,7 +224,7 @@ pub fn level_key(name: &str) -> String {
 /// The levels of `sys` on the paths between `fixed` and each of `loaded`
 /// (system body indices), cranial to caudal order of the bushing list.
 /// A level is a bushing whose two bodies are a parent-child pair of the tree.
-pub fn find_levels(sys: &System, fixed: usize, loaded: &[usize]) -> Vec<Level> {
+pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<Level> {
     let mut on_path = vec![false; sys.n_bodies()];
     for &b in loaded {
         // bodies from b up to (excluding) the common ancestor with fixed
@@ -241,12 +241,12 @@ pub fn find_levels(sys: &System, fixed: usize, loaded: &[usize]) -> Vec<Level> {
                     if f == c {
                         break;
                     }
-                    on_path[f] = true;
+                    on_path[f.0] = true;
                 }
-                on_path[c] = true;
+                on_path[c.0] = true;
                 break;
             }
-            on_path[c] = true;
+            on_path[c.0] = true;
             cur = sys.parent_of(c);
         }
     }
@@ -263,7 +263,7 @@ pub fn find_levels(sys: &System, fixed: usize, loaded: &[usize]) -> Vec<Level> {
         } else {
             continue;
         };
-        if !(on_path[upper] && on_path[lower]) {
+        if !(on_path[upper.0] && on_path[lower.0]) {
             continue;
         }
         let name = bname.strip_suffix("_bushing").unwrap_or(bname).to_string();
@@ -272,8 +272,8 @@ pub fn find_levels(sys: &System, fixed: usize, loaded: &[usize]) -> Vec<Level> {
             bushing: i,
             upper,
             lower,
-            upper_name: names.get(upper).copied().unwrap_or("").to_string(),
-            lower_name: names.get(lower).copied().unwrap_or("").to_string(),
+            upper_name: names.get(upper.0).copied().unwrap_or("").to_string(),
+            lower_name: names.get(lower.0).copied().unwrap_or("").to_string(),
         });
     }
     out
