@@ -762,3 +762,46 @@ pub fn error_table(pb: &Problem, pred: &[[f64; 6]], rows: impl Fn(usize) -> bool
             .collect(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn poorly_determined_by_sd_or_bound_but_not_at_a_neutral_zero() {
+        let k = ParamInfo::log("rx".into(), "N*m/rad", 1.0, 100.0, 10.0);
+        // a relative SD of 20% is determined, 80% is not
+        assert_eq!(poorly_determined(&k, 0.2, false, false), None);
+        let why = poorly_determined(&k, 0.8, false, false).unwrap();
+        assert!(why.contains("relative SD 80%"), "{why}");
+        // on a literature bound: the fit wants a value outside the range
+        let why = poorly_determined(&k, 0.2, true, true).unwrap();
+        assert!(why.contains("literature bound"), "{why}");
+        // a stiffening at its neutral lower bound 0 is a determined answer
+        let s = ParamInfo {
+            name: "rx_stiffening".into(),
+            unit: "ratio".into(),
+            lower: 0.0,
+            upper: 4.0,
+            nominal: 0.0,
+            scale: Scale::Log1p,
+            note: None,
+        };
+        assert_eq!(poorly_determined(&s, 0.1, true, true), None);
+        let why = poorly_determined(&s, 0.3, true, true).unwrap();
+        assert!(why.contains("the measured rotations do not show"), "{why}");
+    }
+
+    #[test]
+    fn correlation_of_a_covariance() {
+        let cov = DMatrix::from_row_slice(2, 2, &[4.0, 2.0, 2.0, 9.0]);
+        let c = correlation(&cov);
+        assert_eq!(c[0][0], 1.0);
+        assert!((c[0][1] - 2.0 / 6.0).abs() < 1e-15);
+        // an unbounded variance has no correlation
+        let cov = DMatrix::from_row_slice(2, 2, &[f64::INFINITY, 0.0, 0.0, 1.0]);
+        let c = correlation(&cov);
+        assert_eq!(c[0][0], 1.0);
+        assert!(c[0][1].is_nan());
+    }
+}

@@ -353,3 +353,34 @@ fn frame_of_directions(
         ),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn units_follow_the_dimension_ratio() {
+        assert_eq!(units_of_ratio(Some(1.1), 30).0, Some(Units::Metre));
+        assert_eq!(units_of_ratio(Some(950.0), 30).0, Some(Units::Millimetre));
+        // centimetres fit neither
+        let (u, why) = units_of_ratio(Some(95.0), 30);
+        assert_eq!(u, None);
+        assert!(why.contains("neither"), "{why}");
+        assert_eq!(units_of_ratio(None, 0).0, None);
+    }
+
+    #[test]
+    fn a_missing_direction_is_completed_and_the_frame_matched() {
+        // OpenSim axes: anterior x, superior y; right z is completed.
+        let dirs = [Some(Vector3::x()), Some(Vector3::y()), None];
+        let (frame, why, contradicted) = frame_of_directions(dirs, Some(Frame::OpenSim));
+        assert_eq!(frame, Some(Frame::OpenSim), "{why}");
+        assert!(!contradicted);
+        // the same anatomy declared as LPS is a contradiction
+        let (_, _, contradicted) = frame_of_directions(dirs, Some(Frame::Lps));
+        assert!(contradicted);
+        // one direction is not enough
+        let (frame, _, _) = frame_of_directions([Some(Vector3::x()), None, None], None);
+        assert_eq!(frame, None);
+    }
+}

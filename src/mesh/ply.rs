@@ -662,4 +662,33 @@ mod tests {
             .to_string();
         assert!(e.contains("h.ply") && e.contains("declared"), "{e}");
     }
+
+    #[test]
+    fn header_steps_read_alone() {
+        let bytes = b"ply\nformat binary_big_endian 1.0\ncomment x\nelement vertex 2\n\
+                      property float x\nproperty float y\nproperty double z\n\
+                      element face 1\nproperty list uchar int vertex_indices\nend_header\nBODY";
+        let name = Path::new("s.ply");
+        let (header, body_start) = split_header(bytes, name).unwrap();
+        assert_eq!(&bytes[body_start..], b"BODY");
+        let (fmt, elements) = read_header(header, name).unwrap();
+        assert_eq!(fmt, Fmt::Be);
+        assert_eq!(elements.len(), 2);
+        assert_eq!(
+            (elements[0].name.as_str(), elements[0].count),
+            ("vertex", 2)
+        );
+        assert_eq!(vertex_props(&elements[0], name).unwrap(), Some([0, 1, 2]));
+        assert_eq!(face_prop(&elements[1], name).unwrap(), Some(0));
+        // 2 vertices of 4 + 4 + 8 bytes and a face count byte: 33 bytes at least
+        assert!(check_counts(&elements, fmt, 33, name).is_ok());
+        let e = check_counts(&elements, fmt, 20, name)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("at least 33 bytes"), "{e}");
+        // a polygon becomes a fan; an index past the vertices is refused
+        let tris = triangulate(vec![(vec![0, 1, 2, 3], 0)], 4, name).unwrap();
+        assert_eq!(tris, vec![[0, 1, 2], [0, 2, 3]]);
+        assert!(triangulate(vec![(vec![0, 1, 4], 0)], 4, name).is_err());
+    }
 }
