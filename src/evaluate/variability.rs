@@ -22,7 +22,7 @@
 //!   inter-operator (groups = operators, one test per repetition) and
 //!   intra-operator (groups = repetitions, one test per operator);
 //!   Friedman when blocks are complete, Skillings-Mack otherwise
-//!   ([`super::stats`]); when p < 0.05 the one-to-many Nemenyi test against
+//!   ([`crate::landmarks::stats`]); when p < 0.05 the one-to-many Nemenyi test against
 //!   the first operator / first repetition;
 //! - `model_propagation` (with [`compute`]/[`run`] given a base model):
 //!   the thesis's Tables 5.6-5.8, one generated model per palpation
