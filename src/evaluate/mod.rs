@@ -37,7 +37,7 @@
 //! absolute errors (Table 5.7), and mean, SD, min and max of the Cobb angle
 //! and lordosis (Table 5.8).
 
-pub mod metrics;
+pub use crate::landmarks::metrics;
 pub mod plot;
 pub mod propagation;
 pub mod variability;

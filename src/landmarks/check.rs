@@ -17,6 +17,7 @@
 //! | LM010 | warning | unknown landmark name (ignored) |
 //! | LM011 | warning | non-canonical spelling of a landmark name |
 //! | LM012 | error | duplicate landmark name |
+//! | LM013 | error | coordinates in a body's frame (`body` column: a model palpation for `base --palpation`) |
 //! | LM020 | error | landmark(s) missing at a level that is present |
 //! | LM021 | error | level missing inside the run of levels |
 //! | LM022 | error | no S1 (the run must end at the sacrum) |
@@ -222,6 +223,18 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
     let mut lines: BTreeMap<LandmarkId, usize> = BTreeMap::new();
     let mut seen: BTreeMap<LandmarkId, Vec<Option<usize>>> = BTreeMap::new();
     for p in &raw.points {
+        if let Some(b) = &p.body {
+            out.push(Finding {
+                code: "LM013".into(),
+                severity: Severity::Error,
+                landmarks: vec![p.name.clone()],
+                message: format!(
+                    "`{}` is given in the frame of body `{b}`: a palpation of a model (base --palpation), not a patient's landmark set",
+                    p.name
+                ),
+                line: p.line,
+            });
+        }
         match p.id {
             None => out.push(Finding {
                 code: "LM010".into(),
