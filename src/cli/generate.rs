@@ -324,8 +324,16 @@ fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
     } else {
         let max = a.bend_deg.iter().fold(0.0f64, |m, b| m.max(b.abs()));
         format!(
-            "balanced {} by a compensatory frontal curve (largest bend {max:.1} deg per joint)",
-            a.balanced.join(" ")
+            "balanced {} by a compensatory frontal curve (largest bend {max:.1} deg per joint{})",
+            a.balanced.join(" "),
+            if a.bend_limited {
+                format!(
+                    ", the limit of {:.0} deg: too few unmeasured levels to bring T1 over the sacrum",
+                    crate::build::generate::balance::MAX_BEND_DEG
+                )
+            } else {
+                String::new()
+            }
         )
     };
     crate::outln!(

@@ -154,17 +154,21 @@ fn posterior_elements(st: &BodyState, p: &VertebraPalpation) -> Option<Finding> 
     })
 }
 
-/// The vertebral centre must lie between the walls and the endplates.
+/// The vertebral centre must lie between the walls (the endplates'
+/// mid-sagittal ends, as the centre rule and the pedicle cut use them) and
+/// between the endplates.
 fn centre_findings(st: &BodyState, p: &VertebraPalpation) -> Vec<Finding> {
     let c = st.lm.to_mesh.inverse() * p.centre;
-    let w = &st.walls;
+    let (s, i) = (&st.sup_pts, &st.inf_pts);
+    let x_post = s.back.x.min(i.back.x);
+    let x_ant = s.front.x.max(i.front.x);
     let mut why = Vec::new();
-    if c.x < w.x_post || c.x > w.x_ant {
+    if c.x < x_post || c.x > x_ant {
         why.push(format!(
             "x = {:.1} mm outside the walls {:.1}..{:.1} mm",
             c.x * 1e3,
-            w.x_post * 1e3,
-            w.x_ant * 1e3
+            x_post * 1e3,
+            x_ant * 1e3
         ));
     }
     if st.sup.normal.dot(&c.coords) > st.sup.offset || st.inf.normal.dot(&c.coords) > st.inf.offset
