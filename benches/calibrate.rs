@@ -8,7 +8,10 @@
 //!
 //! `cargo bench --bench calibrate` (set `CAL_BENCH_REPEAT` for more
 //! repetitions of the calibration; `CAL_BENCH_SKIP_SENSITIVITY=1` to skip 2).
-//! Not a criterion bench: one iteration of 2 takes tens of seconds.
+//! Not a criterion bench: one iteration of 2 takes tens of seconds. Under
+//! `cargo test --all-targets` (no `--bench` argument) it only checks that
+//! the experiment loads and the residuals at the nominal parameters are
+//! finite.
 
 use osim_spine::calibrate::experiment::Experiment;
 use osim_spine::calibrate::family::Parameterisation;
@@ -31,6 +34,19 @@ fn main() {
         ..Setup::default()
     };
     let (pb, _) = build_problem(exp.clone(), &setup).expect("problem");
+    if !std::env::args().any(|a| a == "--bench") {
+        let nominal: Vec<f64> = pb.family.params().iter().map(|p| p.nominal).collect();
+        let (r, _) = pb
+            .evaluator()
+            .residuals(&pb, &pb.fit_coords_of(&nominal), false)
+            .expect("residuals at the nominal parameters");
+        assert!(!r.is_empty() && r.iter().all(|v| v.is_finite()));
+        println!(
+            "test mode: {} finite residuals (time it with `cargo bench --bench calibrate`)",
+            r.len()
+        );
+        return;
+    }
     let repeat: usize = std::env::var("CAL_BENCH_REPEAT")
         .ok()
         .and_then(|s| s.parse().ok())

@@ -122,5 +122,9 @@ fn main() {
     criterion::Criterion::default()
         .configure_from_args()
         .final_summary();
-    table();
+    // The timed table only under `cargo bench` (which passes `--bench`), not
+    // in the test mode of `cargo test --all-targets`.
+    if std::env::args().any(|a| a == "--bench") {
+        table();
+    }
 }

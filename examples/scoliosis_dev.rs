@@ -13,7 +13,7 @@
 //! `cargo run --release --example scoliosis_dev -- BASE_DIR [DEV_DIR]`
 
 use nalgebra::{Isometry3, Point3};
-use osim_spine::evaluate::{load_model, metrics, parse_centres_csv, CentreDef, ModelShape};
+use osim_spine::evaluate::{load_model, parse_centres_csv, CentreDef, ModelShape};
 use osim_spine::landmarks::LandmarkSet;
 use osim_spine::landmarks::{io, Code, Level};
 use osim_spine::mesh::kabsch;
@@ -242,7 +242,7 @@ fn truth_centres(path: &Path) -> Result<BTreeMap<Level, Point3<f64>>, String> {
 }
 
 fn median(v: &[f64]) -> f64 {
-    metrics::quantile(v, 0.5).unwrap_or(f64::NAN)
+    osim_spine::util::median(v).unwrap_or(f64::NAN)
 }
 
 fn main() {

@@ -29,11 +29,6 @@ pub fn base_file_bytes(name: &str) -> Option<&'static [u8]> {
     lookup(files::BASE_MODEL, name)
 }
 
-/// An embedded file of `templates/` by name (e.g. `level_ratios_zhang.toml`).
-pub fn template_bytes(name: &str) -> Option<&'static [u8]> {
-    lookup(files::TEMPLATES, name)
-}
-
 /// Where a base model comes from.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum BaseModel {

@@ -1,15 +1,17 @@
 //! Small shared helpers: the input gate every reader goes through
 //! ([`input`]), atomic output, deterministic number formatting,
-//! reports at a stated precision ([`report`]) and the shared SVG figures
-//! ([`svg`]).
+//! reports at a stated precision ([`report`]), the one quantile helper
+//! ([`quantiles`]) and the shared SVG figures ([`svg`]).
 
 pub mod guard;
 pub mod input;
 pub mod output;
+pub mod quantiles;
 pub mod report;
 pub mod svg;
 
 pub use input::{read_bytes_capped, read_text_capped};
+pub use quantiles::{iqr, median, quantile};
 
 use crate::error::{Error, Result};
 use std::io::Write;

@@ -415,7 +415,6 @@ fn bin() -> std::process::Command {
 /// the pose: vertebral-centre RMSE <= 0.5 mm against the posed base's
 /// centres (generator's sacral registration only, no further alignment).
 #[test]
-#[ignore = "centre RMSE 2.3 mm: base_model/ markers are not yet placed by the issue-16 engine that palpates the segmentation; run with --ignored"]
 fn generate_from_segmentation_reproduces_the_pose() {
     use osim_spine::evaluate::{self, Align, CentreDef, Truth};
     let doc = base_doc();

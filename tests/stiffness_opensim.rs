@@ -339,35 +339,10 @@ fn check_model(python: &Path, plan: &Plan) -> Vec<(&'static str, f64)> {
             serde_json::to_string(&serde_json::json!({"body": top, "cases": cases})).unwrap(),
         )
         .unwrap();
+        // OpenSim's own equilibria from the tool's, on the written file.
         let t_py = std::time::Instant::now();
-        let res = common::run_py(
-            python,
-            "stiffness_equilibria.py",
-            &[out.to_str().unwrap(), cpath.to_str().unwrap()],
-        );
+        let (worst, biggest_q, n) = opensim_equilibria(python, &out, &cpath, label, tag);
         let t_py = t_py.elapsed().as_secs_f64();
-        let mut worst = 0.0f64;
-        let mut biggest_q = 0.0f64;
-        for c in res["cases"].as_array().unwrap() {
-            let dq = c["max_abs_dq"].as_f64().unwrap();
-            let fin = c["final_residual"].as_f64().unwrap();
-            worst = worst.max(dq);
-            biggest_q = biggest_q.max(c["max_abs_q"].as_f64().unwrap());
-            assert!(
-                fin < 1e-8,
-                "{label} {tag} axis {} {} Nm: OpenSim's Newton did not converge ({fin:e})",
-                c["axis"],
-                c["moment"]
-            );
-            assert!(
-                dq < 1e-8,
-                "{label} {tag} axis {} {} Nm: |q_opensim - q_tool| = {dq:e} (residual at the tool's q {:e})",
-                c["axis"],
-                c["moment"],
-                c["residual_at_tool_q"].as_f64().unwrap_or(f64::NAN)
-            );
-        }
-        let n = res["cases"].as_array().unwrap().len();
         assert_eq!(n, 3 * per_axis);
         assert!(
             biggest_q > 0.05,
@@ -381,6 +356,46 @@ fn check_model(python: &Path, plan: &Plan) -> Vec<(&'static str, f64)> {
         summary.push((tag, worst));
     }
     summary
+}
+
+/// OpenSim's Newton from the tool's equilibria of the cases in `cases` on
+/// the model `model`: converged, and within 1e-8 (rad or m) of the tool's.
+/// Returns the largest |q_opensim - q_tool|, the largest |q| and the case
+/// count.
+fn opensim_equilibria(
+    python: &Path,
+    model: &Path,
+    cases: &Path,
+    label: &str,
+    tag: &str,
+) -> (f64, f64, usize) {
+    let res = common::run_py(
+        python,
+        "stiffness_equilibria.py",
+        &[model.to_str().unwrap(), cases.to_str().unwrap()],
+    );
+    let mut worst = 0.0f64;
+    let mut biggest_q = 0.0f64;
+    for c in res["cases"].as_array().unwrap() {
+        let dq = c["max_abs_dq"].as_f64().unwrap();
+        let fin = c["final_residual"].as_f64().unwrap();
+        worst = worst.max(dq);
+        biggest_q = biggest_q.max(c["max_abs_q"].as_f64().unwrap());
+        assert!(
+            fin < 1e-8,
+            "{label} {tag} axis {} {} Nm: OpenSim's Newton did not converge ({fin:e})",
+            c["axis"],
+            c["moment"]
+        );
+        assert!(
+            dq < 1e-8,
+            "{label} {tag} axis {} {} Nm: |q_opensim - q_tool| = {dq:e} (residual at the tool's q {:e})",
+            c["axis"],
+            c["moment"],
+            c["residual_at_tool_q"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    (worst, biggest_q, res["cases"].as_array().unwrap().len())
 }
 
 /// +-1, 2.5, 5, 7.5 N m, each sign continued from the default pose.

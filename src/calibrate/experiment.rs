@@ -158,12 +158,6 @@ pub fn parse_cases(text: &str, file: &Path) -> Result<Vec<LoadCase>> {
     Ok(parsed.case)
 }
 
-/// Read and parse a load file.
-pub fn read_cases(path: &Path) -> Result<Vec<LoadCase>> {
-    let text = crate::util::read_text_capped(path, MAX_FILE_BYTES, "load files")?;
-    parse_cases(&text, path)
-}
-
 /// Names of the six measured degrees of freedom, in column order.
 pub const DOF_NAMES: [&str; 6] = ["rx", "ry", "rz", "tx", "ty", "tz"];
 
@@ -568,11 +562,6 @@ impl Experiment {
             warnings,
             measurement: raw.measurement,
         })
-    }
-
-    /// Index of a case by id.
-    pub fn case_index(&self, id: &str) -> Option<usize> {
-        self.cases.iter().position(|c| c.id == id)
     }
 
     /// DoFs (0..6) with at least one measured cell.

@@ -26,7 +26,7 @@ use super::forms::{self, CurveForm};
 use crate::calibrate::experiment::DOF_NAMES;
 use crate::error::{Error, Result};
 use crate::solver::scalar::Scalar;
-use crate::solver::{BushingModel, Curve, System, Workspace};
+use crate::solver::{BodyIndex, BushingModel, Curve, System, Workspace};
 use nalgebra::DMatrix;
 use num_dual::Dual64;
 use serde::Serialize;
@@ -203,10 +203,10 @@ pub struct Level {
     pub name: String,
     /// Bushing index in the system.
     pub bushing: usize,
-    /// Cranial body (system index).
-    pub upper: usize,
-    /// Caudal body (system index).
-    pub lower: usize,
+    /// Cranial body.
+    pub upper: BodyIndex,
+    /// Caudal body.
+    pub lower: BodyIndex,
     /// Names of the two bodies.
     pub upper_name: String,
     pub lower_name: String,
@@ -224,7 +224,7 @@ pub fn level_key(name: &str) -> String {
 /// The levels of `sys` on the paths between `fixed` and each of `loaded`
 /// (system body indices), cranial to caudal order of the bushing list.
 /// A level is a bushing whose two bodies are a parent-child pair of the tree.
-pub fn find_levels(sys: &System, fixed: usize, loaded: &[usize]) -> Vec<Level> {
+pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<Level> {
     let mut on_path = vec![false; sys.n_bodies()];
     for &b in loaded {
         // bodies from b up to (excluding) the common ancestor with fixed
@@ -241,12 +241,12 @@ pub fn find_levels(sys: &System, fixed: usize, loaded: &[usize]) -> Vec<Level> {
                     if f == c {
                         break;
                     }
-                    on_path[f] = true;
+                    on_path[f.0] = true;
                 }
-                on_path[c] = true;
+                on_path[c.0] = true;
                 break;
             }
-            on_path[c] = true;
+            on_path[c.0] = true;
             cur = sys.parent_of(c);
         }
     }
@@ -263,7 +263,7 @@ pub fn find_levels(sys: &System, fixed: usize, loaded: &[usize]) -> Vec<Level> {
         } else {
             continue;
         };
-        if !(on_path[upper] && on_path[lower]) {
+        if !(on_path[upper.0] && on_path[lower.0]) {
             continue;
         }
         let name = bname.strip_suffix("_bushing").unwrap_or(bname).to_string();
@@ -272,8 +272,8 @@ pub fn find_levels(sys: &System, fixed: usize, loaded: &[usize]) -> Vec<Level> {
             bushing: i,
             upper,
             lower,
-            upper_name: names.get(upper).copied().unwrap_or("").to_string(),
-            lower_name: names.get(lower).copied().unwrap_or("").to_string(),
+            upper_name: names.get(upper.0).copied().unwrap_or("").to_string(),
+            lower_name: names.get(lower.0).copied().unwrap_or("").to_string(),
         });
     }
     out
@@ -372,6 +372,261 @@ fn geomean(v: &[f64]) -> f64 {
     (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp()
 }
 
+/// The linear-part parameters of `kind` over `levels` and `dofs` (the
+/// non-linear and coupled forms take uniform or per-level linear parts),
+/// nominal values from the bushings' `nominal` stiffness.
+fn linear_params(
+    kind: &Parameterisation,
+    levels: &[Level],
+    dofs: &[usize],
+    nominal: &[[f64; 6]],
+) -> Result<ParamMap> {
+    let mut params = Vec::new();
+    let mut map = Vec::new();
+    let linear_kind = match kind {
+        Parameterisation::Nonlinear {
+            per_level: true, ..
+        } => &Parameterisation::PerLevel,
+        Parameterisation::Nonlinear { .. } | Parameterisation::Coupled => {
+            &Parameterisation::Uniform
+        }
+        k => k,
+    };
+    match linear_kind {
+        Parameterisation::Uniform => {
+            for &d in dofs {
+                let vals: Vec<f64> = levels.iter().map(|l| nominal[l.bushing][d]).collect();
+                params.push(ParamInfo::log(
+                    DOF_NAMES[d].to_string(),
+                    stiffness_unit(d),
+                    LITERATURE_BOUNDS[d].0,
+                    LITERATURE_BOUNDS[d].1,
+                    geomean(&vals),
+                ));
+                map.push(levels.iter().map(|l| (l.bushing, d, 1.0)).collect());
+            }
+        }
+        Parameterisation::Ratio(table) => {
+            for &d in dofs {
+                let raw = table_ratios(table, levels, d)?;
+                let g = geomean(&raw);
+                let factors: Vec<f64> = raw.iter().map(|v| v / g).collect();
+                let base: Vec<f64> = levels
+                    .iter()
+                    .zip(&factors)
+                    .map(|(l, f)| nominal[l.bushing][d] / f)
+                    .collect();
+                params.push(ParamInfo::log(
+                    format!("{}_base", DOF_NAMES[d]),
+                    stiffness_unit(d),
+                    LITERATURE_BOUNDS[d].0,
+                    LITERATURE_BOUNDS[d].1,
+                    geomean(&base),
+                ));
+                map.push(
+                    levels
+                        .iter()
+                        .zip(&factors)
+                        .map(|(l, f)| (l.bushing, d, *f))
+                        .collect(),
+                );
+            }
+        }
+        Parameterisation::PerLevel
+        | Parameterisation::Nonlinear { .. }
+        | Parameterisation::Coupled => {
+            for l in levels {
+                for &d in dofs {
+                    params.push(ParamInfo::log(
+                        format!("{}.{}", l.name, DOF_NAMES[d]),
+                        stiffness_unit(d),
+                        LITERATURE_BOUNDS[d].0,
+                        LITERATURE_BOUNDS[d].1,
+                        nominal[l.bushing][d],
+                    ));
+                    map.push(vec![(l.bushing, d, 1.0)]);
+                }
+            }
+        }
+    }
+    Ok((params, map))
+}
+
+/// The ratio of DoF `d` of each level in a ratio table (present, positive).
+fn table_ratios(
+    table: &BTreeMap<String, [Option<f64>; 6]>,
+    levels: &[Level],
+    d: usize,
+) -> Result<Vec<f64>> {
+    let mut raw = Vec::new();
+    for l in levels {
+        let Some(row) = table.get(&level_key(&l.name)) else {
+            return Err(Error::invalid(
+                "ratio table",
+                format!(
+                    "no row for level '{}' (table levels: {})",
+                    l.name,
+                    table.keys().cloned().collect::<Vec<_>>().join(", ")
+                ),
+            ));
+        };
+        let Some(v) = row[d] else {
+            return Err(Error::invalid(
+                "ratio table",
+                format!("level '{}' has no {} value", l.name, DOF_NAMES[d]),
+            ));
+        };
+        if !(v > 0.0 && v.is_finite()) {
+            return Err(Error::invalid(
+                "ratio table",
+                format!(
+                    "level '{}' {}: ratio must be positive, got {v}",
+                    l.name, DOF_NAMES[d]
+                ),
+            ));
+        }
+        raw.push(v);
+    }
+    Ok(raw)
+}
+
+/// The form of `kind`, its shape parameters appended to `params`: one
+/// stiffening per calibrated rotational DoF (non-linear), three rotational
+/// correlations (coupled).
+fn form_params(
+    kind: &Parameterisation,
+    dofs: &[usize],
+    params: &mut Vec<ParamInfo>,
+) -> Result<FormParams> {
+    Ok(match kind {
+        Parameterisation::Nonlinear { curve, .. } => {
+            let mut shape = [None; 3];
+            for &d in dofs.iter().filter(|&&d| d < 3) {
+                shape[d] = Some(params.len());
+                params.push(ParamInfo {
+                    name: format!("{}_stiffening", DOF_NAMES[d]),
+                    unit: "ratio: K(5 deg)/K(0) - 1".into(),
+                    lower: 0.0,
+                    upper: MAX_STIFFENING,
+                    nominal: 0.0,
+                    scale: Scale::Log1p,
+                    note: None,
+                });
+            }
+            if shape.iter().all(|s| s.is_none()) {
+                return Err(Error::invalid(
+                    "calibration",
+                    "--params nonlinear needs at least one rotational DoF to calibrate",
+                ));
+            }
+            FormParams::Nonlinear {
+                curve: *curve,
+                shape,
+            }
+        }
+        Parameterisation::Coupled => {
+            let n0 = params.len();
+            for (name, note) in [
+                ("rho_rx_ry", "correlation of rx and ry: K_xy = rho sqrt(k_x k_y)"),
+                ("rho_rx_rz", "correlation of rx and rz: K_xz = rho sqrt(k_x k_z)"),
+                (
+                    "rho_ry_rz|rx",
+                    "partial correlation of ry and rz given rx: rho_yz = rho_yz|x sqrt((1 - rho_xy^2)(1 - rho_xz^2)) + rho_xy rho_xz",
+                ),
+            ] {
+                params.push(ParamInfo {
+                    name: name.into(),
+                    unit: "ratio (stiffness correlation)".into(),
+                    lower: -MAX_CORRELATION,
+                    upper: MAX_CORRELATION,
+                    nominal: 0.0,
+                    scale: Scale::Linear,
+                    note: Some(note.into()),
+                });
+            }
+            FormParams::Coupled {
+                corr: [n0, n0 + 1, n0 + 2],
+            }
+        }
+        _ => FormParams::Linear,
+    })
+}
+
+/// The laws of a system's bushings as a stiffness family starts from them.
+struct NominalLaws {
+    /// Nominal diagonal stiffness of every bushing (NaN for non-linear laws).
+    nominal: Vec<[f64; 6]>,
+    /// Nominal damping of every bushing.
+    damping: Vec<[f64; 6]>,
+    /// Whether each bushing's law is linear.
+    linear: Vec<bool>,
+    /// First column of each bushing in `System::dtau_dstiffness`.
+    col_offset: Vec<usize>,
+    /// Total column count.
+    n_cols: usize,
+}
+
+impl NominalLaws {
+    fn of(sys: &System) -> Self {
+        let mut laws = NominalLaws {
+            nominal: Vec::new(),
+            damping: Vec::new(),
+            linear: Vec::new(),
+            col_offset: Vec::new(),
+            n_cols: 0,
+        };
+        for i in 0..sys.bushing_names().count() {
+            let Some(m) = sys.bushing_model(i) else {
+                continue;
+            };
+            let p = m.stiffness_params();
+            laws.damping.push(m.damping());
+            laws.col_offset.push(laws.n_cols);
+            laws.n_cols += p.len();
+            let is_linear = matches!(m, crate::solver::BushingModel::Linear { .. });
+            laws.linear.push(is_linear);
+            laws.nominal.push(if is_linear {
+                std::array::from_fn(|d| p.get(d).copied().unwrap_or(0.0))
+            } else {
+                [f64::NAN; 6]
+            });
+        }
+        laws
+    }
+
+    /// Every level's bushing is linear, with a positive nominal stiffness
+    /// in each DoF of `dofs`.
+    fn check_levels(&self, levels: &[Level], dofs: &[usize]) -> Result<()> {
+        for l in levels {
+            if !self.linear.get(l.bushing).copied().unwrap_or(false) {
+                return Err(Error::invalid(
+                    format!("level {}", l.name),
+                    "its bushing is not a linear BushingForce: calibration starts from a linear nominal model (the non-linear and coupled forms are chosen with --params; write linear values first with `osim-spine stiffness --table`)",
+                ));
+            }
+        }
+        for l in levels {
+            let k = self.nominal.get(l.bushing).copied().unwrap_or([0.0; 6]);
+            for &d in dofs {
+                if k[d].is_nan() || k[d] <= 0.0 {
+                    return Err(Error::invalid(
+                        format!("level {}", l.name),
+                        format!(
+                            "nominal {} stiffness is {} {}: a calibrated stiffness must start from a positive value",
+                            DOF_NAMES[d], k[d], stiffness_unit(d)
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Parameters of a family and, per parameter, the (bushing, dof, factor)
+/// it sets with `k = factor * p`.
+type ParamMap = (Vec<ParamInfo>, Vec<Vec<(usize, usize, f64)>>);
+
 impl StiffnessFamily {
     /// Build over `levels` of `sys` for the stiffness DoFs `dofs` (0..6).
     /// Bounds are the literature ranges ([`LITERATURE_BOUNDS`]).
@@ -387,203 +642,16 @@ impl StiffnessFamily {
                 "no intervertebral level (a BushingForce between an adjacent pair of bodies) lies between the fixed body and the loaded bodies",
             ));
         }
-        // nominal diagonal stiffness of every bushing (non-linear laws: none),
-        // and each bushing's first column in `System::dtau_dstiffness`
-        let mut nominal = Vec::new();
-        let mut damping = Vec::new();
-        let mut linear = Vec::new();
-        let mut col_offset = Vec::new();
-        let mut col = 0;
-        for i in 0..sys.bushing_names().count() {
-            let Some(m) = sys.bushing_model(i) else {
-                continue;
-            };
-            let p = m.stiffness_params();
-            damping.push(m.damping());
-            col_offset.push(col);
-            col += p.len();
-            let is_linear = matches!(m, crate::solver::BushingModel::Linear { .. });
-            linear.push(is_linear);
-            nominal.push(if is_linear {
-                std::array::from_fn(|d| p.get(d).copied().unwrap_or(0.0))
-            } else {
-                [f64::NAN; 6]
-            });
-        }
-        for l in &levels {
-            if !linear.get(l.bushing).copied().unwrap_or(false) {
-                return Err(Error::invalid(
-                    format!("level {}", l.name),
-                    "its bushing is not a linear BushingForce: calibration starts from a linear nominal model (the non-linear and coupled forms are chosen with --params; write linear values first with `osim-spine stiffness --table`)",
-                ));
-            }
-        }
-        for l in &levels {
-            let k = nominal.get(l.bushing).copied().unwrap_or([0.0; 6]);
-            for &d in dofs {
-                if k[d].is_nan() || k[d] <= 0.0 {
-                    return Err(Error::invalid(
-                        format!("level {}", l.name),
-                        format!(
-                            "nominal {} stiffness is {} {}: a calibrated stiffness must start from a positive value",
-                            DOF_NAMES[d], k[d], stiffness_unit(d)
-                        ),
-                    ));
-                }
-            }
-        }
-        let mut params = Vec::new();
-        let mut map = Vec::new();
-        let label = kind.label();
-        let linear_kind = match kind {
-            Parameterisation::Nonlinear {
-                per_level: true, ..
-            } => &Parameterisation::PerLevel,
-            Parameterisation::Nonlinear { .. } | Parameterisation::Coupled => {
-                &Parameterisation::Uniform
-            }
-            k => k,
-        };
-        match linear_kind {
-            Parameterisation::Uniform => {
-                for &d in dofs {
-                    let vals: Vec<f64> = levels.iter().map(|l| nominal[l.bushing][d]).collect();
-                    params.push(ParamInfo::log(
-                        DOF_NAMES[d].to_string(),
-                        stiffness_unit(d),
-                        LITERATURE_BOUNDS[d].0,
-                        LITERATURE_BOUNDS[d].1,
-                        geomean(&vals),
-                    ));
-                    map.push(levels.iter().map(|l| (l.bushing, d, 1.0)).collect());
-                }
-            }
-            Parameterisation::Ratio(table) => {
-                for &d in dofs {
-                    let mut raw = Vec::new();
-                    for l in &levels {
-                        let Some(row) = table.get(&level_key(&l.name)) else {
-                            return Err(Error::invalid(
-                                "ratio table",
-                                format!(
-                                    "no row for level '{}' (table levels: {})",
-                                    l.name,
-                                    table.keys().cloned().collect::<Vec<_>>().join(", ")
-                                ),
-                            ));
-                        };
-                        let Some(v) = row[d] else {
-                            return Err(Error::invalid(
-                                "ratio table",
-                                format!("level '{}' has no {} value", l.name, DOF_NAMES[d]),
-                            ));
-                        };
-                        if !(v > 0.0 && v.is_finite()) {
-                            return Err(Error::invalid(
-                                "ratio table",
-                                format!(
-                                    "level '{}' {}: ratio must be positive, got {v}",
-                                    l.name, DOF_NAMES[d]
-                                ),
-                            ));
-                        }
-                        raw.push(v);
-                    }
-                    let g = geomean(&raw);
-                    let factors: Vec<f64> = raw.iter().map(|v| v / g).collect();
-                    let base: Vec<f64> = levels
-                        .iter()
-                        .zip(&factors)
-                        .map(|(l, f)| nominal[l.bushing][d] / f)
-                        .collect();
-                    params.push(ParamInfo::log(
-                        format!("{}_base", DOF_NAMES[d]),
-                        stiffness_unit(d),
-                        LITERATURE_BOUNDS[d].0,
-                        LITERATURE_BOUNDS[d].1,
-                        geomean(&base),
-                    ));
-                    map.push(
-                        levels
-                            .iter()
-                            .zip(&factors)
-                            .map(|(l, f)| (l.bushing, d, *f))
-                            .collect(),
-                    );
-                }
-            }
-            Parameterisation::PerLevel
-            | Parameterisation::Nonlinear { .. }
-            | Parameterisation::Coupled => {
-                for l in &levels {
-                    for &d in dofs {
-                        params.push(ParamInfo::log(
-                            format!("{}.{}", l.name, DOF_NAMES[d]),
-                            stiffness_unit(d),
-                            LITERATURE_BOUNDS[d].0,
-                            LITERATURE_BOUNDS[d].1,
-                            nominal[l.bushing][d],
-                        ));
-                        map.push(vec![(l.bushing, d, 1.0)]);
-                    }
-                }
-            }
-        }
+        // The nominal laws: every level linear, positive in the calibrated DoFs.
+        let nom = NominalLaws::of(sys);
+        nom.check_levels(&levels, dofs)?;
+        // The linear-part parameters (uniform, ratio or per level) come first.
+        let (mut params, map) = linear_params(kind, &levels, dofs, &nom.nominal)?;
         let n_linear = params.len();
-        let theta_ref = [5f64.to_radians(); 3];
-        let form = match kind {
-            Parameterisation::Nonlinear { curve, .. } => {
-                let mut shape = [None; 3];
-                for &d in dofs.iter().filter(|&&d| d < 3) {
-                    shape[d] = Some(params.len());
-                    params.push(ParamInfo {
-                        name: format!("{}_stiffening", DOF_NAMES[d]),
-                        unit: "ratio: K(5 deg)/K(0) - 1".into(),
-                        lower: 0.0,
-                        upper: MAX_STIFFENING,
-                        nominal: 0.0,
-                        scale: Scale::Log1p,
-                        note: None,
-                    });
-                }
-                if shape.iter().all(|s| s.is_none()) {
-                    return Err(Error::invalid(
-                        "calibration",
-                        "--params nonlinear needs at least one rotational DoF to calibrate",
-                    ));
-                }
-                FormParams::Nonlinear {
-                    curve: *curve,
-                    shape,
-                }
-            }
-            Parameterisation::Coupled => {
-                let n0 = params.len();
-                for (name, note) in [
-                    ("rho_rx_ry", "correlation of rx and ry: K_xy = rho sqrt(k_x k_y)"),
-                    ("rho_rx_rz", "correlation of rx and rz: K_xz = rho sqrt(k_x k_z)"),
-                    (
-                        "rho_ry_rz|rx",
-                        "partial correlation of ry and rz given rx: rho_yz = rho_yz|x sqrt((1 - rho_xy^2)(1 - rho_xz^2)) + rho_xy rho_xz",
-                    ),
-                ] {
-                    params.push(ParamInfo {
-                        name: name.into(),
-                        unit: "ratio (stiffness correlation)".into(),
-                        lower: -MAX_CORRELATION,
-                        upper: MAX_CORRELATION,
-                        nominal: 0.0,
-                        scale: Scale::Linear,
-                        note: Some(note.into()),
-                    });
-                }
-                FormParams::Coupled {
-                    corr: [n0, n0 + 1, n0 + 2],
-                }
-            }
-            _ => FormParams::Linear,
-        };
-        let mut by_bushing = vec![Vec::new(); nominal.len()];
+        // Then the shape parameters of the non-linear or coupled form.
+        let form = form_params(kind, dofs, &mut params)?;
+        // Per bushing: the parameters that set its linear part.
+        let mut by_bushing = vec![Vec::new(); nom.nominal.len()];
         for (j, entries) in map.iter().enumerate() {
             for &(b, d, f) in entries {
                 if let Some(v) = by_bushing.get_mut(b) {
@@ -591,15 +659,16 @@ impl StiffnessFamily {
                 }
             }
         }
+        let theta_ref = [5f64.to_radians(); 3];
         let mut fam = StiffnessFamily {
-            label,
+            label: kind.label(),
             params,
-            nominal,
-            col_offset,
-            n_cols: col,
+            nominal: nom.nominal,
+            col_offset: nom.col_offset,
+            n_cols: nom.n_cols,
             map,
             by_bushing,
-            damping,
+            damping: nom.damping,
             n_linear,
             form,
             theta_ref,
@@ -765,16 +834,6 @@ impl StiffnessFamily {
     /// Nominal parameter values.
     pub fn params_nominal(&self) -> Vec<f64> {
         self.params.iter().map(|p| p.nominal).collect()
-    }
-
-    /// Override the bounds of parameters on stiffness DoF `d`.
-    pub fn set_bounds(&mut self, d: usize, lower: f64, upper: f64) {
-        for (j, entries) in self.map.iter().enumerate().take(self.n_linear) {
-            if entries.first().map(|e| e.1) == Some(d) {
-                self.params[j].lower = lower;
-                self.params[j].upper = upper;
-            }
-        }
     }
 }
 

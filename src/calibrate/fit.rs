@@ -5,12 +5,12 @@
 //! parameters with the singular directions that explain them).
 
 use super::experiment::DOF_NAMES;
-use super::family::Scale;
+use super::family::{ParamInfo, Scale};
 use super::lhs;
 use super::lm::{self, LmOptions, LmStop};
 use super::problem::{Evaluator, Predictions, Problem};
 use crate::error::{Error, Result};
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -346,6 +346,7 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
 
 /// Statistics at parameters `p` (natural units), with no multi-start record.
 pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibration> {
+    // Residuals, Jacobian (fitting coordinates) and predictions at `p`.
     let x = pb.fit_coords_of(p);
     let (r, j) = ev.residuals(pb, &x, true)?;
     let j = j.unwrap_or_else(|| DMatrix::zeros(r.len(), p.len()));
@@ -359,29 +360,68 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
         f64::NAN
     };
     let info = pb.family.params();
+    // Singular values and right singular vectors of the Jacobian.
     let svd = j.clone().svd(false, true);
     let sv: Vec<f64> = svd.singular_values.iter().copied().collect();
     let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(n, n));
     let smax = sv.iter().fold(0.0f64, |a, b| a.max(*b));
     let smin = sv.iter().fold(f64::INFINITY, |a, b| a.min(*b));
-    // Covariance of the fitting coordinates: the sandwich A+ B A+ with
-    // A = J^T J (weighted Jacobian) and B = sum_i w_i sigma_d(i)^2 J_i^T J_i,
-    // the residual variance sigma_d^2 estimated per DoF from the
-    // unweighted residuals (so that weights that are not 1/variance, e.g.
-    // the default motion-based ones, still give honest intervals). With
-    // w = 1/sigma^2 it reduces to s^2 (J^T J)^-1. Directions with tiny
-    // singular values have unbounded variance.
-    let tiny = smax * 1e-10;
-    let mut a_pinv = DMatrix::<f64>::zeros(n, n);
-    for (k, &s) in sv.iter().enumerate() {
-        if s > tiny {
-            for a in 0..n {
-                for b in 0..n {
-                    a_pinv[(a, b)] += vt[(k, a)] * vt[(k, b)] / (s * s);
-                }
+    // Residual variance per DoF, then the sandwich covariance.
+    let (sigma2, count) = residual_variance(pb, &r, n);
+    let cov = covariance(pb, &j, &sv, &vt, &sigma2, n);
+    // Estimates with 95% intervals; poorly determined parameters (large SD,
+    // at a bound, or loading a nearly singular direction).
+    let tq = if m > n {
+        use statrs::distribution::{ContinuousCDF, StudentsT};
+        StudentsT::new(0.0, 1.0, (m - n) as f64)
+            .map(|t| t.inverse_cdf(0.975))
+            .unwrap_or(1.96)
+    } else {
+        f64::NAN
+    };
+    let (estimates, mut poorly) = estimates(info, p, &x, &cov, tq);
+    let weak = weak_directions(info, &sv, &vt, &mut poorly);
+    Ok(Calibration {
+        family: pb.family.label(),
+        param_names: info.iter().map(|i| i.name.clone()).collect(),
+        best: p.to_vec(),
+        cost,
+        n_residuals: m,
+        n_params: n,
+        s2,
+        residual_sd: std::array::from_fn(|d| {
+            if count[d] > 0 {
+                sigma2[d].sqrt()
+            } else {
+                f64::NAN
             }
-        }
-    }
+        }),
+        estimates,
+        covariance_log: (0..n)
+            .map(|a| (0..n).map(|b| cov[(a, b)]).collect())
+            .collect(),
+        correlation: correlation(&cov),
+        identifiability: Identifiability {
+            condition_number: if smin > 0.0 {
+                smax / smin
+            } else {
+                f64::INFINITY
+            },
+            singular_values: sv,
+            weak_directions: weak,
+            poorly_determined: poorly,
+        },
+        minima: Vec::new(),
+        starts: Vec::new(),
+        predictions,
+        evaluations: ev.evaluations,
+    })
+}
+
+/// Residual variance per DoF from the unweighted residuals (corrected for
+/// the `n` fitted parameters), and the residual count per DoF.
+fn residual_variance(pb: &Problem, r: &DVector<f64>, n: usize) -> ([f64; 6], [usize; 6]) {
+    let m = r.len();
     let mut sigma2 = [0.0f64; 6];
     let mut count = [0usize; 6];
     for (ci, c) in pb.cells.iter().enumerate() {
@@ -398,6 +438,36 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
     for d in 0..6 {
         if count[d] > 0 {
             sigma2[d] /= count[d] as f64 * dof_share;
+        }
+    }
+    (sigma2, count)
+}
+
+/// Covariance of the fitting coordinates: the sandwich A+ B A+ with
+/// A = J^T J (weighted Jacobian) and B = sum_i w_i sigma_d(i)^2 J_i^T J_i,
+/// the residual variance sigma_d^2 estimated per DoF from the unweighted
+/// residuals (so that weights that are not 1/variance, e.g. the default
+/// motion-based ones, still give honest intervals). With w = 1/sigma^2 it
+/// reduces to s^2 (J^T J)^-1. Directions with tiny singular values have
+/// unbounded variance.
+fn covariance(
+    pb: &Problem,
+    j: &DMatrix<f64>,
+    sv: &[f64],
+    vt: &DMatrix<f64>,
+    sigma2: &[f64; 6],
+    n: usize,
+) -> DMatrix<f64> {
+    let smax = sv.iter().fold(0.0f64, |a, b| a.max(*b));
+    let tiny = smax * 1e-10;
+    let mut a_pinv = DMatrix::<f64>::zeros(n, n);
+    for (k, &s) in sv.iter().enumerate() {
+        if s > tiny {
+            for a in 0..n {
+                for b in 0..n {
+                    a_pinv[(a, b)] += vt[(k, a)] * vt[(k, b)] / (s * s);
+                }
+            }
         }
     }
     let mut bmat = DMatrix::<f64>::zeros(n, n);
@@ -429,17 +499,22 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
             }
         }
     }
-    let tq = if m > n {
-        use statrs::distribution::{ContinuousCDF, StudentsT};
-        StudentsT::new(0.0, 1.0, (m - n) as f64)
-            .map(|t| t.inverse_cdf(0.975))
-            .unwrap_or(1.96)
-    } else {
-        f64::NAN
-    };
+    cov
+}
+
+/// Each parameter's estimate (SD and 95% interval from the covariance `cov`
+/// of the fitting coordinates `x`, t quantile `tq`), and those poorly
+/// determined by their SD or a bound.
+fn estimates(
+    info: &[ParamInfo],
+    p: &[f64],
+    x: &[f64],
+    cov: &DMatrix<f64>,
+    tq: f64,
+) -> (Vec<ParamEstimate>, Vec<PoorlyDetermined>) {
     let mut estimates = Vec::new();
     let mut poorly = Vec::new();
-    for k in 0..n {
+    for k in 0..p.len() {
         // SD on the fitting scale
         let sd = cov[(k, k)].max(0.0).sqrt();
         let (flo, fhi) = info[k].fit_bounds();
@@ -483,55 +558,75 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
             ci95,
             at_bound,
         });
-        let sd_text = if sd.is_finite() {
-            match scale {
-                Scale::Log => format!("relative SD {:.0}%", 100.0 * sd),
-                Scale::Linear => format!("SD {sd:.3}"),
-                Scale::Log1p => format!("SD of ln(1 + value) {sd:.3}"),
-            }
-        } else {
-            "unbounded SD".into()
-        };
-        // poorly determined: SD above 0.5 on the fitting scale (a factor
-        // e^(+-1) at 95% for stiffness); for stiffening, above 0.25 (the
-        // data cannot tell linear from ~60% stiffening at the reference rotation)
-        let limit = if scale == Scale::Log1p { 0.25 } else { 0.5 };
-        if !sd.is_finite() || sd > limit {
+        if let Some(reason) = poorly_determined(&info[k], sd, at_lower, at_bound) {
             poorly.push(PoorlyDetermined {
                 name: info[k].name.clone(),
-                reason: match scale {
-                    Scale::Log => format!("{sd_text} (> 50%): the data barely constrain it"),
-                    Scale::Linear | Scale::Log1p => format!(
-                        "{sd_text} (> {limit} on its fitting scale): the data cannot tell its value{}",
-                        if info[k].name.ends_with("_stiffening") {
-                            " (the measured rotations do not show whether the stiffness changes with the rotation: too small, too few or too noisy)"
-                        } else {
-                            ""
-                        }
-                    ),
-                },
+                reason,
             });
-        } else if at_bound {
-            // a linear-scale parameter at its neutral value 0 (e.g. no
-            // stiffening) is a determined answer, not a failure
-            let neutral = scale != Scale::Log && at_lower && info[k].lower == 0.0;
-            if !neutral {
-                poorly.push(PoorlyDetermined {
-                    name: info[k].name.clone(),
-                    reason: match scale {
-                        Scale::Log => format!(
-                            "at a literature bound ({} .. {} {}): the best fit wants a value outside the range",
-                            info[k].lower, info[k].upper, info[k].unit
-                        ),
-                        Scale::Linear | Scale::Log1p => format!(
-                            "at a bound of its range ({} .. {}): the best fit wants a value outside it",
-                            info[k].lower, info[k].upper
-                        ),
-                    },
-                });
-            }
         }
     }
+    (estimates, poorly)
+}
+
+/// Why parameter `info` (SD `sd` on its fitting scale, at its lower bound
+/// / at a bound) is poorly determined, if it is.
+fn poorly_determined(info: &ParamInfo, sd: f64, at_lower: bool, at_bound: bool) -> Option<String> {
+    let scale = info.scale;
+    let sd_text = if sd.is_finite() {
+        match scale {
+            Scale::Log => format!("relative SD {:.0}%", 100.0 * sd),
+            Scale::Linear => format!("SD {sd:.3}"),
+            Scale::Log1p => format!("SD of ln(1 + value) {sd:.3}"),
+        }
+    } else {
+        "unbounded SD".into()
+    };
+    // poorly determined: SD above 0.5 on the fitting scale (a factor
+    // e^(+-1) at 95% for stiffness); for stiffening, above 0.25 (the
+    // data cannot tell linear from ~60% stiffening at the reference rotation)
+    let limit = if scale == Scale::Log1p { 0.25 } else { 0.5 };
+    if !sd.is_finite() || sd > limit {
+        return Some(match scale {
+            Scale::Log => format!("{sd_text} (> 50%): the data barely constrain it"),
+            Scale::Linear | Scale::Log1p => format!(
+                "{sd_text} (> {limit} on its fitting scale): the data cannot tell its value{}",
+                if info.name.ends_with("_stiffening") {
+                    " (the measured rotations do not show whether the stiffness changes with the rotation: too small, too few or too noisy)"
+                } else {
+                    ""
+                }
+            ),
+        });
+    }
+    // a linear-scale parameter at its neutral value 0 (e.g. no
+    // stiffening) is a determined answer, not a failure
+    let neutral = scale != Scale::Log && at_lower && info.lower == 0.0;
+    if !at_bound || neutral {
+        return None;
+    }
+    Some(match scale {
+        Scale::Log => format!(
+            "at a literature bound ({} .. {} {}): the best fit wants a value outside the range",
+            info.lower, info.upper, info.unit
+        ),
+        Scale::Linear | Scale::Log1p => format!(
+            "at a bound of its range ({} .. {}): the best fit wants a value outside it",
+            info.lower, info.upper
+        ),
+    })
+}
+
+/// Directions of the Jacobian with relative singular value below 1e-3 and
+/// their loadings; parameters loading one (|loading| >= 0.2) are added to
+/// `poorly` when not there yet.
+fn weak_directions(
+    info: &[ParamInfo],
+    sv: &[f64],
+    vt: &DMatrix<f64>,
+    poorly: &mut Vec<PoorlyDetermined>,
+) -> Vec<WeakDirection> {
+    let n = info.len();
+    let smax = sv.iter().fold(0.0f64, |a, b| a.max(*b));
     let mut weak = Vec::new();
     for (k, &s) in sv.iter().enumerate() {
         let rel = if smax > 0.0 { s / smax } else { 0.0 };
@@ -558,6 +653,13 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
             });
         }
     }
+    weak
+}
+
+/// Correlation matrix of a covariance (1 on the diagonal and NaN elsewhere
+/// where a variance is zero or unbounded).
+fn correlation(cov: &DMatrix<f64>) -> Vec<Vec<f64>> {
+    let n = cov.nrows();
     let mut corr = vec![vec![0.0; n]; n];
     for a in 0..n {
         for b in 0..n {
@@ -571,41 +673,7 @@ pub fn statistics(pb: &Problem, ev: &mut Evaluator, p: &[f64]) -> Result<Calibra
             };
         }
     }
-    Ok(Calibration {
-        family: pb.family.label(),
-        param_names: info.iter().map(|i| i.name.clone()).collect(),
-        best: p.to_vec(),
-        cost,
-        n_residuals: m,
-        n_params: n,
-        s2,
-        residual_sd: std::array::from_fn(|d| {
-            if count[d] > 0 {
-                sigma2[d].sqrt()
-            } else {
-                f64::NAN
-            }
-        }),
-        estimates,
-        covariance_log: (0..n)
-            .map(|a| (0..n).map(|b| cov[(a, b)]).collect())
-            .collect(),
-        correlation: corr,
-        identifiability: Identifiability {
-            condition_number: if smin > 0.0 {
-                smax / smin
-            } else {
-                f64::INFINITY
-            },
-            singular_values: sv,
-            weak_directions: weak,
-            poorly_determined: poorly,
-        },
-        minima: Vec::new(),
-        starts: Vec::new(),
-        predictions,
-        evaluations: ev.evaluations,
-    })
+    corr
 }
 
 /// Root-mean-square errors of predictions against the measurements, per
@@ -692,5 +760,48 @@ pub fn error_table(pb: &Problem, pred: &[[f64; 6]], rows: impl Fn(usize) -> bool
                 }
             })
             .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn poorly_determined_by_sd_or_bound_but_not_at_a_neutral_zero() {
+        let k = ParamInfo::log("rx".into(), "N*m/rad", 1.0, 100.0, 10.0);
+        // a relative SD of 20% is determined, 80% is not
+        assert_eq!(poorly_determined(&k, 0.2, false, false), None);
+        let why = poorly_determined(&k, 0.8, false, false).unwrap();
+        assert!(why.contains("relative SD 80%"), "{why}");
+        // on a literature bound: the fit wants a value outside the range
+        let why = poorly_determined(&k, 0.2, true, true).unwrap();
+        assert!(why.contains("literature bound"), "{why}");
+        // a stiffening at its neutral lower bound 0 is a determined answer
+        let s = ParamInfo {
+            name: "rx_stiffening".into(),
+            unit: "ratio".into(),
+            lower: 0.0,
+            upper: 4.0,
+            nominal: 0.0,
+            scale: Scale::Log1p,
+            note: None,
+        };
+        assert_eq!(poorly_determined(&s, 0.1, true, true), None);
+        let why = poorly_determined(&s, 0.3, true, true).unwrap();
+        assert!(why.contains("the measured rotations do not show"), "{why}");
+    }
+
+    #[test]
+    fn correlation_of_a_covariance() {
+        let cov = DMatrix::from_row_slice(2, 2, &[4.0, 2.0, 2.0, 9.0]);
+        let c = correlation(&cov);
+        assert_eq!(c[0][0], 1.0);
+        assert!((c[0][1] - 2.0 / 6.0).abs() < 1e-15);
+        // an unbounded variance has no correlation
+        let cov = DMatrix::from_row_slice(2, 2, &[f64::INFINITY, 0.0, 0.0, 1.0]);
+        let c = correlation(&cov);
+        assert_eq!(c[0][0], 1.0);
+        assert!(c[0][1].is_nan());
     }
 }

@@ -75,6 +75,78 @@ fn project(x: &mut [f64], lo: &[f64], hi: &[f64]) {
     }
 }
 
+/// Tolerance of "on a bound" for the active set.
+const BOUND_TOL: f64 = 1e-12;
+
+/// Whether variable `i` is held: on a bound with the gradient `g` pushing
+/// outward.
+fn held(i: usize, x: &[f64], g: &DVector<f64>, lo: &[f64], hi: &[f64]) -> bool {
+    let at_lo = x[i] <= lo[i] + BOUND_TOL && g[i] > 0.0;
+    let at_hi = x[i] >= hi[i] - BOUND_TOL && g[i] < 0.0;
+    at_lo || at_hi
+}
+
+/// The iterate and the damping state of a minimisation.
+struct Iterate {
+    x: Vec<f64>,
+    r: DVector<f64>,
+    jac: DMatrix<f64>,
+    /// `1/2 ||r||^2`.
+    cost: f64,
+    lambda: f64,
+    nu: f64,
+    /// Accepted + rejected iterations so far.
+    it: usize,
+}
+
+/// The damped normal equations over the free variables: `(a + lambda
+/// diag(d)) s = b`.
+struct Reduced {
+    free: Vec<usize>,
+    a: DMatrix<f64>,
+    b: DVector<f64>,
+    diag: Vec<f64>,
+}
+
+impl Reduced {
+    /// Normal equations of `jtj`, gradient `g` restricted to `free`, with
+    /// Marquardt scaling (floored at 1e-12 of the largest diagonal entry).
+    fn new(free: Vec<usize>, g: &DVector<f64>, jtj: &DMatrix<f64>) -> Self {
+        let nf = free.len();
+        let mut a = DMatrix::zeros(nf, nf);
+        let mut b = DVector::zeros(nf);
+        let mut diag = vec![0.0; nf];
+        let dmax = free.iter().fold(0.0f64, |m, &i| m.max(jtj[(i, i)]));
+        for (ai, &i) in free.iter().enumerate() {
+            b[ai] = -g[i];
+            diag[ai] = jtj[(i, i)].max(1e-12 * dmax.max(1e-300));
+            for (bi, &k) in free.iter().enumerate() {
+                a[(ai, bi)] = jtj[(i, k)];
+            }
+        }
+        Reduced { free, a, b, diag }
+    }
+
+    /// The step for damping `lambda` (Cholesky, LU as fallback; `None`
+    /// when singular).
+    fn solve(&self, lambda: f64) -> Option<DVector<f64>> {
+        let mut m = self.a.clone();
+        for k in 0..self.free.len() {
+            m[(k, k)] += lambda * self.diag[k];
+        }
+        match m.clone().cholesky() {
+            Some(c) => Some(c.solve(&self.b)),
+            None => m.lu().solve(&self.b),
+        }
+    }
+}
+
+/// How a round of damped trial steps ended.
+struct Round {
+    accepted: bool,
+    small_step: bool,
+}
+
 /// Minimise from `x0` (projected into the box). `f(x, want_jacobian)`
 /// returns the residuals and, when asked, the Jacobian.
 pub fn minimize<F>(
@@ -88,157 +160,168 @@ where
     F: FnMut(&[f64], bool) -> Result<(DVector<f64>, Option<DMatrix<f64>>)>,
 {
     let n = x0.len();
+    // Start inside the box, with residuals and Jacobian there.
     let mut x = x0.to_vec();
     project(&mut x, lo, hi);
-    let (mut r, j) = f(&x, true)?;
-    let mut jac = j.unwrap_or_else(|| DMatrix::zeros(r.len(), n));
-    let mut cost = 0.5 * r.norm_squared();
-    let mut lambda = -1.0;
-    let mut nu = 2.0;
-    let mut it = 0;
-    let bound_tol = 1e-12;
-    let stop;
-    loop {
-        let g = jac.transpose() * &r;
-        let jtj = jac.transpose() * &jac;
-        // active set: on a bound with the gradient pushing outward
-        let free: Vec<usize> = (0..n)
-            .filter(|&i| {
-                let at_lo = x[i] <= lo[i] + bound_tol && g[i] > 0.0;
-                let at_hi = x[i] >= hi[i] - bound_tol && g[i] < 0.0;
-                !(at_lo || at_hi)
-            })
-            .collect();
+    let (r, j) = f(&x, true)?;
+    let jac = j.unwrap_or_else(|| DMatrix::zeros(r.len(), n));
+    let cost = 0.5 * r.norm_squared();
+    let mut s = Iterate {
+        x,
+        r,
+        jac,
+        cost,
+        lambda: 1e-3,
+        nu: 2.0,
+        it: 0,
+    };
+    let stop = loop {
+        // The gradient and Gauss-Newton matrix; variables held on a bound.
+        let g = s.jac.transpose() * &s.r;
+        let jtj = s.jac.transpose() * &s.jac;
+        let free: Vec<usize> = (0..n).filter(|&i| !held(i, &s.x, &g, lo, hi)).collect();
+        // First-order point, or out of iterations.
         let gfree = free.iter().fold(0.0f64, |m, &i| m.max(g[i].abs()));
-        if gfree <= opts.gtol * (1.0 + cost) || free.is_empty() {
-            stop = LmStop::Gradient;
-            break;
+        if gfree <= opts.gtol * (1.0 + s.cost) || free.is_empty() {
+            break LmStop::Gradient;
         }
-        if it >= opts.max_iterations {
-            stop = LmStop::MaxIterations;
-            break;
+        if s.it >= opts.max_iterations {
+            break LmStop::MaxIterations;
         }
-        let nf = free.len();
-        let mut a = DMatrix::zeros(nf, nf);
-        let mut b = DVector::zeros(nf);
-        let mut diag = vec![0.0; nf];
-        let dmax = free.iter().fold(0.0f64, |m, &i| m.max(jtj[(i, i)]));
-        for (ai, &i) in free.iter().enumerate() {
-            b[ai] = -g[i];
-            diag[ai] = jtj[(i, i)].max(1e-12 * dmax.max(1e-300));
-            for (bi, &k) in free.iter().enumerate() {
-                a[(ai, bi)] = jtj[(i, k)];
-            }
-        }
-        if lambda < 0.0 {
-            lambda = 1e-3;
-        }
-        let mut accepted = false;
-        let mut small_step = false;
-        while !accepted {
-            it += 1;
-            let mut m = a.clone();
-            for k in 0..nf {
-                m[(k, k)] += lambda * diag[k];
-            }
-            let step = match m.clone().cholesky() {
-                Some(c) => c.solve(&b),
-                None => match m.lu().solve(&b) {
-                    Some(s) => s,
-                    None => {
-                        lambda *= nu;
-                        nu *= 2.0;
-                        if lambda > 1e16 {
-                            break;
-                        }
-                        continue;
-                    }
-                },
+        // Damped steps over the free variables until one lowers the cost.
+        let sys = Reduced::new(free, &g, &jtj);
+        let round = s.trial_steps(&mut f, &sys, &g, lo, hi, opts)?;
+        if round.small_step {
+            break if round.accepted {
+                LmStop::Cost
+            } else {
+                LmStop::Step
             };
-            let mut xt = x.clone();
-            for (ai, &i) in free.iter().enumerate() {
+        }
+        if !round.accepted {
+            break if s.it >= opts.max_iterations {
+                LmStop::MaxIterations
+            } else {
+                LmStop::Stalled
+            };
+        }
+    };
+    // Which variables end on a bound, and the projected gradient there.
+    Ok(s.result(stop, lo, hi))
+}
+
+impl Iterate {
+    /// Trial steps with growing damping until one is accepted (gain ratio
+    /// above 1e-4 and a lower cost), the step or the relative decrease is
+    /// below tolerance, or the damping / iteration limit is hit. A failed
+    /// evaluation is a rejected step.
+    fn trial_steps<F>(
+        &mut self,
+        f: &mut F,
+        sys: &Reduced,
+        g: &DVector<f64>,
+        lo: &[f64],
+        hi: &[f64],
+        opts: &LmOptions,
+    ) -> Result<Round>
+    where
+        F: FnMut(&[f64], bool) -> Result<(DVector<f64>, Option<DMatrix<f64>>)>,
+    {
+        let n = self.x.len();
+        loop {
+            self.it += 1;
+            let Some(step) = sys.solve(self.lambda) else {
+                self.lambda *= self.nu;
+                self.nu *= 2.0;
+                if self.lambda > 1e16 {
+                    return Ok(Round {
+                        accepted: false,
+                        small_step: false,
+                    });
+                }
+                continue;
+            };
+            let mut xt = self.x.clone();
+            for (ai, &i) in sys.free.iter().enumerate() {
                 xt[i] += step[ai];
             }
             project(&mut xt, lo, hi);
-            let dx: Vec<f64> = (0..n).map(|i| xt[i] - x[i]).collect();
+            let dx: Vec<f64> = (0..n).map(|i| xt[i] - self.x[i]).collect();
             let step_inf = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             if step_inf <= opts.xtol {
-                small_step = true;
-                break;
+                return Ok(Round {
+                    accepted: false,
+                    small_step: true,
+                });
             }
             // predicted decrease with the projected step
-            let dxv = DVector::from_vec(dx.clone());
-            let jd = &jac * &dxv;
+            let dxv = DVector::from_vec(dx);
+            let jd = &self.jac * &dxv;
             let pred = -(g.dot(&dxv) + 0.5 * jd.norm_squared());
             // evaluate the trial with its Jacobian: most steps are accepted,
             // and the Jacobian costs less than a second equilibrium solve
-            let trial = f(&xt, true);
-            let (rt, ct) = match trial {
+            let (rt, ct) = match f(&xt, true) {
                 Ok((rt, jt)) => {
                     let ct = 0.5 * rt.norm_squared();
                     (Some((rt, jt)), ct)
                 }
                 Err(_) => (None, f64::INFINITY),
             };
-            let rho = if pred > 0.0 { (cost - ct) / pred } else { -1.0 };
-            if ct.is_finite() && rho > 1e-4 && ct < cost {
-                let rel = (cost - ct) / cost.max(1e-300);
-                x = xt;
+            let rho = if pred > 0.0 {
+                (self.cost - ct) / pred
+            } else {
+                -1.0
+            };
+            if ct.is_finite() && rho > 1e-4 && ct < self.cost {
+                let rel = (self.cost - ct) / self.cost.max(1e-300);
+                self.x = xt;
                 let (rn, jn) = match rt {
                     Some(v) => v,
-                    None => f(&x, true)?,
+                    None => f(&self.x, true)?,
                 };
-                r = rn;
-                jac = jn.unwrap_or_else(|| DMatrix::zeros(r.len(), n));
-                cost = 0.5 * r.norm_squared();
-                lambda *= (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
-                nu = 2.0;
-                accepted = true;
-                if rel <= opts.ftol {
-                    small_step = true;
-                }
-            } else {
-                lambda *= nu;
-                nu *= 2.0;
-                if lambda > 1e16 || it >= opts.max_iterations {
-                    break;
-                }
+                self.r = rn;
+                self.jac = jn.unwrap_or_else(|| DMatrix::zeros(self.r.len(), n));
+                self.cost = 0.5 * self.r.norm_squared();
+                self.lambda *= (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
+                self.nu = 2.0;
+                return Ok(Round {
+                    accepted: true,
+                    small_step: rel <= opts.ftol,
+                });
+            }
+            self.lambda *= self.nu;
+            self.nu *= 2.0;
+            if self.lambda > 1e16 || self.it >= opts.max_iterations {
+                return Ok(Round {
+                    accepted: false,
+                    small_step: false,
+                });
             }
         }
-        if small_step {
-            stop = if accepted { LmStop::Cost } else { LmStop::Step };
-            break;
-        }
-        if !accepted {
-            stop = if it >= opts.max_iterations {
-                LmStop::MaxIterations
-            } else {
-                LmStop::Stalled
-            };
-            break;
+    }
+
+    /// The result at this iterate.
+    fn result(self, stop: LmStop, lo: &[f64], hi: &[f64]) -> LmResult {
+        let n = self.x.len();
+        let x = self.x;
+        let at_bound = (0..n)
+            .map(|i| x[i] <= lo[i] + 1e-9 || x[i] >= hi[i] - 1e-9)
+            .collect();
+        let g = self.jac.transpose() * &self.r;
+        let grad_inf = (0..n)
+            .filter(|&i| !held(i, &x, &g, lo, hi))
+            .fold(0.0f64, |m, i| m.max(g[i].abs()));
+        LmResult {
+            x,
+            cost: self.cost,
+            r: self.r,
+            jac: self.jac,
+            iterations: self.it,
+            stop,
+            at_bound,
+            grad_inf,
         }
     }
-    let at_bound = (0..n)
-        .map(|i| x[i] <= lo[i] + 1e-9 || x[i] >= hi[i] - 1e-9)
-        .collect();
-    let g = jac.transpose() * &r;
-    let grad_inf = (0..n)
-        .filter(|&i| {
-            let out_lo = x[i] <= lo[i] + bound_tol && g[i] > 0.0;
-            let out_hi = x[i] >= hi[i] - bound_tol && g[i] < 0.0;
-            !(out_lo || out_hi)
-        })
-        .fold(0.0f64, |m, i| m.max(g[i].abs()));
-    Ok(LmResult {
-        x,
-        cost,
-        r,
-        jac,
-        iterations: it,
-        stop,
-        at_bound,
-        grad_inf,
-    })
 }
 
 #[cfg(test)]

@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::solver::kinematics;
 use crate::solver::scalar::{d6_eps, D6};
 use crate::solver::system::KinBuf;
-use crate::solver::{LoadSet, Pose, StaticOptions, System, Workspace};
+use crate::solver::{BodyIndex, LoadSet, Pose, StaticOptions, System, Workspace};
 use nalgebra::{DMatrix, DVector};
 use std::sync::Arc;
 
@@ -62,8 +62,8 @@ pub struct Cell {
 
 #[derive(Debug, Clone)]
 struct RowBodies {
-    upper: usize,
-    lower: usize,
+    upper: BodyIndex,
+    lower: BodyIndex,
 }
 
 /// A calibration problem (immutable description); see [`Evaluator`] for the
@@ -361,18 +361,18 @@ impl Evaluator {
                 let inc = if loaded_varies {
                     pair_increment_loaded(
                         conv,
-                        &fixed_poses[rb.upper],
-                        &fixed_poses[rb.lower],
-                        &self.kd6.x_gb[rb.upper],
-                        &self.kd6.x_gb[rb.lower],
+                        &fixed_poses[rb.upper.0],
+                        &fixed_poses[rb.lower.0],
+                        &self.kd6.x_gb[rb.upper.0],
+                        &self.kd6.x_gb[rb.lower.0],
                     )
                 } else {
                     pair_increment_unloaded(
                         conv,
-                        &self.kd6.x_gb[rb.upper],
-                        &self.kd6.x_gb[rb.lower],
-                        &fixed_poses[rb.upper],
-                        &fixed_poses[rb.lower],
+                        &self.kd6.x_gb[rb.upper.0],
+                        &self.kd6.x_gb[rb.lower.0],
+                        &fixed_poses[rb.upper.0],
+                        &fixed_poses[rb.lower.0],
                     )
                 };
                 for d in 0..6 {
@@ -517,10 +517,10 @@ impl Evaluator {
                 let rb = &pb.rows[ri];
                 pred[ri] = pair_increment(
                     pb.opts.convention,
-                    &poses0[rb.upper],
-                    &poses0[rb.lower],
-                    &poses1[rb.upper],
-                    &poses1[rb.lower],
+                    &poses0[rb.upper.0],
+                    &poses0[rb.lower.0],
+                    &poses1[rb.upper.0],
+                    &poses1[rb.lower.0],
                 );
             }
             if let Some(dp) = dpred.as_mut() {

@@ -293,16 +293,9 @@ pub fn perturbed_spec(
     Ok(s)
 }
 
-fn quantile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let pos = q * (sorted.len() - 1) as f64;
-    let i = pos.floor() as usize;
-    let f = pos - i as f64;
-    let a = sorted[i.min(sorted.len() - 1)];
-    let b = sorted[(i + 1).min(sorted.len() - 1)];
-    a + f * (b - a)
+/// Quantile `q` of `v` (type 7), NaN when empty.
+fn quantile(v: &[f64], q: f64) -> f64 {
+    crate::util::quantile(v, q).unwrap_or(f64::NAN)
 }
 
 fn pearson(x: &[f64], y: &[f64]) -> f64 {
@@ -362,72 +355,45 @@ pub fn two_way_anova(y: &[Vec<f64>]) -> (f64, f64, f64) {
     (ss_r, ss_c, ss_e)
 }
 
-/// Run the study on an experiment with a parameterisation.
-pub fn run(
+/// Pooled rotation RMSE of predictions `pred` against the measurements.
+fn rotation_rmse(pb: &Problem, pred: &[[f64; 6]]) -> f64 {
+    error_table(pb, pred, |_| true).pooled(true)
+}
+
+/// What every sample of a study shares: the experiment, the reference
+/// calibration, and the levels whose joint frames are perturbed.
+struct Study<'a> {
     exp: Arc<Experiment>,
-    setup: &Setup,
-    opts: &SensitivityOptions,
-) -> Result<SensitivityReport> {
-    if !(opts.landmark_sd.is_finite() && opts.landmark_sd >= 0.0) {
-        return Err(Error::invalid("--landmark-sd", "must be finite and >= 0"));
+    setup: &'a Setup,
+    /// (upper body, lower body) of each calibrated level.
+    joints: Vec<(String, String)>,
+    /// The bushing of each level.
+    bushings: Vec<String>,
+    /// The unperturbed optimum (natural units), each re-calibration's start.
+    reference_best: Vec<f64>,
+    /// Nominal parameters (a stiffness 10x above is an outlier).
+    nominal: Vec<f64>,
+}
+
+impl Study<'_> {
+    /// The problem of the model with the joint frames perturbed by `p`.
+    fn problem(&self, p: &[FramePerturbation]) -> Result<Problem> {
+        let spec = perturbed_spec(&self.exp.spec, &self.joints, &self.bushings, p)?;
+        let (pb, _) = build_problem_with(self.exp.clone(), self.setup, System::new(&spec)?)?;
+        Ok(pb)
     }
-    if opts.samples == 0 {
-        return Err(Error::invalid("--samples", "must be at least 1"));
-    }
-    let sys0 = System::new(&exp.spec)?;
-    let (pb0, fam0) = build_problem_with(exp.clone(), setup, sys0)?;
-    let reference = fit::calibrate(
-        &pb0,
-        &FitOptions {
-            starts: 4,
-            progress: false,
-            ..FitOptions::default()
-        },
-    )?;
-    let rmse_of = |pb: &Problem, pred: &[[f64; 6]]| error_table(pb, pred, |_| true).pooled(true);
-    let reference_rmse = rmse_of(&pb0, &reference.predictions);
-    let names: Vec<String> = pb0.system().bushing_names().map(String::from).collect();
-    let joints: Vec<(String, String)> = fam0
-        .levels
-        .iter()
-        .map(|l| (l.upper_name.clone(), l.lower_name.clone()))
-        .collect();
-    let bushings: Vec<String> = fam0
-        .levels
-        .iter()
-        .map(|l| names.get(l.bushing).cloned().unwrap_or_default())
-        .collect();
-    let mut lv = Vec::new();
-    for (u, l) in &joints {
-        let (Some(a), Some(b)) = (Level::from_body_name(u), Level::from_body_name(l)) else {
-            return Err(Error::invalid(
-                "sensitivity",
-                format!("level {u}/{l}: body names must be vertebra names (thoracic1..12, lumbar1..5, sacrum) to place landmarks"),
-            ));
+
+    /// Sample `i`: the model with the joint frames perturbed by `p`,
+    /// re-calibrated from the reference optimum, and whether it counts.
+    fn sample(&self, i: usize, p: &[FramePerturbation]) -> Sample {
+        let mean_norm = |f: fn(&FramePerturbation) -> [f64; 3]| {
+            p.iter().map(|x| Vector3::from(f(x)).norm()).sum::<f64>() / p.len().max(1) as f64
         };
-        lv.push((a, b));
-    }
-    let perts = frame_perturbations(&lv, opts.samples, opts.landmark_sd, opts.seed)?;
-    let bar = opts
-        .progress
-        .then(|| indicatif::ProgressBar::new(opts.samples as u64));
-    let nominal: Vec<f64> = fam0.params_nominal();
-    let one = |(i, p): (usize, &Vec<FramePerturbation>)| -> Sample {
-        let mean_offset = p
-            .iter()
-            .map(|x| Vector3::from(x.offset).norm())
-            .sum::<f64>()
-            / p.len().max(1) as f64;
-        let mean_rotation = p
-            .iter()
-            .map(|x| Vector3::from(x.rotation).norm())
-            .sum::<f64>()
-            / p.len().max(1) as f64;
         let mut s = Sample {
             index: i,
-            perturbations: p.clone(),
-            mean_offset,
-            mean_rotation,
+            perturbations: p.to_vec(),
+            mean_offset: mean_norm(|x| x.offset),
+            mean_rotation: mean_norm(|x| x.rotation),
             params: Vec::new(),
             cost: f64::NAN,
             rotation_rmse: f64::NAN,
@@ -435,21 +401,26 @@ pub fn run(
             note: None,
         };
         let res = (|| -> Result<(Vec<f64>, f64, f64, LmStop)> {
-            let spec = perturbed_spec(&exp.spec, &joints, &bushings, p)?;
-            let sys = System::new(&spec)?;
-            let (pb, _) = build_problem_with(exp.clone(), setup, sys)?;
+            let pb = self.problem(p)?;
             let mut ev = pb.evaluator();
-            let r = fit::fit_from(&pb, &mut ev, &reference.best, &FitOptions::default().lm)?;
+            let r = fit::fit_from(
+                &pb,
+                &mut ev,
+                &self.reference_best,
+                &FitOptions::default().lm,
+            )?;
             let params = pb.values_of(&r.x);
             let pred = ev.predict(&pb, &params)?;
-            Ok((params.clone(), 2.0 * r.cost, rmse_of(&pb, &pred), r.stop))
+            Ok((
+                params.clone(),
+                2.0 * r.cost,
+                rotation_rmse(&pb, &pred),
+                r.stop,
+            ))
         })();
-        if let Some(b) = &bar {
-            b.inc(1);
-        }
         match res {
             Ok((params, cost, rmse, stop)) => {
-                let outlier = params.iter().zip(&nominal).any(|(v, n)| *v > 10.0 * n);
+                let outlier = params.iter().zip(&self.nominal).any(|(v, n)| *v > 10.0 * n);
                 s.ok = !outlier && matches!(stop, LmStop::Gradient | LmStop::Step | LmStop::Cost);
                 if outlier {
                     s.note = Some("stiffness more than 10x nominal".into());
@@ -463,11 +434,162 @@ pub fn run(
             Err(e) => s.note = Some(e.to_string()),
         }
         s
+    }
+
+    /// Two-factor analysis: the poses of the first reduced samples crossed
+    /// with the stiffness of the best-fitting ones (no re-optimisation);
+    /// `None` with fewer than two reduced samples or an empty design.
+    fn two_factor(
+        &self,
+        samples: &[Sample],
+        ok: &[&Sample],
+        opts: &SensitivityOptions,
+    ) -> Result<Option<TwoFactor>> {
+        if !(ok.len() >= 2 && opts.two_factor_poses > 0 && opts.two_factor_best > 0) {
+            return Ok(None);
+        }
+        let poses: Vec<usize> = ok
+            .iter()
+            .take(opts.two_factor_poses)
+            .map(|s| s.index)
+            .collect();
+        let mut by_cost: Vec<&Sample> = ok.to_vec();
+        by_cost.sort_by(|a, b| a.cost.total_cmp(&b.cost).then(a.index.cmp(&b.index)));
+        let best: Vec<usize> = by_cost
+            .iter()
+            .take(opts.two_factor_best)
+            .map(|s| s.index)
+            .collect();
+        let table: Vec<Result<Vec<f64>>> = poses
+            .par_iter()
+            .map(|&pi| {
+                let pb = self.problem(&samples[pi].perturbations)?;
+                let mut ev = pb.evaluator();
+                best.iter()
+                    .map(|&bi| Ok(rotation_rmse(&pb, &ev.predict(&pb, &samples[bi].params)?)))
+                    .collect()
+            })
+            .collect();
+        let rmse: Vec<Vec<f64>> = table.into_iter().collect::<Result<_>>()?;
+        let (sp, ss, si) = two_way_anova(&rmse);
+        let tot = sp + ss + si;
+        Ok(Some(TwoFactor {
+            poses,
+            stiffness_sets: best,
+            rmse,
+            ss_pose: sp,
+            ss_stiffness: ss,
+            ss_interaction: si,
+            share_pose: sp / tot,
+            share_stiffness: ss / tot,
+            share_interaction: si / tot,
+        }))
+    }
+
+    /// RMS offset and rotation per axis of each level's frame over the samples.
+    fn frame_sd(&self, samples: &[Sample]) -> Vec<LevelFrameSd> {
+        self.joints
+            .iter()
+            .enumerate()
+            .map(|(k, (u, l))| {
+                let n = samples.len().max(1) as f64;
+                let o = samples
+                    .iter()
+                    .map(|s| Vector3::from(s.perturbations[k].offset).norm_squared())
+                    .sum::<f64>();
+                let r = samples
+                    .iter()
+                    .map(|s| Vector3::from(s.perturbations[k].rotation).norm_squared())
+                    .sum::<f64>();
+                LevelFrameSd {
+                    level: format!("{u}/{l}"),
+                    offset_sd: (o / (3.0 * n)).sqrt(),
+                    rotation_sd: (r / (3.0 * n)).sqrt(),
+                }
+            })
+            .collect()
+    }
+}
+
+/// The vertebral levels of each (upper, lower) body pair.
+fn vertebra_levels(joints: &[(String, String)]) -> Result<Vec<(Level, Level)>> {
+    let mut lv = Vec::new();
+    for (u, l) in joints {
+        let (Some(a), Some(b)) = (Level::from_body_name(u), Level::from_body_name(l)) else {
+            return Err(Error::invalid(
+                "sensitivity",
+                format!("level {u}/{l}: body names must be vertebra names (thoracic1..12, lumbar1..5, sacrum) to place landmarks"),
+            ));
+        };
+        lv.push((a, b));
+    }
+    Ok(lv)
+}
+
+/// Run the study on an experiment with a parameterisation.
+pub fn run(
+    exp: Arc<Experiment>,
+    setup: &Setup,
+    opts: &SensitivityOptions,
+) -> Result<SensitivityReport> {
+    if !(opts.landmark_sd.is_finite() && opts.landmark_sd >= 0.0) {
+        return Err(Error::invalid("--landmark-sd", "must be finite and >= 0"));
+    }
+    if opts.samples == 0 {
+        return Err(Error::invalid("--samples", "must be at least 1"));
+    }
+    // The reference calibration of the unperturbed model.
+    let sys0 = System::new(&exp.spec)?;
+    let (pb0, fam0) = build_problem_with(exp.clone(), setup, sys0)?;
+    let reference = fit::calibrate(
+        &pb0,
+        &FitOptions {
+            starts: 4,
+            progress: false,
+            ..FitOptions::default()
+        },
+    )?;
+    let reference_rmse = rotation_rmse(&pb0, &reference.predictions);
+    // The calibrated levels: their bodies and bushings.
+    let names: Vec<String> = pb0.system().bushing_names().map(String::from).collect();
+    let study = Study {
+        exp: exp.clone(),
+        setup,
+        joints: fam0
+            .levels
+            .iter()
+            .map(|l| (l.upper_name.clone(), l.lower_name.clone()))
+            .collect(),
+        bushings: fam0
+            .levels
+            .iter()
+            .map(|l| names.get(l.bushing).cloned().unwrap_or_default())
+            .collect(),
+        reference_best: reference.best.clone(),
+        nominal: fam0.params_nominal(),
     };
-    let samples: Vec<Sample> = perts.par_iter().enumerate().map(one).collect();
+    // Joint-frame perturbations from landmark noise, one set per sample.
+    let lv = vertebra_levels(&study.joints)?;
+    let perts = frame_perturbations(&lv, opts.samples, opts.landmark_sd, opts.seed)?;
+    // Every sample re-calibrated (in parallel).
+    let bar = opts
+        .progress
+        .then(|| indicatif::ProgressBar::new(opts.samples as u64));
+    let samples: Vec<Sample> = perts
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let s = study.sample(i, p);
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            s
+        })
+        .collect();
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
+    // Spread of each parameter and of the RMSE over the reduced dataset.
     let ok: Vec<&Sample> = samples.iter().filter(|s| s.ok).collect();
     let off: Vec<f64> = ok.iter().map(|s| s.mean_offset).collect();
     let rot: Vec<f64> = ok.iter().map(|s| s.mean_rotation).collect();
@@ -482,69 +604,9 @@ pub fn run(
         .collect();
     let rm: Vec<f64> = ok.iter().map(|s| s.rotation_rmse).collect();
     let rmse = spread("rotation_rmse", reference_rmse, &rm, &off, &rot);
-    // two-factor analysis
-    let two_factor = if ok.len() >= 2 && opts.two_factor_poses > 0 && opts.two_factor_best > 0 {
-        let poses: Vec<usize> = ok
-            .iter()
-            .take(opts.two_factor_poses)
-            .map(|s| s.index)
-            .collect();
-        let mut by_cost: Vec<&Sample> = ok.clone();
-        by_cost.sort_by(|a, b| a.cost.total_cmp(&b.cost).then(a.index.cmp(&b.index)));
-        let best: Vec<usize> = by_cost
-            .iter()
-            .take(opts.two_factor_best)
-            .map(|s| s.index)
-            .collect();
-        let table: Vec<Result<Vec<f64>>> = poses
-            .par_iter()
-            .map(|&pi| {
-                let spec =
-                    perturbed_spec(&exp.spec, &joints, &bushings, &samples[pi].perturbations)?;
-                let (pb, _) = build_problem_with(exp.clone(), setup, System::new(&spec)?)?;
-                let mut ev = pb.evaluator();
-                best.iter()
-                    .map(|&bi| Ok(rmse_of(&pb, &ev.predict(&pb, &samples[bi].params)?)))
-                    .collect()
-            })
-            .collect();
-        let rmse: Vec<Vec<f64>> = table.into_iter().collect::<Result<_>>()?;
-        let (sp, ss, si) = two_way_anova(&rmse);
-        let tot = sp + ss + si;
-        Some(TwoFactor {
-            poses,
-            stiffness_sets: best,
-            rmse,
-            ss_pose: sp,
-            ss_stiffness: ss,
-            ss_interaction: si,
-            share_pose: sp / tot,
-            share_stiffness: ss / tot,
-            share_interaction: si / tot,
-        })
-    } else {
-        None
-    };
-    let frame_sd = joints
-        .iter()
-        .enumerate()
-        .map(|(k, (u, l))| {
-            let n = samples.len().max(1) as f64;
-            let o = samples
-                .iter()
-                .map(|s| Vector3::from(s.perturbations[k].offset).norm_squared())
-                .sum::<f64>();
-            let r = samples
-                .iter()
-                .map(|s| Vector3::from(s.perturbations[k].rotation).norm_squared())
-                .sum::<f64>();
-            LevelFrameSd {
-                level: format!("{u}/{l}"),
-                offset_sd: (o / (3.0 * n)).sqrt(),
-                rotation_sd: (r / (3.0 * n)).sqrt(),
-            }
-        })
-        .collect();
+    // Two-factor analysis (pose x stiffness) and the frame spread per level.
+    let two_factor = study.two_factor(&samples, &ok, opts)?;
+    let frame_sd = study.frame_sd(&samples);
     Ok(SensitivityReport {
         landmark_sd: opts.landmark_sd,
         samples: samples.len(),

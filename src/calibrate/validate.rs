@@ -133,13 +133,13 @@ pub fn leave_one_specimen_out(items: &[(Problem, Vec<f64>)]) -> Result<Vec<HeldO
     for (i, (pb, _)) in items.iter().enumerate() {
         let params: Vec<f64> = (0..first.len())
             .map(|k| {
-                let mut v: Vec<f64> = items
+                let v: Vec<f64> = items
                     .iter()
                     .enumerate()
                     .filter(|(j, _)| *j != i)
                     .filter_map(|(_, (_, p))| p.get(k).copied())
                     .collect();
-                median(&mut v)
+                crate::util::median(&v).unwrap_or(f64::NAN)
             })
             .collect();
         let mut ev = pb.evaluator();
@@ -151,18 +151,4 @@ pub fn leave_one_specimen_out(items: &[(Problem, Vec<f64>)]) -> Result<Vec<HeldO
         });
     }
     Ok(out)
-}
-
-/// Median (mean of the two middle values for an even count); NaN when empty.
-pub fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }

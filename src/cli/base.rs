@@ -67,6 +67,18 @@ pub struct Args {
     /// failures are printed as warnings).
     #[arg(long)]
     pub allow_implausible: bool,
+    /// Your own palpation of the generic model (landmark format: names
+    /// `<LEVEL>_<CODE>`, `# units:`, and `# frame:` for coordinates in its
+    /// ground at the default pose, or a `body` column `name,body,x,y,z` for
+    /// coordinates in that body's frame): replaces the engine's markers for
+    /// the landmarks it names.
+    #[arg(long, value_name = "FILE")]
+    pub palpation: Option<PathBuf>,
+    /// Your own vertebral centres of the generic model (names
+    /// `<LEVEL>_centre`, same format as --palpation): replace the engine's
+    /// vertebral-body sphere centres for the levels named.
+    #[arg(long, value_name = "FILE")]
+    pub centres: Option<PathBuf>,
     /// Output folder.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
@@ -144,7 +156,9 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
             .chain(&args.geometry)
             .chain(&args.sacrum)
             .chain(&args.body_meshes)
-            .chain(&args.ivd),
+            .chain(&args.ivd)
+            .chain(&args.palpation)
+            .chain(&args.centres),
     );
     crate::util::guard::check_output_dir(&args.out, &protected, args.force)?;
     let top = parse_keep(&args.keep)?;
@@ -167,6 +181,8 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if let Some(d) = &args.body_meshes {
         opts.body_meshes = body_meshes(d, top)?;
     }
+    opts.overrides =
+        crate::build::base::Overrides::read(args.palpation.as_deref(), args.centres.as_deref())?;
     let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     let built = if args.procedural {
         let popts = ProceduralOptions {
@@ -277,5 +293,12 @@ fn print_self_check(r: &crate::build::base::BaseReport) {
     }
     for f in &r.palpation_ordering_failures {
         crate::outln!("palpation: {f}");
+    }
+    if !r.palpation_given.is_empty() {
+        crate::outln!(
+            "palpation: {} landmark(s)/centre(s) from your files instead of the engine: {}",
+            r.palpation_given.len(),
+            r.palpation_given.join(" ")
+        );
     }
 }

@@ -36,15 +36,6 @@ fn ext(p: &Path) -> String {
         .to_ascii_lowercase()
 }
 
-/// Convert a model: read (upgrading legacy documents), validate the typed
-/// model, then write atomically. Nothing is written on error.
-pub fn convert_model(input: &Path, output: &Path) -> crate::Result<Document> {
-    let doc = Document::read(input)?;
-    doc.model()?;
-    doc.write_with_meshes(output, &[], true)?;
-    Ok(doc)
-}
-
 /// The typed model of `doc`. An error in a legacy file (upgraded on
 /// reading) says which version the file was written in, since the names it
 /// gives are those of the 4.x upgrade (`docs/legacy-upgrade.md`).

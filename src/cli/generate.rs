@@ -213,14 +213,45 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
             f.missing.join(", ")
         );
     }
+    for m in &r.protocol_mismatches {
+        crate::errln!(
+            "warning: protocol mismatch: {m}{}",
+            if m.refitted_without {
+                format!("; the vertebrae were fitted without {}", m.code)
+            } else {
+                String::new()
+            }
+        );
+    }
     crate::outln!("orientation smoothing: {}", r.smoothing.note);
     print_above_fov(r.above_fov.as_ref());
+    print_shape(&r.shape);
     match &r.self_check {
         Some(sc) => print_self_check(sc),
         None => crate::outln!("self-check: skipped (--no-self-check)"),
     }
     crate::outln!("wrote {} files to {}", files.len(), dir.display());
     Ok(0)
+}
+
+/// The generated spine's shape (Cobb angle, apex, lordosis, kyphosis).
+fn print_shape(s: &crate::landmarks::metrics::Shape) {
+    let deg = |v: Option<f64>| {
+        v.map(|d| format!("{d:+.1} deg"))
+            .unwrap_or_else(|| "n/a".into())
+    };
+    let cobb = s
+        .cobb
+        .as_ref()
+        .map(|c| format!("{:+.1} deg ({}-{})", c.angle_deg, c.upper, c.lower))
+        .unwrap_or_else(|| "n/a".into());
+    crate::outln!(
+        "shape: Cobb {cobb} (+ convex right), apex {}, lumbar lordosis L1-S1 {}, kyphosis T4-T12 {}, sacral slope {}",
+        s.apex.as_deref().unwrap_or("n/a"),
+        deg(s.lumbar_lordosis_deg),
+        deg(s.kyphosis_t4_t12_deg),
+        deg(s.sacral_slope_deg)
+    );
 }
 
 /// Above this displacement (m) under gravity a "stable" equilibrium is
@@ -293,8 +324,16 @@ fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
     } else {
         let max = a.bend_deg.iter().fold(0.0f64, |m, b| m.max(b.abs()));
         format!(
-            "balanced {} by a compensatory frontal curve (largest bend {max:.1} deg per joint)",
-            a.balanced.join(" ")
+            "balanced {} by a compensatory frontal curve (largest bend {max:.1} deg per joint{})",
+            a.balanced.join(" "),
+            if a.bend_limited {
+                format!(
+                    ", the limit of {:.0} deg: too few unmeasured levels to bring T1 over the sacrum",
+                    crate::build::generate::balance::MAX_BEND_DEG
+                )
+            } else {
+                String::new()
+            }
         )
     };
     crate::outln!(

@@ -18,7 +18,7 @@ use crate::osim::Document;
 use crate::solver::dynamics::Integrator;
 use crate::solver::from_model::ignored_forces;
 use crate::solver::output::{sto_string, BodyPose, BushingRecord};
-use crate::solver::{StaticOptions, System, SystemSpec, Workspace};
+use crate::solver::{BodyIndex, StaticOptions, System, SystemSpec, Workspace};
 use crate::util::write_atomic;
 use anyhow::{bail, Context};
 use clap::Args as ClapArgs;
@@ -105,7 +105,7 @@ fn welded_root(sys: &System) -> Option<String> {
     let roots: Vec<&str> = sys
         .body_names()
         .enumerate()
-        .filter(|(i, _)| sys.is_welded_to_ground(*i))
+        .filter(|(i, _)| sys.is_welded_to_ground(BodyIndex(*i)))
         .map(|(_, n)| n)
         .collect();
     match roots.as_slice() {

@@ -180,7 +180,7 @@ impl Sim {
                         ),
                     )
                 })?;
-            row_bodies.push((u, lo));
+            row_bodies.push((u.0, lo.0));
             // cells that are means over n specimens: the stated SD is the
             // between-specimen one, the mean's standard error is SD / sqrt(n)
             let se_divisor = (exp.measurement.n_specimens.unwrap_or(1).max(1) as f64).sqrt();

@@ -37,7 +37,7 @@
 //! absolute errors (Table 5.7), and mean, SD, min and max of the Cobb angle
 //! and lordosis (Table 5.8).
 
-pub mod metrics;
+pub use crate::landmarks::metrics;
 pub mod plot;
 pub mod propagation;
 pub mod variability;
@@ -651,8 +651,8 @@ pub struct MeanSd {
 pub fn med_iqr(v: &[f64]) -> Option<MedIqr> {
     let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
     Some(MedIqr {
-        median: metrics::quantile(&v, 0.5)?,
-        iqr: metrics::quantile(&v, 0.75)? - metrics::quantile(&v, 0.25)?,
+        median: crate::util::median(&v)?,
+        iqr: crate::util::iqr(&v)?,
         n: v.len(),
     })
 }

@@ -304,12 +304,8 @@ pub fn propagate(
     if pals.is_empty() {
         return Err(Error::invalid("variability", "no palpations"));
     }
-    // ---- consensus
+    // The consensus model, from the per-landmark median set.
     let (mset, left_out) = median_set(pals);
-    let csource = format!(
-        "consensus model (per-landmark median of {} palpations)",
-        pals.len()
-    );
     let consensus = model_of(base, &mset, "consensus (per-landmark median)", opts);
     let cinfo = Consensus {
         landmarks: mset.len(),
@@ -321,41 +317,117 @@ pub fn propagate(
             .map(|(g, _)| g.report.outliers.clone())
             .unwrap_or_default(),
     };
-    let (truth, kind) = match (&opts.truth, &consensus) {
-        (Some(t), _) => (t.clone(), "truth"),
-        (None, Ok((g, shape))) => (consensus_truth(g, shape, csource), "consensus"),
-        (None, Err(e)) => {
-            return Err(Error::invalid(
-                "variability",
-                format!(
-                    "the consensus model (per-landmark median set), the reference of the model \
-                     metrics without --truth, cannot be generated: {e}"
-                ),
-            ))
-        }
+    // The reference: the truth, else the consensus model.
+    let (truth, kind) = reference_of(pals, &consensus, opts)?;
+    // The reference's Cobb, apex and lordosis, and the Cobb ends of every model.
+    let reference = reference_metrics(&truth, kind, &consensus, opts);
+    let ends = choose_cobb_ends(&reference.cobb, kind, &consensus, opts);
+    let cobb_ends = match ends {
+        (Some((u, l)), from) => format!("{u}-{l} ({from})"),
+        (None, from) => from.to_string(),
     };
-    // ---- reference Cobb, lordosis and the Cobb ends, measured in the
-    // reference's own frame, as `evaluate` measures every model's (carried
-    // into that frame); the apex on the centres in the consensus model's
-    // frame (where the models are) when it exists.
+    // One model per palpation, evaluated against the reference.
+    let results = palpation_models(pals, base, &truth, ends.0, opts);
+    let (rows, models) = palpation_rows(pals, results, opts.keep_models);
+    let ok = rows.iter().filter(|r| r.ok).count();
+    if ok == 0 {
+        return Err(no_model(&rows));
+    }
+    // Median and IQR overall, intra- and inter-operator; per level over all.
+    let groups = groups_of(&rows);
+    let all: Vec<ModelMetrics> = rows.iter().filter_map(|r| r.metrics.clone()).collect();
+    let levels = summarise(&all).levels;
+    Ok(Propagated {
+        report: ModelPropagation {
+            reference,
+            consensus: cinfo,
+            method: opts.method,
+            align: opts.align,
+            vertebral_centre: centre_definition(opts.centre),
+            cobb_ends,
+            palpations: pals.len(),
+            models: ok,
+            failed: pals.len() - ok,
+            groups,
+            levels,
+            rows,
+        },
+        models,
+    })
+}
+
+/// The consensus model's result: its generation and shape, or why it failed.
+type ConsensusModel = Result<(Generated, ModelShape)>;
+
+/// The reference of the model metrics and its kind: the given truth, else
+/// the consensus model in the palpations' frame (an error when it failed).
+fn reference_of(
+    pals: &[PalpationSet],
+    consensus: &ConsensusModel,
+    opts: &PropagationOptions,
+) -> Result<(Truth, &'static str)> {
+    let csource = format!(
+        "consensus model (per-landmark median of {} palpations)",
+        pals.len()
+    );
+    match (&opts.truth, consensus) {
+        (Some(t), _) => Ok((t.clone(), "truth")),
+        (None, Ok((g, shape))) => Ok((consensus_truth(g, shape, csource), "consensus")),
+        (None, Err(e)) => Err(Error::invalid(
+            "variability",
+            format!(
+                "the consensus model (per-landmark median set), the reference of the model \
+                 metrics without --truth, cannot be generated: {e}"
+            ),
+        )),
+    }
+}
+
+/// The reference's Cobb, lordosis (measured in the reference's own frame,
+/// as `evaluate` measures every model's, carried into that frame) and apex
+/// (on the centres in the consensus model's frame, where the models are,
+/// when it exists).
+fn reference_metrics(
+    truth: &Truth,
+    kind: &str,
+    consensus: &ConsensusModel,
+    opts: &PropagationOptions,
+) -> Reference {
     let x_ref = consensus
         .as_ref()
         .ok()
-        .map(|(_, shape)| truth_transform(shape, &truth, opts.align))
+        .map(|(_, shape)| truth_transform(shape, truth, opts.align))
         .unwrap_or_else(nalgebra::Isometry3::identity);
-    let ref_landmarks = truth.landmarks.clone();
+    let ref_landmarks = truth.landmarks.as_ref();
     let ref_centres: BTreeMap<Level, Point3<f64>> =
         truth.centres.iter().map(|(l, p)| (*l, x_ref * p)).collect();
-    let ref_cobb = ref_landmarks
-        .as_ref()
-        .and_then(|s| metrics::cobb(s, opts.cobb_ends));
+    let ref_cobb = ref_landmarks.and_then(|s| metrics::cobb(s, opts.cobb_ends));
     let ref_apex = ref_cobb
         .as_ref()
         .and_then(|c| metrics::apex(&ref_centres, c.upper.parse().ok()?, c.lower.parse().ok()?));
+    Reference {
+        kind: kind.into(),
+        source: truth.source.clone(),
+        levels: truth.centres.keys().map(|l| l.to_string()).collect(),
+        cobb: ref_cobb,
+        apex: ref_apex.map(|l| l.to_string()),
+        lordosis_deg: ref_landmarks.and_then(metrics::lordosis),
+    }
+}
+
+/// The Cobb end vertebrae of every model and where they come from: given,
+/// else the reference's, else the consensus model's, else none (automatic
+/// per model).
+fn choose_cobb_ends(
+    ref_cobb: &Option<metrics::Cobb>,
+    kind: &str,
+    consensus: &ConsensusModel,
+    opts: &PropagationOptions,
+) -> (Option<(Level, Level)>, &'static str) {
     let parse_ends = |c: &metrics::Cobb| -> Option<(Level, Level)> {
         Some((c.upper.parse().ok()?, c.lower.parse().ok()?))
     };
-    let (ends, ends_from) = match opts.cobb_ends {
+    match opts.cobb_ends {
         Some(e) => (Some(e), "given"),
         None => match ref_cobb.as_ref().and_then(parse_ends) {
             Some(e) if kind == "truth" => (Some(e), "truth landmarks"),
@@ -371,12 +443,18 @@ pub fn propagate(
                 None => (None, "automatic per model"),
             },
         },
-    };
-    let cobb_ends = match ends {
-        Some((u, l)) => format!("{u}-{l} ({ends_from})"),
-        None => ends_from.to_string(),
-    };
-    // ---- one model per palpation
+    }
+}
+
+/// Each palpation's model (generated in parallel, in palpation order) and
+/// its metrics against `truth`.
+fn palpation_models(
+    pals: &[PalpationSet],
+    base: &Document,
+    truth: &Truth,
+    ends: Option<(Level, Level)>,
+    opts: &PropagationOptions,
+) -> Vec<Result<(Generated, ModelMetrics)>> {
     let bar = if opts.progress && pals.len() >= 4 {
         let b = indicatif::ProgressBar::new(pals.len() as u64);
         if let Ok(st) = indicatif::ProgressStyle::with_template(
@@ -388,12 +466,12 @@ pub fn propagate(
     } else {
         indicatif::ProgressBar::hidden()
     };
-    let results: Vec<Result<(Generated, ModelMetrics)>> = pals
+    let results = pals
         .par_iter()
         .map(|p| {
             let name = label(p);
             let r = model_of(base, &p.set, &name, opts).and_then(|(g, shape)| {
-                let m = evaluate_model(&shape, &truth, opts.align, ends)?;
+                let m = evaluate_model(&shape, truth, opts.align, ends)?;
                 Ok((g, m))
             });
             bar.inc(1);
@@ -401,6 +479,19 @@ pub fn propagate(
         })
         .collect();
     bar.finish_and_clear();
+    results
+}
+
+/// Generated models to keep, labelled.
+type KeptModels = Vec<(String, Generated)>;
+
+/// One row per palpation (its metrics, or its error), and the models when
+/// `keep_models`.
+fn palpation_rows(
+    pals: &[PalpationSet],
+    results: Vec<Result<(Generated, ModelMetrics)>>,
+    keep_models: bool,
+) -> (Vec<PalpationModel>, KeptModels) {
     let mut rows = Vec::new();
     let mut models = Vec::new();
     for (p, r) in pals.iter().zip(results) {
@@ -417,7 +508,7 @@ pub fn propagate(
                     landmark_rms_mm: Some(g.report.landmark_rms_mm),
                     metrics: Some(m),
                 });
-                if opts.keep_models {
+                if keep_models {
                     models.push((label(p), g));
                 }
             }
@@ -433,32 +524,38 @@ pub fn propagate(
             }),
         }
     }
-    let ok = rows.iter().filter(|r| r.ok).count();
-    if ok == 0 {
-        let errs: Vec<String> = rows
-            .iter()
-            .map(|r| {
-                format!(
-                    "{} ({}): {}",
-                    label_of(r),
-                    r.source,
-                    r.error.as_deref().unwrap_or("")
-                )
-            })
-            .collect();
-        return Err(Error::invalid(
-            "variability",
+    (rows, models)
+}
+
+/// The error when no palpation gave a model: every palpation's error.
+fn no_model(rows: &[PalpationModel]) -> Error {
+    let errs: Vec<String> = rows
+        .iter()
+        .map(|r| {
             format!(
-                "no palpation gave a model (use --no-models for the landmark statistics alone):\n  {}",
-                errs.join("\n  ")
-            ),
-        ));
-    }
-    // ---- groups
+                "{} ({}): {}",
+                label_of(r),
+                r.source,
+                r.error.as_deref().unwrap_or("")
+            )
+        })
+        .collect();
+    Error::invalid(
+        "variability",
+        format!(
+            "no palpation gave a model (use --no-models for the landmark statistics alone):\n  {}",
+            errs.join("\n  ")
+        ),
+    )
+}
+
+/// The groups: overall, intra-operator (operators with two or more
+/// repetitions), inter-operator (repetitions two or more operators have).
+fn groups_of(rows: &[PalpationModel]) -> Vec<GroupSummary> {
     let mut groups = vec![group("overall", "all", &rows.iter().collect::<Vec<_>>())];
     let mut by_op: BTreeMap<&str, Vec<&PalpationModel>> = BTreeMap::new();
     let mut by_rep: BTreeMap<u32, Vec<&PalpationModel>> = BTreeMap::new();
-    for r in &rows {
+    for r in rows {
         by_op.entry(r.operator.as_str()).or_default().push(r);
         by_rep.entry(r.repetition).or_default().push(r);
     }
@@ -474,32 +571,7 @@ pub fn propagate(
             groups.push(group("inter", &format!("repetition {rep}"), &v));
         }
     }
-    let all: Vec<ModelMetrics> = rows.iter().filter_map(|r| r.metrics.clone()).collect();
-    let levels = summarise(&all).levels;
-    Ok(Propagated {
-        report: ModelPropagation {
-            reference: Reference {
-                kind: kind.into(),
-                source: truth.source.clone(),
-                levels: truth.centres.keys().map(|l| l.to_string()).collect(),
-                cobb: ref_cobb,
-                apex: ref_apex.map(|l| l.to_string()),
-                lordosis_deg: ref_landmarks.as_ref().and_then(metrics::lordosis),
-            },
-            consensus: cinfo,
-            method: opts.method,
-            align: opts.align,
-            vertebral_centre: centre_definition(opts.centre),
-            cobb_ends,
-            palpations: pals.len(),
-            models: ok,
-            failed: pals.len() - ok,
-            groups,
-            levels,
-            rows,
-        },
-        models,
-    })
+    groups
 }
 
 fn label_of(r: &PalpationModel) -> String {
@@ -539,7 +611,7 @@ fn group(kind: &str, within: &str, rows: &[&PalpationModel]) -> GroupSummary {
 /// (Cobb angle, lordosis, deg) and `model_centre_rmse_groups.svg` (centre
 /// RMSE per group).
 pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
-    use super::variability::{boxplot_svg, boxplot_svg_axis};
+    use crate::util::svg::{boxplot_svg, boxplot_svg_axis};
     let ms: Vec<&ModelMetrics> = p.rows.iter().filter_map(|r| r.metrics.as_ref()).collect();
     let col = |f: &dyn Fn(&ModelMetrics) -> Option<f64>| -> Vec<f64> {
         ms.iter().filter_map(|m| f(m)).collect()

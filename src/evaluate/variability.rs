@@ -22,15 +22,16 @@
 //!   inter-operator (groups = operators, one test per repetition) and
 //!   intra-operator (groups = repetitions, one test per operator);
 //!   Friedman when blocks are complete, Skillings-Mack otherwise
-//!   ([`super::stats`]); when p < 0.05 the one-to-many Nemenyi test against
+//!   ([`crate::landmarks::stats`]); when p < 0.05 the one-to-many Nemenyi test against
 //!   the first operator / first repetition;
 //! - `model_propagation` (with [`compute`]/[`run`] given a base model):
 //!   the thesis's Tables 5.6-5.8, one generated model per palpation
 //!   evaluated against the truth or the consensus model, median and IQR
 //!   overall, intra- and inter-operator ([`crate::evaluate::propagation`]).
 //!
-//! Figures: [`boxplot_svg`] draws every box plot (the per-landmark IQRs
-//! here, the model metrics in [`crate::evaluate::propagation::boxplots`]).
+//! Figures: [`crate::util::svg::boxplot_svg`] draws every box plot (the
+//! per-landmark IQRs here, the model metrics in
+//! [`crate::evaluate::propagation::boxplots`]).
 
 use super::propagation::{self, ModelPropagation, PropagationOptions};
 use crate::error::{Error, Result};
@@ -201,6 +202,7 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             format!("need at least 2 palpations, got {}", pals.len()),
         ));
     }
+    // Operators and their repetitions.
     let mut operators: BTreeMap<String, Vec<u32>> = BTreeMap::new();
     for p in pals {
         operators
@@ -211,16 +213,8 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
     for v in operators.values_mut() {
         v.sort_unstable();
     }
-    // Study origin: grand centroid.
-    let mut sum = Vector3::zeros();
-    let mut cnt = 0usize;
-    for p in pals {
-        for q in p.set.points.values() {
-            sum += q.coords;
-            cnt += 1;
-        }
-    }
-    let origin = sum / cnt.max(1) as f64;
+    // Study origin (the grand centroid) and the landmarks palpated.
+    let origin = grand_centroid(pals);
     let ids: Vec<LandmarkId> = {
         let mut v: Vec<LandmarkId> = pals
             .iter()
@@ -230,17 +224,63 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
         v.dedup();
         v
     };
-    // ---- IQRs
+    // Per-landmark IQRs with normality tests, and their summary (Table 5.5).
+    let (landmarks, normality) = landmark_iqrs(pals, &ids, &origin);
+    let summary = iqr_summary(&landmarks);
+    // Inter- and intra-operator comparisons: ICC(2,1) and Friedman tests.
+    let mut icc = Vec::new();
+    let mut friedman = Vec::new();
+    for c in &comparisons(pals, &operators) {
+        icc.extend(icc_entries(c, &ids, &origin));
+        friedman.extend(friedman_entries(c, &ids, &origin));
+    }
+    let rejected = normality.iter().filter(|n| n.p < 0.05).count();
+    Ok(VariabilityReport {
+        palpations: pals.len(),
+        operators,
+        units: "mm".into(),
+        axes: "X anterior-posterior, Y inferior-superior, Z left-right (OpenSim frame); Euclidean = distance from the grand centroid".into(),
+        landmarks,
+        summary,
+        icc,
+        normality,
+        normality_rejected_at_5pct: rejected,
+        friedman,
+        model_propagation: None,
+        notes: Vec::new(),
+    })
+}
+
+/// Centroid of every landmark of every palpation.
+fn grand_centroid(pals: &[PalpationSet]) -> Vector3<f64> {
+    let mut sum = Vector3::zeros();
+    let mut cnt = 0usize;
+    for p in pals {
+        for q in p.set.points.values() {
+            sum += q.coords;
+            cnt += 1;
+        }
+    }
+    sum / cnt.max(1) as f64
+}
+
+/// IQR per axis of each landmark palpated at least twice, and a
+/// Shapiro-Wilk test per axis of those palpated at least three times.
+fn landmark_iqrs(
+    pals: &[PalpationSet],
+    ids: &[LandmarkId],
+    origin: &Vector3<f64>,
+) -> (Vec<LandmarkIqr>, Vec<NormalityEntry>) {
     let mut landmarks = Vec::new();
     let mut normality = Vec::new();
-    for id in &ids {
+    for id in ids {
         let pts: Vec<_> = pals.iter().filter_map(|p| p.set.points.get(id)).collect();
         if pts.len() < 2 {
             continue;
         }
         let mut iqr = [0.0; 4];
         for (a, slot) in iqr.iter_mut().enumerate() {
-            let vals: Vec<f64> = pts.iter().map(|q| value(q, &origin, a)).collect();
+            let vals: Vec<f64> = pts.iter().map(|q| value(q, origin, a)).collect();
             *slot = stats::iqr(&vals).unwrap_or(f64::NAN);
             if vals.len() >= 3 {
                 if let Ok(sw) = stats::shapiro_wilk(&vals) {
@@ -260,6 +300,12 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             iqr_mm: iqr,
         });
     }
+    (landmarks, normality)
+}
+
+/// Median, IQR and maximum of the per-landmark IQRs for all, joint and
+/// scaling markers, per axis.
+fn iqr_summary(landmarks: &[LandmarkIqr]) -> Vec<IqrSummary> {
     let mut summary = Vec::new();
     for (group, filt) in [
         ("all", None),
@@ -283,7 +329,16 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             }
         }
     }
-    // ---- comparisons: (kind, within, ordered palpations)
+    summary
+}
+
+/// The comparisons: inter-operator per repetition number (operators in
+/// name order), intra-operator per operator (repetitions in order); each
+/// with at least two palpations.
+fn comparisons<'a>(
+    pals: &'a [PalpationSet],
+    operators: &BTreeMap<String, Vec<u32>>,
+) -> Vec<Comparison<'a>> {
     let mut comparisons: Vec<Comparison> = Vec::new();
     let reps: Vec<u32> = {
         let mut v: Vec<u32> = pals.iter().map(|p| p.repetition).collect();
@@ -313,117 +368,118 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
             comparisons.push(("intra".into(), format!("operator {op}"), g));
         }
     }
+    comparisons
+}
+
+/// ICC(2,1) per marker group (joint, scaling) and axis of one comparison,
+/// over the landmarks every palpation of it has (at least two).
+fn icc_entries(c: &Comparison, ids: &[LandmarkId], origin: &Vector3<f64>) -> Vec<IccEntry> {
+    let (kind, within, g) = c;
     let mut icc = Vec::new();
-    let mut friedman = Vec::new();
-    for (kind, within, g) in &comparisons {
-        for (group, joint) in [("joint", true), ("scaling", false)] {
-            let targets: Vec<LandmarkId> = ids
-                .iter()
-                .filter(|i| i.code.is_joint_marker() == joint)
-                .filter(|i| g.iter().all(|(_, p)| p.set.points.contains_key(i)))
-                .copied()
-                .collect();
-            if targets.len() < 2 {
-                continue;
-            }
-            for (a, axis) in AXES.iter().enumerate() {
-                let rows: Vec<Vec<f64>> = targets
-                    .iter()
-                    .map(|t| {
-                        g.iter()
-                            .map(|(_, p)| value(&p.set.points[t], &origin, a))
-                            .collect()
-                    })
-                    .collect();
-                if let Ok(Icc { icc2_1, n, k, .. }) = stats::icc(&rows) {
-                    icc.push(IccEntry {
-                        kind: kind.clone(),
-                        within: within.clone(),
-                        group: group.into(),
-                        axis: axis.to_string(),
-                        targets: n,
-                        raters: k,
-                        icc2_1,
-                    });
-                }
-            }
+    for (group, joint) in [("joint", true), ("scaling", false)] {
+        let targets: Vec<LandmarkId> = ids
+            .iter()
+            .filter(|i| i.code.is_joint_marker() == joint)
+            .filter(|i| g.iter().all(|(_, p)| p.set.points.contains_key(i)))
+            .copied()
+            .collect();
+        if targets.len() < 2 {
+            continue;
         }
-        let levels: Vec<Level> = {
-            let mut v: Vec<Level> = ids.iter().map(|i| i.level).collect();
-            v.dedup();
-            v
-        };
-        for code in Code::ALL {
-            for (a, axis) in AXES.iter().enumerate() {
-                let y: Vec<Vec<Option<f64>>> = levels
-                    .iter()
-                    .map(|l| {
-                        g.iter()
-                            .map(|(_, p)| p.set.get(*l, code).map(|q| value(&q, &origin, a)))
-                            .collect()
-                    })
-                    .filter(|row: &Vec<Option<f64>>| {
-                        row.iter().filter(|v| v.is_some()).count() >= 2
-                    })
-                    .collect();
-                let Ok(t) = stats::friedman_blocked(&y) else {
-                    continue;
-                };
-                if !t.p.is_finite() {
-                    continue;
-                }
-                let names: Vec<String> = g.iter().map(|(n, _)| n.clone()).collect();
-                let posthoc = if t.p < 0.05 {
-                    stats::nemenyi_many_one(&y)
-                        .map(|v| {
-                            v.into_iter()
-                                .map(|m| PostHoc {
-                                    versus: names.get(m.group).cloned().unwrap_or_default(),
-                                    reference: names[0].clone(),
-                                    z: m.z,
-                                    p: m.p,
-                                })
-                                .collect()
-                        })
-                        .unwrap_or_default()
-                } else {
-                    Vec::new()
-                };
-                friedman.push(FriedmanEntry {
+        for (a, axis) in AXES.iter().enumerate() {
+            let rows: Vec<Vec<f64>> = targets
+                .iter()
+                .map(|t| {
+                    g.iter()
+                        .map(|(_, p)| value(&p.set.points[t], origin, a))
+                        .collect()
+                })
+                .collect();
+            if let Ok(Icc { icc2_1, n, k, .. }) = stats::icc(&rows) {
+                icc.push(IccEntry {
                     kind: kind.clone(),
                     within: within.clone(),
-                    marker: code,
+                    group: group.into(),
                     axis: axis.to_string(),
-                    method: t.method,
-                    statistic: t.statistic,
-                    df: t.df,
-                    p: t.p,
-                    blocks: t.blocks,
-                    groups: names,
-                    posthoc,
+                    targets: n,
+                    raters: k,
+                    icc2_1,
                 });
             }
         }
     }
-    let rejected = normality.iter().filter(|n| n.p < 0.05).count();
-    Ok(VariabilityReport {
-        palpations: pals.len(),
-        operators,
-        units: "mm".into(),
-        axes: "X anterior-posterior, Y inferior-superior, Z left-right (OpenSim frame); Euclidean = distance from the grand centroid".into(),
-        landmarks,
-        summary,
-        icc,
-        normality,
-        normality_rejected_at_5pct: rejected,
-        friedman,
-        model_propagation: None,
-        notes: Vec::new(),
-    })
+    icc
+}
+
+/// Friedman / Skillings-Mack tests per marker code and axis of one
+/// comparison, blocked by level (blocks with two or more values), with the
+/// Nemenyi many-to-one post hoc test when p < 0.05.
+fn friedman_entries(
+    c: &Comparison,
+    ids: &[LandmarkId],
+    origin: &Vector3<f64>,
+) -> Vec<FriedmanEntry> {
+    let (kind, within, g) = c;
+    let mut friedman = Vec::new();
+    let levels: Vec<Level> = {
+        let mut v: Vec<Level> = ids.iter().map(|i| i.level).collect();
+        v.dedup();
+        v
+    };
+    for code in Code::ALL {
+        for (a, axis) in AXES.iter().enumerate() {
+            let y: Vec<Vec<Option<f64>>> = levels
+                .iter()
+                .map(|l| {
+                    g.iter()
+                        .map(|(_, p)| p.set.get(*l, code).map(|q| value(&q, origin, a)))
+                        .collect()
+                })
+                .filter(|row: &Vec<Option<f64>>| row.iter().filter(|v| v.is_some()).count() >= 2)
+                .collect();
+            let Ok(t) = stats::friedman_blocked(&y) else {
+                continue;
+            };
+            if !t.p.is_finite() {
+                continue;
+            }
+            let names: Vec<String> = g.iter().map(|(n, _)| n.clone()).collect();
+            let posthoc = if t.p < 0.05 {
+                stats::nemenyi_many_one(&y)
+                    .map(|v| {
+                        v.into_iter()
+                            .map(|m| PostHoc {
+                                versus: names.get(m.group).cloned().unwrap_or_default(),
+                                reference: names[0].clone(),
+                                z: m.z,
+                                p: m.p,
+                            })
+                            .collect()
+                    })
+                    .unwrap_or_default()
+            } else {
+                Vec::new()
+            };
+            friedman.push(FriedmanEntry {
+                kind: kind.clone(),
+                within: within.clone(),
+                marker: code,
+                axis: axis.to_string(),
+                method: t.method,
+                statistic: t.statistic,
+                df: t.df,
+                p: t.p,
+                blocks: t.blocks,
+                groups: names,
+                posthoc,
+            });
+        }
+    }
+    friedman
 }
 
 /// SVG box plot of the per-landmark IQRs in X, Y, Z and Euclidean
-/// (thesis Figure 5.5), drawn by [`boxplot_svg`].
+/// (thesis Figure 5.5), drawn by [`crate::util::svg::boxplot_svg`].
 pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
     let series: Vec<(String, Vec<f64>)> = (0..4)
         .map(|a| {
@@ -438,7 +494,7 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
             )
         })
         .collect();
-    boxplot_svg(
+    crate::util::svg::boxplot_svg(
         &format!(
             "IQR of repeated palpations per landmark ({} palpations)",
             report.palpations
@@ -446,178 +502,6 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
         "IQR (mm)",
         &series,
     )
-}
-
-/// Tick step of a "nice" axis (1, 2 or 5 times a power of ten) for `span`.
-fn nice_step(span: f64) -> f64 {
-    let raw = (span / 5.0).max(1e-12);
-    let p = 10f64.powf(raw.log10().floor());
-    let m = raw / p;
-    let k = if m <= 1.0 {
-        1.0
-    } else if m <= 2.0 {
-        2.0
-    } else if m <= 5.0 {
-        5.0
-    } else {
-        10.0
-    };
-    k * p
-}
-
-/// A plain SVG box plot, one box per `(label, values)` series: boxes at
-/// the quartiles (type 7), median line, whiskers to the furthest value
-/// within 1.5 IQR, outliers as circles. The value axis includes 0 and is
-/// rounded to a 1/2/5 tick step. Non-finite values are ignored; an empty
-/// series gets its label and no box. Deterministic text.
-pub fn boxplot_svg(title: &str, y_label: &str, series: &[(String, Vec<f64>)]) -> String {
-    boxplot_svg_axis(title, y_label, series, true)
-}
-
-/// [`boxplot_svg`], with the value axis fitted to the data alone when
-/// `include_zero` is false.
-pub fn boxplot_svg_axis(
-    title: &str,
-    y_label: &str,
-    series: &[(String, Vec<f64>)],
-    include_zero: bool,
-) -> String {
-    let slot_w = 120.0;
-    let (left, right, top, bottom) = (60.0, 20.0, 40.0, 50.0);
-    let w = (left + right + slot_w * series.len().max(1) as f64).max(560.0);
-    let h = 380.0;
-    let series: Vec<(&str, Vec<f64>)> = series
-        .iter()
-        .map(|(n, v)| {
-            (
-                n.as_str(),
-                v.iter().copied().filter(|x| x.is_finite()).collect(),
-            )
-        })
-        .collect();
-    let all = series.iter().flat_map(|(_, v)| v.iter().copied());
-    let start = if include_zero {
-        (0.0f64, 0.0f64)
-    } else {
-        (f64::INFINITY, f64::NEG_INFINITY)
-    };
-    let (dmin, dmax) = all.fold(start, |(a, b), x| (a.min(x), b.max(x)));
-    let (dmin, dmax) = if dmin.is_finite() {
-        (dmin, dmax)
-    } else {
-        (0.0, 1.0)
-    };
-    let dmax = if dmax - dmin < 1e-12 {
-        dmin + 1.0
-    } else {
-        dmax
-    };
-    let step = nice_step(dmax - dmin);
-    let ymin = (dmin / step).floor() * step;
-    let ymax = (dmax / step).ceil() * step;
-    let sy = |v: f64| top + (h - top - bottom) * (1.0 - (v - ymin) / (ymax - ymin));
-    let slot = (w - left - right) / series.len().max(1) as f64;
-    let decimals = (-step.log10().floor()).max(0.0) as usize;
-    let mut s = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{}\" y=\"22\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n",
-        w / 2.0,
-        xml_escape(title)
-    );
-    // Axis and ticks.
-    s.push_str(&format!(
-        "<line x1=\"{left}\" y1=\"{top}\" x2=\"{left}\" y2=\"{}\" stroke=\"black\"/>\n",
-        h - bottom
-    ));
-    let ticks = ((ymax - ymin) / step).round() as i64;
-    for i in 0..=ticks {
-        let t = ymin + step * i as f64;
-        s.push_str(&format!(
-            "<line x1=\"{}\" y1=\"{y:.1}\" x2=\"{left}\" y2=\"{y:.1}\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">{t:.decimals$}</text>\n",
-            left - 4.0,
-            left - 6.0,
-            sy(t) + 4.0,
-            y = sy(t)
-        ));
-    }
-    if ymin < 0.0 && ymax > 0.0 {
-        s.push_str(&format!(
-            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{}\" y2=\"{y:.1}\" stroke=\"#bbbbbb\" stroke-dasharray=\"4 3\"/>\n",
-            w - right,
-            y = sy(0.0)
-        ));
-    }
-    s.push_str(&format!(
-        "<text x=\"16\" y=\"{:.1}\" transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">{}</text>\n",
-        (top + h - bottom) / 2.0,
-        (top + h - bottom) / 2.0,
-        xml_escape(y_label)
-    ));
-    for (i, (name, v)) in series.iter().enumerate() {
-        let cx = left + slot * (i as f64 + 0.5);
-        s.push_str(&format!(
-            "<text x=\"{cx:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>\n",
-            h - bottom + 18.0,
-            xml_escape(name)
-        ));
-        let (Some(q1), Some(q2), Some(q3)) = (
-            stats::quantile(v, 0.25),
-            stats::quantile(v, 0.5),
-            stats::quantile(v, 0.75),
-        ) else {
-            continue;
-        };
-        let iqr = q3 - q1;
-        let lo = v
-            .iter()
-            .copied()
-            .filter(|x| *x >= q1 - 1.5 * iqr)
-            .fold(f64::INFINITY, f64::min);
-        let hi = v
-            .iter()
-            .copied()
-            .filter(|x| *x <= q3 + 1.5 * iqr)
-            .fold(f64::NEG_INFINITY, f64::max);
-        let bw = (slot * 0.5).min(80.0);
-        s.push_str(&format!(
-            "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{bw:.1}\" height=\"{:.1}\" fill=\"#9ecae1\" stroke=\"black\"/>\n",
-            cx - bw / 2.0,
-            sy(q3),
-            (sy(q1) - sy(q3)).max(0.5)
-        ));
-        s.push_str(&format!(
-            "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"black\" stroke-width=\"2\"/>\n",
-            cx - bw / 2.0,
-            sy(q2),
-            cx + bw / 2.0,
-            sy(q2)
-        ));
-        for (a, b) in [(q3, hi), (q1, lo)] {
-            s.push_str(&format!(
-                "<line x1=\"{cx:.1}\" y1=\"{:.1}\" x2=\"{cx:.1}\" y2=\"{:.1}\" stroke=\"black\"/><line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"black\"/>\n",
-                sy(a),
-                sy(b),
-                cx - bw / 4.0,
-                sy(b),
-                cx + bw / 4.0,
-                sy(b)
-            ));
-        }
-        for x in v.iter().filter(|x| **x < lo || **x > hi) {
-            s.push_str(&format!(
-                "<circle cx=\"{cx:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"none\" stroke=\"#d62728\"/>\n",
-                sy(*x)
-            ));
-        }
-    }
-    s.push_str("</svg>\n");
-    s
-}
-
-fn xml_escape(t: &str) -> String {
-    t.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
 }
 
 /// Everything `variability` computes, not yet written.
@@ -691,51 +575,4 @@ pub fn run(
         write_atomic(&out_dir.join(p), &b)?;
     }
     Ok(c)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn attr(svg: &str, tag: &str, name: &str) -> f64 {
-        let at = svg.find(tag).unwrap();
-        let rest = &svg[at..];
-        let k = rest.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
-        let end = rest[k..].find('"').unwrap();
-        rest[k..k + end].parse().unwrap()
-    }
-
-    #[test]
-    fn box_spans_the_quartiles_on_the_axis() {
-        // 1..=5: quartiles (type 7) 2 and 4; axis 0..5 in steps of 1.
-        let svg = boxplot_svg("t", "mm", &[("a".into(), vec![5.0, 1.0, 3.0, 2.0, 4.0])]);
-        let (top, bottom, h) = (40.0, 50.0, 380.0);
-        let sy = |v: f64| top + (h - top - bottom) * (1.0 - v / 5.0);
-        let y = attr(&svg, "<rect x=", "y");
-        let height = attr(&svg, "<rect x=", "height");
-        assert!((y - sy(4.0)).abs() < 0.06, "{y}");
-        assert!((y + height - sy(2.0)).abs() < 0.11, "{height}");
-        assert!(svg.contains(">5</text>") && !svg.contains(">6</text>"));
-    }
-
-    #[test]
-    fn box_plot_survives_empty_and_non_finite_series() {
-        let svg = boxplot_svg_axis(
-            "a & b",
-            "deg",
-            &[
-                ("empty".into(), vec![]),
-                ("nan".into(), vec![f64::NAN, f64::INFINITY]),
-                ("neg".into(), vec![-40.0, -41.0, -39.5]),
-            ],
-            false,
-        );
-        assert!(svg.starts_with("<svg") && svg.ends_with("</svg>\n"));
-        assert!(svg.contains("a &amp; b"));
-        assert_eq!(svg.matches("<rect x=").count(), 1);
-        assert!(!svg.contains("NaN") && !svg.contains("inf"));
-        assert_eq!(nice_step(4.0), 1.0);
-        assert_eq!(nice_step(0.04), 0.01);
-        assert_eq!(nice_step(30.0), 10.0);
-    }
 }

@@ -17,6 +17,7 @@
 //! | LM010 | warning | unknown landmark name (ignored) |
 //! | LM011 | warning | non-canonical spelling of a landmark name |
 //! | LM012 | error | duplicate landmark name |
+//! | LM013 | error | coordinates in a body's frame (`body` column: a model palpation for `base --palpation`) |
 //! | LM020 | error | landmark(s) missing at a level that is present |
 //! | LM021 | error | level missing inside the run of levels |
 //! | LM022 | error | no S1 (the run must end at the sacrum) |
@@ -218,10 +219,50 @@ fn line_from_error(e: &crate::Error) -> Option<usize> {
 
 /// Check raw file content (names, duplicates, units, frame, then the set).
 pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
+    // Names, body frames and the first line of each landmark.
+    let (mut findings, lines, seen) = name_findings(raw);
+    // A landmark given more than once.
+    findings.extend(duplicate_findings(&seen));
+    // Units and frame: declared, detected, contradicted.
+    let det = raw.detect();
+    findings.extend(detection_findings(raw, &det));
+    // The set itself, once units and frame are known.
+    let set = raw.build_set(&det);
+    let levels = set.levels();
+    findings.extend(check_completeness(&set, &lines));
+    if det.units.is_some() && det.frame.is_some() {
+        findings.extend(check_set(&set, &lines));
+    }
+    CheckReport {
+        file: raw.path.display().to_string(),
+        findings,
+        detection: Some(det),
+        levels,
+    }
+}
+
+/// Lines of each landmark as read (every occurrence).
+type Occurrences = BTreeMap<LandmarkId, Vec<Option<usize>>>;
+
+/// Findings on the names (LM010, LM011) and body frames (LM013); the first
+/// line of each landmark and every line it occurs on.
+fn name_findings(raw: &RawLandmarks) -> (Vec<Finding>, BTreeMap<LandmarkId, usize>, Occurrences) {
     let mut out = Vec::new();
     let mut lines: BTreeMap<LandmarkId, usize> = BTreeMap::new();
-    let mut seen: BTreeMap<LandmarkId, Vec<Option<usize>>> = BTreeMap::new();
+    let mut seen: Occurrences = BTreeMap::new();
     for p in &raw.points {
+        if let Some(b) = &p.body {
+            out.push(Finding {
+                code: "LM013".into(),
+                severity: Severity::Error,
+                landmarks: vec![p.name.clone()],
+                message: format!(
+                    "`{}` is given in the frame of body `{b}`: a palpation of a model (base --palpation), not a patient's landmark set",
+                    p.name
+                ),
+                line: p.line,
+            });
+        }
         match p.id {
             None => out.push(Finding {
                 code: "LM010".into(),
@@ -260,7 +301,13 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
             }
         }
     }
-    for (i, ls) in &seen {
+    (out, lines, seen)
+}
+
+/// LM012: a landmark given more than once.
+fn duplicate_findings(seen: &Occurrences) -> Vec<Finding> {
+    let mut out = Vec::new();
+    for (i, ls) in seen {
         if ls.len() > 1 {
             let where_: Vec<String> = ls
                 .iter()
@@ -279,7 +326,12 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
             });
         }
     }
-    let det = raw.detect();
+    out
+}
+
+/// Units and frame findings (LM002-LM008) from the detection.
+fn detection_findings(raw: &RawLandmarks, det: &Detection) -> Vec<Finding> {
+    let mut out = Vec::new();
     let file_level = |code: &str, sev: Severity, msg: String| Finding {
         code: code.into(),
         severity: sev,
@@ -352,20 +404,7 @@ pub fn check_raw(raw: &RawLandmarks) -> CheckReport {
             format!("frame not declared; detected: {}", det.frame_evidence),
         ));
     }
-    let set = raw.build_set(&det);
-    let levels = set.levels();
-    let usable = det.units.is_some() && det.frame.is_some();
-    let mut findings = out;
-    findings.extend(check_completeness(&set, &lines));
-    if usable {
-        findings.extend(check_set(&set, &lines));
-    }
-    CheckReport {
-        file: raw.path.display().to_string(),
-        findings,
-        detection: Some(det),
-        levels,
-    }
+    out
 }
 
 /// Completeness against the protocol: levels, contiguity, S1, landmarks.

@@ -60,6 +60,10 @@ pub struct RawPoint {
     pub xyz: [f64; 3],
     /// 1-based line in the file, when known.
     pub line: Option<usize>,
+    /// The body whose frame the coordinates are in (CSV `body` column:
+    /// a modeller's palpation of a model, `base --palpation`); `None`:
+    /// the file's frame.
+    pub body: Option<String>,
 }
 
 /// A landmark file's content before validation.
@@ -215,18 +219,35 @@ impl CsvHeader {
     }
 }
 
-/// The column header: (has operator columns, number of fields).
-fn csv_columns(fields: &[&str], line: &str, line_no: usize, path: &Path) -> Result<(bool, usize)> {
+/// The CSV columns: operator/repetition columns, a `body` column, and the
+/// number of fields.
+#[derive(Debug, Clone, Copy)]
+struct CsvColumns {
+    with_op: bool,
+    with_body: bool,
+    n: usize,
+}
+
+/// The column header.
+fn csv_columns(fields: &[&str], line: &str, line_no: usize, path: &Path) -> Result<CsvColumns> {
     let lower: Vec<String> = fields.iter().map(|f| f.to_ascii_lowercase()).collect();
     let lower: Vec<&str> = lower.iter().map(String::as_str).collect();
+    let cols = |with_op, with_body, n| {
+        Ok(CsvColumns {
+            with_op,
+            with_body,
+            n,
+        })
+    };
     match lower.as_slice() {
-        ["name", "x", "y", "z"] => Ok((false, 4)),
-        ["operator", "repetition", "name", "x", "y", "z"] => Ok((true, 6)),
+        ["name", "x", "y", "z"] => cols(false, false, 4),
+        ["operator", "repetition", "name", "x", "y", "z"] => cols(true, false, 6),
+        ["name", "body", "x", "y", "z"] => cols(false, true, 5),
         _ => Err(Error::parse(
             path,
             format!("line {line_no}"),
             format!(
-                "expected the header `name,x,y,z` or `operator,repetition,name,x,y,z`, found `{line}`"
+                "expected the header `name,x,y,z`, `operator,repetition,name,x,y,z` or `name,body,x,y,z` (coordinates in that body's frame), found `{line}`"
             ),
         )),
     }
@@ -235,13 +256,13 @@ fn csv_columns(fields: &[&str], line: &str, line_no: usize, path: &Path) -> Resu
 /// One landmark row: its palpation (operator, repetition) and the point.
 fn csv_row(
     fields: &[&str],
-    with_op: bool,
+    cols: CsvColumns,
     header: &CsvHeader,
     line_no: usize,
     path: &Path,
 ) -> Result<((String, u32), RawPoint)> {
     let err = |msg: String| Error::parse(path, format!("line {line_no}"), msg);
-    let (key, rest) = if with_op {
+    let (key, rest) = if cols.with_op {
         let rep: u32 = fields[1].parse().map_err(|_| {
             err(format!(
                 "column `repetition`: expected a positive integer, found `{}`",
@@ -260,6 +281,14 @@ fn csv_row(
     if name.is_empty() {
         return Err(err("column `name`: empty landmark name".into()));
     }
+    let (body, rest) = if cols.with_body {
+        if rest[1].is_empty() {
+            return Err(err("column `body`: empty body name".into()));
+        }
+        (Some(rest[1].to_string()), &rest[1..])
+    } else {
+        (None, rest)
+    };
     let x = parse_number(rest[1], path, line_no, "x")?;
     let y = parse_number(rest[2], path, line_no, "y")?;
     let z = parse_number(rest[3], path, line_no, "z")?;
@@ -270,6 +299,7 @@ fn csv_row(
         name,
         xyz: [x, y, z],
         line: Some(line_no),
+        body,
     };
     Ok((key, point))
 }
@@ -277,8 +307,8 @@ fn csv_row(
 /// Parse a landmark CSV (see the module docs).
 pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
     let mut header = CsvHeader::default();
-    let mut columns: Option<(bool, usize)> = None; // (has operator columns, n fields)
-                                                   // Palpations in order of first appearance.
+    let mut columns: Option<CsvColumns> = None;
+    // Palpations in order of first appearance.
     let mut groups: Vec<((String, u32), Vec<RawPoint>)> = Vec::new();
     for (i, raw_line) in strip_bom(text).lines().enumerate() {
         let line_no = i + 1;
@@ -292,25 +322,26 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
         }
         let mut fields: Vec<&str> = line.split(',').map(strip_quotes).collect();
         // Trailing empty cells (spreadsheet exports write `a,b,c,`) are not fields.
-        let keep = columns.map(|(_, n)| n).unwrap_or(1);
+        let keep = columns.map(|c| c.n).unwrap_or(1);
         while fields.len() > keep && fields.last().is_some_and(|f| f.is_empty()) {
             fields.pop();
         }
-        let Some((with_op, n)) = columns else {
+        let Some(cols) = columns else {
             columns = Some(csv_columns(&fields, line, line_no, path)?);
             continue;
         };
-        if fields.len() != n {
+        if fields.len() != cols.n {
             return Err(Error::parse(
                 path,
                 format!("line {line_no}"),
                 format!(
-                    "expected {n} comma-separated fields, found {}",
+                    "expected {} comma-separated fields, found {}",
+                    cols.n,
                     fields.len()
                 ),
             ));
         }
-        let (key, point) = csv_row(&fields, with_op, &header, line_no, path)?;
+        let (key, point) = csv_row(&fields, cols, &header, line_no, path)?;
         match groups.iter_mut().find(|(k, _)| *k == key) {
             Some((_, v)) => v.push(point),
             None => groups.push((key, vec![point])),
@@ -593,6 +624,7 @@ fn trc_points(
             canonical: parsed.map(|p| p.1).unwrap_or(false),
             xyz: [st.sum[0] / n, st.sum[1] / n, st.sum[2] / n],
             line: st.first_line,
+            body: None,
         });
     }
     Ok((points, max_spread))
@@ -702,6 +734,7 @@ pub fn parse_json(text: &str, path: &Path) -> Result<Vec<Palpation>> {
             canonical: parsed.map(|p| p.1).unwrap_or(false),
             name,
             xyz,
+            body: None,
         });
     }
     if points.is_empty() {
@@ -763,6 +796,16 @@ impl RawLandmarks {
                 .line
                 .map(|l| format!("line {l}"))
                 .unwrap_or_else(|| format!("landmark `{}`", p.name));
+            if let Some(b) = &p.body {
+                return Err(Error::parse(
+                    &self.path,
+                    loc,
+                    format!(
+                        "`{}` is given in the frame of body `{b}` (a `body` column): that is a palpation of a model for `base --palpation`, not a patient's landmark set",
+                        p.name
+                    ),
+                ));
+            }
             let Some(id) = p.id else {
                 return Err(Error::parse(
                     &self.path,

@@ -12,6 +12,7 @@
 //! | [`synth`] | synthetic landmark sets along a parametric spine curve |
 //! | [`check`] | `osim-spine check`: findings with stable `LM0xx` codes |
 //! | [`stats`] | ICC(2,1), Shapiro-Wilk, Friedman / Skillings-Mack, Nemenyi |
+//! | [`metrics`] | spine shape from a set: Cobb angle, lordosis, kyphosis, apex, curve fits |
 //!
 //! Internally a set is in metres in the OpenSim frame (x anterior, y
 //! superior, z right); the source's declared and detected units/frame are
@@ -21,6 +22,7 @@ pub mod check;
 pub mod detect;
 pub mod frames;
 pub mod io;
+pub mod metrics;
 pub mod stats;
 pub mod synth;
 

@@ -47,29 +47,7 @@ fn qnorm(p: f64) -> f64 {
     std_normal().inverse_cdf(p.clamp(0.0, 1.0))
 }
 
-/// Quantile of `x` at probability `p` (R's default, type 7). `None` if empty
-/// or containing NaN.
-pub fn quantile(x: &[f64], p: f64) -> Option<f64> {
-    if x.is_empty() || x.iter().any(|v| v.is_nan()) {
-        return None;
-    }
-    let mut v = x.to_vec();
-    v.sort_by(f64::total_cmp);
-    let h = (v.len() - 1) as f64 * p.clamp(0.0, 1.0);
-    let lo = h.floor() as usize;
-    let hi = h.ceil() as usize;
-    Some(v[lo] + (h - lo as f64) * (v[hi] - v[lo]))
-}
-
-/// Median (R type 7).
-pub fn median(x: &[f64]) -> Option<f64> {
-    quantile(x, 0.5)
-}
-
-/// Interquartile range (R's `IQR`, type 7).
-pub fn iqr(x: &[f64]) -> Option<f64> {
-    Some(quantile(x, 0.75)? - quantile(x, 0.25)?)
-}
+pub use crate::util::quantiles::{iqr, median, quantile};
 
 /// Composite Simpson integral of `f` on `[a, b]` with `n` (even) intervals.
 fn simpson(f: impl Fn(f64) -> f64, a: f64, b: f64, n: usize) -> f64 {
@@ -542,18 +520,6 @@ pub fn nemenyi_many_one(y: &[Vec<Option<f64>>]) -> Result<Vec<ManyOne>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn quantiles_match_r_type_7() {
-        // R: quantile(c(1, 2, 4, 7, 11), c(.25, .5, .75)) -> 2 4 7; IQR = 5
-        let x = [7.0, 1.0, 11.0, 2.0, 4.0];
-        assert_eq!(quantile(&x, 0.25), Some(2.0));
-        assert_eq!(median(&x), Some(4.0));
-        assert_eq!(iqr(&x), Some(5.0));
-        // Interpolated: quantile(1:4, .25) = 1.75
-        assert_eq!(quantile(&[1.0, 2.0, 3.0, 4.0], 0.25), Some(1.75));
-        assert_eq!(median(&[]), None);
-    }
 
     #[test]
     fn midranks_handle_ties() {

@@ -47,10 +47,6 @@ impl EdgeReport {
             && self.non_manifold_edges.is_empty()
             && self.degenerate_triangles.is_empty()
     }
-    /// No edge has more than two triangles.
-    pub fn is_edge_manifold(&self) -> bool {
-        self.non_manifold_edges.is_empty()
-    }
 }
 
 /// Principal axes of a point set (covariance of the points).

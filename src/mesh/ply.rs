@@ -81,6 +81,38 @@ enum Fmt {
 
 /// Parse PLY bytes; `name` is used in error messages.
 pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
+    // The `ply` magic line, then the header text up to `end_header`.
+    let (header, body_start) = split_header(bytes, name)?;
+    // Format and element declarations with their properties.
+    let (fmt, elements) = read_header(header, name)?;
+    let body = &bytes[body_start..];
+    // Refuse declared counts the body cannot hold before allocating from them.
+    check_counts(&elements, fmt, body.len(), name)?;
+    let mut src = match fmt {
+        Fmt::Ascii => Source::Ascii(AsciiSrc::new(
+            body,
+            name,
+            super::line_of(bytes, body_start),
+        )?),
+        _ => Source::Bin {
+            bytes: body,
+            pos: 0,
+            be: fmt == Fmt::Be,
+        },
+    };
+    // Every element's instances: the vertex coordinates and face index lists.
+    let (vertices, faces) = read_body(&elements, &mut src, name)?;
+    // Faces checked against the vertex count and triangulated as fans.
+    let triangles = triangulate(faces, vertices.len(), name)?;
+    Ok(TriMesh {
+        vertices,
+        triangles,
+    })
+}
+
+/// The header text (from the start to `end_header`) and where the body
+/// starts (after the `end_header` line).
+fn split_header<'a>(bytes: &'a [u8], name: &Path) -> Result<(&'a str, usize)> {
     if !bytes.starts_with(b"ply\n") && !bytes.starts_with(b"ply\r\n") {
         return Err(Error::parse(
             name,
@@ -97,6 +129,12 @@ pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
         .unwrap_or(bytes.len());
     let header = std::str::from_utf8(&bytes[..end])
         .map_err(|_| Error::parse(name, "header", "header is not ASCII text"))?;
+    Ok((header, body_start))
+}
+
+/// The body format and the declared elements of the header (lines after
+/// the magic line).
+fn read_header(header: &str, name: &Path) -> Result<(Fmt, Vec<Element>)> {
     let mut fmt = None;
     let mut elements: Vec<Element> = Vec::new();
     for (i, line) in header.lines().enumerate().skip(1) {
@@ -105,73 +143,13 @@ pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
         let t: Vec<&str> = line.split_whitespace().collect();
         match t.first().copied() {
             None | Some("comment") | Some("obj_info") => {}
-            Some("format") => {
-                fmt = Some(match (t.get(1).copied(), t.get(2).copied()) {
-                    (Some("ascii"), Some("1.0")) => Fmt::Ascii,
-                    (Some("binary_little_endian"), Some("1.0")) => Fmt::Le,
-                    (Some("binary_big_endian"), Some("1.0")) => Fmt::Be,
-                    _ => {
-                        return Err(Error::parse(
-                            name,
-                            loc(),
-                            format!("unsupported format line `{line}`"),
-                        ))
-                    }
-                })
-            }
-            Some("element") => {
-                let (Some(n), Some(c)) = (t.get(1), t.get(2)) else {
-                    return Err(Error::parse(
-                        name,
-                        loc(),
-                        "`element` needs a name and a count",
-                    ));
-                };
-                let count = c.parse::<usize>().map_err(|_| {
-                    Error::parse(
-                        name,
-                        loc(),
-                        format!("element count `{c}` is not an integer"),
-                    )
-                })?;
-                elements.push(Element {
-                    name: n.to_string(),
-                    count,
-                    props: Vec::new(),
-                    line: ln,
-                });
-            }
+            Some("format") => fmt = Some(read_format(&t, line, name, ln)?),
+            Some("element") => elements.push(read_element(&t, name, ln)?),
             Some("property") => {
                 let el = elements
                     .last_mut()
                     .ok_or_else(|| Error::parse(name, loc(), "`property` before any `element`"))?;
-                let ty = |s: Option<&&str>| -> Result<Scalar> {
-                    let s = s.copied().unwrap_or("");
-                    Scalar::parse(s).ok_or_else(|| {
-                        Error::parse(name, loc(), format!("unknown property type `{s}`"))
-                    })
-                };
-                if t.get(1) == Some(&"list") {
-                    let ct = ty(t.get(2))?;
-                    let it = ty(t.get(3))?;
-                    if !ct.is_int() {
-                        return Err(Error::parse(
-                            name,
-                            loc(),
-                            "list count type must be an integer",
-                        ));
-                    }
-                    let pn = t
-                        .get(4)
-                        .ok_or_else(|| Error::parse(name, loc(), "list property needs a name"))?;
-                    el.props.push(Prop::List(pn.to_string(), ct, it));
-                } else {
-                    let st = ty(t.get(1))?;
-                    let pn = t
-                        .get(2)
-                        .ok_or_else(|| Error::parse(name, loc(), "property needs a name"))?;
-                    el.props.push(Prop::Scalar(pn.to_string(), st));
-                }
+                el.props.push(read_property(&t, name, ln)?);
             }
             Some(other) => {
                 let shown: String = other.chars().take(20).collect();
@@ -184,12 +162,87 @@ pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
         }
     }
     let fmt = fmt.ok_or_else(|| Error::parse(name, "header", "no `format` line"))?;
-    let body = &bytes[body_start..];
-    let body_line = super::line_of(bytes, body_start);
-    // Every instance takes at least one byte (ASCII: a line; binary: its
-    // fixed-size part): refuse counts the body cannot hold.
+    Ok((fmt, elements))
+}
+
+/// A `format` line (tokens `t`) at line `ln`.
+fn read_format(t: &[&str], line: &str, name: &Path, ln: usize) -> Result<Fmt> {
+    Ok(match (t.get(1).copied(), t.get(2).copied()) {
+        (Some("ascii"), Some("1.0")) => Fmt::Ascii,
+        (Some("binary_little_endian"), Some("1.0")) => Fmt::Le,
+        (Some("binary_big_endian"), Some("1.0")) => Fmt::Be,
+        _ => {
+            return Err(Error::parse(
+                name,
+                format!("line {ln}"),
+                format!("unsupported format line `{line}`"),
+            ))
+        }
+    })
+}
+
+/// An `element NAME COUNT` line (tokens `t`) at line `ln`, without properties.
+fn read_element(t: &[&str], name: &Path, ln: usize) -> Result<Element> {
+    let loc = || format!("line {ln}");
+    let (Some(n), Some(c)) = (t.get(1), t.get(2)) else {
+        return Err(Error::parse(
+            name,
+            loc(),
+            "`element` needs a name and a count",
+        ));
+    };
+    let count = c.parse::<usize>().map_err(|_| {
+        Error::parse(
+            name,
+            loc(),
+            format!("element count `{c}` is not an integer"),
+        )
+    })?;
+    Ok(Element {
+        name: n.to_string(),
+        count,
+        props: Vec::new(),
+        line: ln,
+    })
+}
+
+/// A `property TYPE NAME` or `property list COUNT ITEM NAME` line (tokens
+/// `t`) at line `ln`.
+fn read_property(t: &[&str], name: &Path, ln: usize) -> Result<Prop> {
+    let loc = || format!("line {ln}");
+    let ty = |s: Option<&&str>| -> Result<Scalar> {
+        let s = s.copied().unwrap_or("");
+        Scalar::parse(s)
+            .ok_or_else(|| Error::parse(name, loc(), format!("unknown property type `{s}`")))
+    };
+    if t.get(1) == Some(&"list") {
+        let ct = ty(t.get(2))?;
+        let it = ty(t.get(3))?;
+        if !ct.is_int() {
+            return Err(Error::parse(
+                name,
+                loc(),
+                "list count type must be an integer",
+            ));
+        }
+        let pn = t
+            .get(4)
+            .ok_or_else(|| Error::parse(name, loc(), "list property needs a name"))?;
+        Ok(Prop::List(pn.to_string(), ct, it))
+    } else {
+        let st = ty(t.get(1))?;
+        let pn = t
+            .get(2)
+            .ok_or_else(|| Error::parse(name, loc(), "property needs a name"))?;
+        Ok(Prop::Scalar(pn.to_string(), st))
+    }
+}
+
+/// Every instance takes at least one byte (ASCII: a line; binary: its
+/// fixed-size part): refuse counts a body of `body_len` bytes cannot hold.
+fn check_counts(elements: &[Element], fmt: Fmt, body_len: usize, name: &Path) -> Result<()> {
     let mut min_total: u128 = 0;
-    for el in &elements {
+    for el in elements {
         let per: usize = if fmt == Fmt::Ascii {
             2
         } else {
@@ -204,115 +257,38 @@ pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
         };
         min_total += el.count as u128 * per as u128;
     }
-    if min_total > body.len() as u128 + 1 {
+    if min_total > body_len as u128 + 1 {
         return Err(Error::parse(
             name,
             "header",
             format!(
-                "declared element counts need at least {min_total} bytes but the body has {} \
-                 (truncated file or wrong counts)",
-                body.len()
+                "declared element counts need at least {min_total} bytes but the body has {body_len} \
+                 (truncated file or wrong counts)"
             ),
         ));
     }
-    let mut src = match fmt {
-        Fmt::Ascii => Source::Ascii(AsciiSrc::new(body, name, body_line)?),
-        _ => Source::Bin {
-            bytes: body,
-            pos: 0,
-            be: fmt == Fmt::Be,
-        },
-    };
+    Ok(())
+}
+
+/// A face's vertex indices and the face's instance number.
+type Face = (Vec<i64>, usize);
+
+/// Read the instances of every element in order: the vertices (of the
+/// `vertex` element) and the index lists of the `face` element.
+fn read_body(
+    elements: &[Element],
+    src: &mut Source<'_>,
+    name: &Path,
+) -> Result<(Vec<Point3<f64>>, Vec<Face>)> {
     let mut vertices: Option<Vec<Point3<f64>>> = None;
-    let mut faces: Vec<(Vec<i64>, usize)> = Vec::new();
-    for el in &elements {
-        let xyz: Option<[usize; 3]> = if el.name == "vertex" {
-            let pos = |n: &str| {
-                el.props
-                    .iter()
-                    .position(|p| matches!(p, Prop::Scalar(pn, _) if pn == n))
-            };
-            match (pos("x"), pos("y"), pos("z")) {
-                (Some(a), Some(b), Some(c)) => Some([a, b, c]),
-                _ => {
-                    return Err(Error::parse(
-                        name,
-                        format!("line {}", el.line),
-                        "element `vertex` lacks scalar x, y, z properties",
-                    ))
-                }
-            }
-        } else {
-            None
-        };
-        let face_prop = if el.name == "face" {
-            Some(
-                el.props
-                    .iter()
-                    .position(|p| {
-                        matches!(p, Prop::List(pn, _, _) if pn == "vertex_indices" || pn == "vertex_index")
-                    })
-                    .ok_or_else(|| {
-                        Error::parse(
-                            name,
-                            format!("line {}", el.line),
-                            "element `face` lacks a `vertex_indices` list property",
-                        )
-                    })?,
-            )
-        } else {
-            None
-        };
+    let mut faces: Vec<Face> = Vec::new();
+    for el in elements {
+        let xyz = vertex_props(el, name)?;
+        let face_prop = face_prop(el, name)?;
         let mut verts = Vec::new();
         for k in 0..el.count {
-            let loc = || format!("element {} {k}", el.name);
-            src.start_instance(name, &loc())?;
-            let mut vals = [0.0f64; 3];
-            for (j, p) in el.props.iter().enumerate() {
-                match p {
-                    Prop::Scalar(_, s) => {
-                        let v = src.scalar(*s, name, &loc())?;
-                        if let Some(xyz) = xyz {
-                            if let Some(c) = xyz.iter().position(|&q| q == j) {
-                                vals[c] = v;
-                            }
-                        }
-                    }
-                    Prop::List(_, c, it) => {
-                        let n = src.scalar(*c, name, &loc())?;
-                        if !(0.0..=1e6).contains(&n) {
-                            return Err(Error::parse(
-                                name,
-                                loc(),
-                                format!("list length {n} is not plausible"),
-                            ));
-                        }
-                        let mut list = Vec::new();
-                        for _ in 0..n as usize {
-                            list.push(src.scalar(*it, name, &loc())?);
-                        }
-                        if face_prop == Some(j) {
-                            if !it.is_int() {
-                                return Err(Error::parse(
-                                    name,
-                                    loc(),
-                                    "vertex_indices must have an integer type",
-                                ));
-                            }
-                            faces.push((list.iter().map(|&x| x as i64).collect(), k));
-                        }
-                    }
-                }
-            }
-            src.end_instance(name, &loc())?;
+            let vals = read_instance(el, k, xyz, face_prop, src, &mut faces, name)?;
             if xyz.is_some() {
-                if !vals.iter().all(|v| v.is_finite()) {
-                    return Err(Error::parse(
-                        name,
-                        loc(),
-                        format!("non-finite coordinate {vals:?}"),
-                    ));
-                }
                 verts.push(Point3::from(vals));
             }
         }
@@ -321,7 +297,115 @@ pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
         }
     }
     let vertices = vertices.ok_or_else(|| Error::parse(name, "header", "no `vertex` element"))?;
-    let n = vertices.len() as i64;
+    Ok((vertices, faces))
+}
+
+/// Positions of the `x`, `y`, `z` properties of the `vertex` element
+/// (`None` for other elements).
+fn vertex_props(el: &Element, name: &Path) -> Result<Option<[usize; 3]>> {
+    if el.name != "vertex" {
+        return Ok(None);
+    }
+    let pos = |n: &str| {
+        el.props
+            .iter()
+            .position(|p| matches!(p, Prop::Scalar(pn, _) if pn == n))
+    };
+    match (pos("x"), pos("y"), pos("z")) {
+        (Some(a), Some(b), Some(c)) => Ok(Some([a, b, c])),
+        _ => Err(Error::parse(
+            name,
+            format!("line {}", el.line),
+            "element `vertex` lacks scalar x, y, z properties",
+        )),
+    }
+}
+
+/// Position of the `vertex_indices` list of the `face` element (`None` for
+/// other elements).
+fn face_prop(el: &Element, name: &Path) -> Result<Option<usize>> {
+    if el.name != "face" {
+        return Ok(None);
+    }
+    el.props
+        .iter()
+        .position(
+            |p| matches!(p, Prop::List(pn, _, _) if pn == "vertex_indices" || pn == "vertex_index"),
+        )
+        .ok_or_else(|| {
+            Error::parse(
+                name,
+                format!("line {}", el.line),
+                "element `face` lacks a `vertex_indices` list property",
+            )
+        })
+        .map(Some)
+}
+
+/// Instance `k` of `el`: its coordinates when `xyz` names them (checked
+/// finite), its face list pushed onto `faces` when `face_prop` names it.
+fn read_instance(
+    el: &Element,
+    k: usize,
+    xyz: Option<[usize; 3]>,
+    face_prop: Option<usize>,
+    src: &mut Source<'_>,
+    faces: &mut Vec<Face>,
+    name: &Path,
+) -> Result<[f64; 3]> {
+    let loc = || format!("element {} {k}", el.name);
+    src.start_instance(name, &loc())?;
+    let mut vals = [0.0f64; 3];
+    for (j, p) in el.props.iter().enumerate() {
+        match p {
+            Prop::Scalar(_, s) => {
+                let v = src.scalar(*s, name, &loc())?;
+                if let Some(xyz) = xyz {
+                    if let Some(c) = xyz.iter().position(|&q| q == j) {
+                        vals[c] = v;
+                    }
+                }
+            }
+            Prop::List(_, c, it) => {
+                let n = src.scalar(*c, name, &loc())?;
+                if !(0.0..=1e6).contains(&n) {
+                    return Err(Error::parse(
+                        name,
+                        loc(),
+                        format!("list length {n} is not plausible"),
+                    ));
+                }
+                let mut list = Vec::new();
+                for _ in 0..n as usize {
+                    list.push(src.scalar(*it, name, &loc())?);
+                }
+                if face_prop == Some(j) {
+                    if !it.is_int() {
+                        return Err(Error::parse(
+                            name,
+                            loc(),
+                            "vertex_indices must have an integer type",
+                        ));
+                    }
+                    faces.push((list.iter().map(|&x| x as i64).collect(), k));
+                }
+            }
+        }
+    }
+    src.end_instance(name, &loc())?;
+    if xyz.is_some() && !vals.iter().all(|v| v.is_finite()) {
+        return Err(Error::parse(
+            name,
+            loc(),
+            format!("non-finite coordinate {vals:?}"),
+        ));
+    }
+    Ok(vals)
+}
+
+/// Triangles of the faces (fans), each index checked against the `n_vertices`.
+fn triangulate(faces: Vec<Face>, n_vertices: usize, name: &Path) -> Result<Vec<[u32; 3]>> {
+    let n = n_vertices as i64;
     let mut triangles = Vec::new();
     for (f, k) in faces {
         if f.len() < 3 {
@@ -342,10 +426,7 @@ pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
             triangles.push([f[0] as u32, f[j] as u32, f[j + 1] as u32]);
         }
     }
-    Ok(TriMesh {
-        vertices,
-        triangles,
-    })
+    Ok(triangles)
 }
 
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
@@ -580,5 +661,34 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("h.ply") && e.contains("declared"), "{e}");
+    }
+
+    #[test]
+    fn header_steps_read_alone() {
+        let bytes = b"ply\nformat binary_big_endian 1.0\ncomment x\nelement vertex 2\n\
+                      property float x\nproperty float y\nproperty double z\n\
+                      element face 1\nproperty list uchar int vertex_indices\nend_header\nBODY";
+        let name = Path::new("s.ply");
+        let (header, body_start) = split_header(bytes, name).unwrap();
+        assert_eq!(&bytes[body_start..], b"BODY");
+        let (fmt, elements) = read_header(header, name).unwrap();
+        assert_eq!(fmt, Fmt::Be);
+        assert_eq!(elements.len(), 2);
+        assert_eq!(
+            (elements[0].name.as_str(), elements[0].count),
+            ("vertex", 2)
+        );
+        assert_eq!(vertex_props(&elements[0], name).unwrap(), Some([0, 1, 2]));
+        assert_eq!(face_prop(&elements[1], name).unwrap(), Some(0));
+        // 2 vertices of 4 + 4 + 8 bytes and a face count byte: 33 bytes at least
+        assert!(check_counts(&elements, fmt, 33, name).is_ok());
+        let e = check_counts(&elements, fmt, 20, name)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("at least 33 bytes"), "{e}");
+        // a polygon becomes a fan; an index past the vertices is refused
+        let tris = triangulate(vec![(vec![0, 1, 2, 3], 0)], 4, name).unwrap();
+        assert_eq!(tris, vec![[0, 1, 2], [0, 2, 3]]);
+        assert!(triangulate(vec![(vec![0, 1, 4], 0)], 4, name).is_err());
     }
 }

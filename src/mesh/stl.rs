@@ -306,12 +306,6 @@ pub fn to_binary(mesh: &TriMesh) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-/// Write ASCII STL (lossless) atomically.
-pub fn write_ascii(path: &Path, mesh: &TriMesh) -> Result<()> {
-    let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh");
-    crate::util::write_atomic(path, to_ascii(mesh, name).as_bytes())
-}
-
 /// Write binary STL (float32) atomically.
 pub fn write_binary(path: &Path, mesh: &TriMesh) -> Result<()> {
     crate::util::write_atomic(path, &to_binary(mesh)?)

@@ -174,11 +174,6 @@ impl Document {
         &self.tree
     }
 
-    /// The XML tree, mutable.
-    pub fn tree_mut(&mut self) -> &mut XmlTree {
-        &mut self.tree
-    }
-
     /// Serialise (deterministic, tab-indented).
     pub fn to_xml_string(&self) -> String {
         self.tree.to_xml_string()
@@ -347,11 +342,6 @@ impl Document {
         }
     }
 
-    /// Text of a property (direct child) of the Model element, trimmed.
-    pub fn model_property(&self, name: &str) -> Option<String> {
-        self.model_element().child_text(name)
-    }
-
     /// Set a property (direct child) of the Model element.
     pub fn set_model_property(&mut self, name: &str, text: impl Into<String>) {
         self.model_element_mut().set_child_text(name, text);
@@ -502,11 +492,6 @@ pub fn set_vec3(e: &mut Element, prop: &str, v: &Vector3<f64>) {
 /// Set a list-of-numbers property.
 pub fn set_numbers(e: &mut Element, prop: &str, v: &[f64]) {
     e.set_child_text(prop, fmt_numbers(v));
-}
-
-/// Set a bool property.
-pub fn set_bool(e: &mut Element, prop: &str, v: bool) {
-    e.set_child_text(prop, if v { "true" } else { "false" });
 }
 
 /// Numbers separated by single spaces.

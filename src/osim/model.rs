@@ -414,49 +414,60 @@ fn set_name(e: &Element) -> String {
         .unwrap_or_else(|| e.name.to_lowercase())
 }
 
+/// The model's length and force units: only meters and N are supported.
+fn read_units(m: &Element, cx: &Ctx) -> Result<(String, String)> {
+    let length_units = str_prop(m, "length_units").unwrap_or_else(|| "meters".into());
+    if !matches!(length_units.as_str(), "meters" | "m" | "meter") {
+        let at = m.child("length_units").unwrap_or(m);
+        return Err(cx.err(
+            at,
+            format!("length_units '{length_units}' is not supported: only meters (convert the model to meters first)"),
+        ));
+    }
+    let force_units = str_prop(m, "force_units").unwrap_or_else(|| "N".into());
+    if !matches!(force_units.as_str(), "N" | "newtons" | "Newtons") {
+        let at = m.child("force_units").unwrap_or(m);
+        return Err(cx.err(
+            at,
+            format!("force_units '{force_units}' is not supported: only N"),
+        ));
+    }
+    Ok((length_units, force_units))
+}
+
+/// No two objects of one `*Set` share a name.
+fn check_unique_names(m: &Element, cx: &Ctx) -> Result<()> {
+    for set in m.elements().filter(|e| e.name.ends_with("Set")) {
+        if let Some(objects) = set.child("objects") {
+            let mut seen: BTreeMap<&str, &Element> = BTreeMap::new();
+            for c in objects.elements() {
+                let n = c.name_attr();
+                if let Some(first) = seen.insert(n, c) {
+                    return Err(cx.err(
+                        c,
+                        format!(
+                            "duplicate name '{n}' in {} (first at line {})",
+                            set.name, first.line
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 impl Model {
     /// Build and validate the snapshot of a document.
     pub fn from_document(doc: &Document) -> Result<Model> {
         let file = doc.path();
         let cx = Ctx { file };
         let m = doc.model_element();
-        let length_units = str_prop(m, "length_units").unwrap_or_else(|| "meters".into());
-        if !matches!(length_units.as_str(), "meters" | "m" | "meter") {
-            let at = m.child("length_units").unwrap_or(m);
-            return Err(cx.err(
-                at,
-                format!("length_units '{length_units}' is not supported: only meters (convert the model to meters first)"),
-            ));
-        }
-        let force_units = str_prop(m, "force_units").unwrap_or_else(|| "N".into());
-        if !matches!(force_units.as_str(), "N" | "newtons" | "Newtons") {
-            let at = m.child("force_units").unwrap_or(m);
-            return Err(cx.err(
-                at,
-                format!("force_units '{force_units}' is not supported: only N"),
-            ));
-        }
+        // Units (meters, N only) and gravity.
+        let (length_units, force_units) = read_units(m, &cx)?;
         let gravity = vec3_or(m, "gravity", Vector3::new(0.0, -9.80665, 0.0), file)?;
-
         // Duplicate names within each set.
-        for set in m.elements().filter(|e| e.name.ends_with("Set")) {
-            if let Some(objects) = set.child("objects") {
-                let mut seen: BTreeMap<&str, &Element> = BTreeMap::new();
-                for c in objects.elements() {
-                    let n = c.name_attr();
-                    if let Some(first) = seen.insert(n, c) {
-                        return Err(cx.err(
-                            c,
-                            format!(
-                                "duplicate name '{n}' in {} (first at line {})",
-                                set.name, first.line
-                            ),
-                        ));
-                    }
-                }
-            }
-        }
-
+        check_unique_names(m, &cx)?;
         let mut model = Model {
             file: file.to_path_buf(),
             name: m.name_attr().to_string(),
@@ -477,6 +488,7 @@ impl Model {
             frames: BTreeMap::new(),
             coordinate_paths: BTreeMap::new(),
         };
+        // Ground and its attachments.
         model
             .frames
             .insert("/ground".into(), FrameNode::Body("ground".into()));
@@ -484,10 +496,45 @@ impl Model {
             model.ground.geometry = parse_geometry(g, &cx)?;
             model.ground.wrap_objects = parse_wraps(g, "ground", &cx)?;
         }
+        // Every offset frame of the model, found by path.
         let mut offset_frames: Vec<(OffsetFrame, &Element)> = Vec::new();
         collect_offset_frames(m, &mut Vec::new(), &cx, &mut offset_frames)?;
         let frame_table = FrameTable::new(&offset_frames);
+        // Bodies, then the parents of the offset frames once all frames are known.
+        model.read_bodies(m, &cx)?;
+        model.resolve_offset_frames(&offset_frames, &cx)?;
+        // Joints with their coordinates (names unique model-wide).
+        let jointset = model.read_joints(m, &cx, &frame_table)?;
+        model.check_unique_coordinates()?;
+        // Forces, markers, constraints.
+        let forceset = m
+            .child("ForceSet")
+            .map(set_name)
+            .unwrap_or_else(|| "forceset".into());
+        for f in objects(m, "ForceSet") {
+            let force = parse_force(f, &cx, &frame_table)?;
+            model.forces.push(force);
+        }
+        for mk in objects(m, "MarkerSet") {
+            model.markers.push(Marker {
+                name: mk.name_attr().to_string(),
+                socket_parent_frame: required_text(mk, "socket_parent_frame", &cx)?,
+                location: vec3_or(mk, "location", Vector3::zeros(), file)?,
+                fixed: bool_or(mk, "fixed", false, file)?,
+            });
+        }
+        for c in objects(m, "ConstraintSet") {
+            model.constraints.push(parse_constraint(c, &cx)?);
+        }
+        // Sockets resolve and the joint graph is a tree rooted at ground.
+        model.validate(m, &jointset, &forceset, &cx)?;
+        Ok(model)
+    }
 
+    /// The bodies of the BodySet (named, not `ground`, physical mass and
+    /// inertia), registered as frames.
+    fn read_bodies(&mut self, m: &Element, cx: &Ctx) -> Result<()> {
+        let file = cx.file;
         for b in objects(m, "BodySet") {
             let name = b.name_attr().to_string();
             if name.is_empty() {
@@ -519,12 +566,10 @@ impl Model {
                 return Err(cx.err(b, why));
             }
             let body_path = format!("/{}/{}", set_name(m.child("BodySet").unwrap_or(b)), name);
-            model
-                .frames
-                .insert(body_path, FrameNode::Body(name.clone()));
-            model.bodies.push(Body {
-                geometry: parse_geometry(b, &cx)?,
-                wrap_objects: parse_wraps(b, &name, &cx)?,
+            self.frames.insert(body_path, FrameNode::Body(name.clone()));
+            self.bodies.push(Body {
+                geometry: parse_geometry(b, cx)?,
+                wrap_objects: parse_wraps(b, &name, cx)?,
                 name,
                 mass,
                 mass_center,
@@ -532,17 +577,25 @@ impl Model {
                 line: b.line,
             });
         }
+        Ok(())
+    }
 
-        // Offset frames: resolve parents once all frames are known.
-        for (f, _) in &offset_frames {
-            model.frames.insert(
+    /// Register the offset frames, then resolve each one's parent socket
+    /// (parents may be offset frames themselves).
+    fn resolve_offset_frames(
+        &mut self,
+        offset_frames: &[(OffsetFrame, &Element)],
+        cx: &Ctx,
+    ) -> Result<()> {
+        for (f, _) in offset_frames {
+            self.frames.insert(
                 f.path.clone(),
                 FrameNode::Offset(String::new(), f.transform()),
             );
         }
         let mut resolved: Vec<(String, String)> = Vec::new();
-        for (f, el) in &offset_frames {
-            let parent = model
+        for (f, el) in offset_frames {
+            let parent = self
                 .resolve_socket(&f.path, &f.socket_parent)
                 .ok_or_else(|| {
                     cx.err(
@@ -556,59 +609,48 @@ impl Model {
             resolved.push((f.path.clone(), parent));
         }
         for (path, parent) in resolved {
-            if let Some(FrameNode::Offset(p, _)) = model.frames.get_mut(&path) {
+            if let Some(FrameNode::Offset(p, _)) = self.frames.get_mut(&path) {
                 *p = parent;
             }
         }
+        Ok(())
+    }
 
+    /// The joints of the JointSet and the paths of their coordinates;
+    /// returns the JointSet's path name.
+    fn read_joints(&mut self, m: &Element, cx: &Ctx, frame_table: &FrameTable) -> Result<String> {
         let jointset = m
             .child("JointSet")
             .map(set_name)
             .unwrap_or_else(|| "jointset".into());
         for j in objects(m, "JointSet") {
-            let joint = parse_joint(j, &format!("/{jointset}"), &cx, &frame_table)?;
+            let joint = parse_joint(j, &format!("/{jointset}"), cx, frame_table)?;
             for c in &joint.coordinates {
-                model.coordinate_paths.insert(
+                self.coordinate_paths.insert(
                     format!("/{jointset}/{}/{}", joint.name, c.name),
                     c.name.clone(),
                 );
             }
-            model.joints.push(joint);
+            self.joints.push(joint);
         }
-        // Coordinate names must be unique model-wide (OpenSim looks them up by name).
+        Ok(jointset)
+    }
+
+    /// Coordinate names must be unique model-wide (OpenSim looks them up by name).
+    fn check_unique_coordinates(&self) -> Result<()> {
         let mut coord_seen = BTreeSet::new();
-        for j in &model.joints {
+        for j in &self.joints {
             for c in &j.coordinates {
                 if !coord_seen.insert(c.name.clone()) {
                     return Err(Error::parse(
-                        file,
+                        &self.file,
                         format!("<Coordinate name=\"{}\"> (line {})", c.name, c.line),
                         format!("duplicate coordinate name '{}' (joint {})", c.name, j.name),
                     ));
                 }
             }
         }
-        let forceset = m
-            .child("ForceSet")
-            .map(set_name)
-            .unwrap_or_else(|| "forceset".into());
-        for f in objects(m, "ForceSet") {
-            let force = parse_force(f, &cx, &frame_table)?;
-            model.forces.push(force);
-        }
-        for mk in objects(m, "MarkerSet") {
-            model.markers.push(Marker {
-                name: mk.name_attr().to_string(),
-                socket_parent_frame: required_text(mk, "socket_parent_frame", &cx)?,
-                location: vec3_or(mk, "location", Vector3::zeros(), file)?,
-                fixed: bool_or(mk, "fixed", false, file)?,
-            });
-        }
-        for c in objects(m, "ConstraintSet") {
-            model.constraints.push(parse_constraint(c, &cx)?);
-        }
-        model.validate(m, &jointset, &forceset, &cx)?;
-        Ok(model)
+        Ok(())
     }
 
     /// Resolve a socket path written in the component at `owner_path` to
@@ -753,9 +795,52 @@ impl Model {
     }
 
     fn validate(&self, m: &Element, jointset: &str, forceset: &str, cx: &Ctx) -> Result<()> {
-        let file = cx.file;
+        // Joint frames resolve, and each body is the child of one joint.
+        let child_of = self.joint_parents(m, jointset, cx)?;
+        // Every body reaches ground through the joints (no cycles).
+        self.check_grounded(&child_of, cx)?;
+        // Force sockets, path points and wrap objects resolve.
+        let coords: BTreeSet<&str> = self.coordinates().map(|c| c.name.as_str()).collect();
+        self.check_force_sockets(m, forceset, &coords, cx)?;
+        // Marker frames and coupled coordinates resolve.
+        for (mk, el) in self.markers.iter().zip(objects(m, "MarkerSet")) {
+            if self
+                .resolve_socket(&format!("/markerset/{}", mk.name), &mk.socket_parent_frame)
+                .is_none()
+            {
+                return Err(cx.err(
+                    el,
+                    format!("socket_parent_frame '{}' does not name a frame in the model (dangling socket)", mk.socket_parent_frame),
+                ));
+            }
+        }
+        for (c, el) in self.constraints.iter().zip(objects(m, "ConstraintSet")) {
+            if let Constraint::CoordinateCoupler {
+                independent,
+                dependent,
+                ..
+            } = c
+            {
+                for n in independent.iter().chain(std::iter::once(dependent)) {
+                    if !coords.contains(n.as_str()) {
+                        return Err(cx.err(el, format!("coordinate '{n}' is not in the model")));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Body -> (parent body, joint) of every joint, its sockets resolved:
+    /// no joint connects a body to itself or has ground as child, and no
+    /// body is the child of two joints.
+    fn joint_parents(
+        &self,
+        m: &Element,
+        jointset: &str,
+        cx: &Ctx,
+    ) -> Result<BTreeMap<String, (String, String)>> {
         let joint_els: Vec<&Element> = objects(m, "JointSet").collect();
-        // Joint frames resolve, and the joint graph is a tree rooted at ground.
         let mut child_of: BTreeMap<String, (String, String)> = BTreeMap::new(); // child -> (parent, joint)
         for (j, el) in self.joints.iter().zip(joint_els.iter()) {
             let owner = format!("/{jointset}/{}", j.name);
@@ -793,6 +878,16 @@ impl Model {
                 ));
             }
         }
+        Ok(child_of)
+    }
+
+    /// Every body has a joint path to ground, and none is its own ancestor.
+    fn check_grounded(
+        &self,
+        child_of: &BTreeMap<String, (String, String)>,
+        cx: &Ctx,
+    ) -> Result<()> {
+        let file = cx.file;
         // Bodies already shown to reach ground: each walk stops at one, so
         // the check is linear in the body count (a chain is not quadratic).
         let mut grounded: BTreeSet<String> = BTreeSet::new();
@@ -824,9 +919,19 @@ impl Model {
             }
             grounded.extend(seen);
         }
-        // Force sockets.
+        Ok(())
+    }
+
+    /// Bushing frames, muscle path points (frames and coordinates) and the
+    /// wrap objects of PathWraps resolve.
+    fn check_force_sockets(
+        &self,
+        m: &Element,
+        forceset: &str,
+        coords: &BTreeSet<&str>,
+        cx: &Ctx,
+    ) -> Result<()> {
         let force_els: Vec<&Element> = objects(m, "ForceSet").collect();
-        let coords: BTreeSet<&str> = self.coordinates().map(|c| c.name.as_str()).collect();
         let wraps: BTreeSet<&str> = self
             .bodies
             .iter()
@@ -855,74 +960,62 @@ impl Model {
                     check("socket_frame1", &b.socket_frame1)?;
                     check("socket_frame2", &b.socket_frame2)?;
                 }
-                Force::Muscle(mu) => {
-                    for p in &mu.points {
-                        let pp = format!("{owner}/path/{}", p.name);
-                        if self.resolve_socket(&pp, &p.socket_parent_frame).is_none() {
-                            return Err(cx.err(
-                                el,
-                                format!(
-                                    "path point '{}': socket_parent_frame '{}' does not name a frame in the model (dangling socket)",
-                                    p.name, p.socket_parent_frame
-                                ),
-                            ));
-                        }
-                        let cs: Vec<&String> = match &p.kind {
-                            PathPointKind::Fixed => vec![],
-                            PathPointKind::Conditional { coordinate, .. } => vec![coordinate],
-                            PathPointKind::Moving { x, y, z } => [x, y, z]
-                                .iter()
-                                .filter_map(|o| o.as_ref().map(|b| &b.1))
-                                .collect(),
-                        };
-                        for c in cs {
-                            let name = c.rsplit('/').next().unwrap_or(c);
-                            if !coords.contains(name) {
-                                return Err(cx.err(
-                                    el,
-                                    format!("path point '{}': coordinate '{c}' is not in the model (dangling socket)", p.name),
-                                ));
-                            }
-                        }
-                    }
-                    for w in &mu.wraps {
-                        if !wraps.contains(w.wrap_object.as_str()) {
-                            return Err(cx.err(
-                                el,
-                                format!(
-                                    "PathWrap names wrap object '{}', which no body has",
-                                    w.wrap_object
-                                ),
-                            ));
-                        }
-                    }
-                }
+                Force::Muscle(mu) => self.check_muscle(mu, &owner, coords, &wraps, el, cx)?,
                 Force::Other { .. } => {}
             }
         }
-        for (mk, el) in self.markers.iter().zip(objects(m, "MarkerSet")) {
-            if self
-                .resolve_socket(&format!("/markerset/{}", mk.name), &mk.socket_parent_frame)
-                .is_none()
-            {
+        Ok(())
+    }
+
+    /// The path points of muscle `mu` (owned by `owner`) name frames and
+    /// coordinates of the model; its PathWraps name wrap objects of a body.
+    fn check_muscle(
+        &self,
+        mu: &Muscle,
+        owner: &str,
+        coords: &BTreeSet<&str>,
+        wraps: &BTreeSet<&str>,
+        el: &Element,
+        cx: &Ctx,
+    ) -> Result<()> {
+        for p in &mu.points {
+            let pp = format!("{owner}/path/{}", p.name);
+            if self.resolve_socket(&pp, &p.socket_parent_frame).is_none() {
                 return Err(cx.err(
                     el,
-                    format!("socket_parent_frame '{}' does not name a frame in the model (dangling socket)", mk.socket_parent_frame),
+                    format!(
+                        "path point '{}': socket_parent_frame '{}' does not name a frame in the model (dangling socket)",
+                        p.name, p.socket_parent_frame
+                    ),
                 ));
             }
-        }
-        for (c, el) in self.constraints.iter().zip(objects(m, "ConstraintSet")) {
-            if let Constraint::CoordinateCoupler {
-                independent,
-                dependent,
-                ..
-            } = c
-            {
-                for n in independent.iter().chain(std::iter::once(dependent)) {
-                    if !coords.contains(n.as_str()) {
-                        return Err(cx.err(el, format!("coordinate '{n}' is not in the model")));
-                    }
+            let cs: Vec<&String> = match &p.kind {
+                PathPointKind::Fixed => vec![],
+                PathPointKind::Conditional { coordinate, .. } => vec![coordinate],
+                PathPointKind::Moving { x, y, z } => [x, y, z]
+                    .iter()
+                    .filter_map(|o| o.as_ref().map(|b| &b.1))
+                    .collect(),
+            };
+            for c in cs {
+                let name = c.rsplit('/').next().unwrap_or(c);
+                if !coords.contains(name) {
+                    return Err(cx.err(
+                        el,
+                        format!("path point '{}': coordinate '{c}' is not in the model (dangling socket)", p.name),
+                    ));
                 }
+            }
+        }
+        for w in &mu.wraps {
+            if !wraps.contains(w.wrap_object.as_str()) {
+                return Err(cx.err(
+                    el,
+                    format!(
+                        "PathWrap names wrap object '{}', which no body has",
+                        w.wrap_object
+                    ),
+                ));
             }
         }
         Ok(())

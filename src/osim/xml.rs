@@ -325,6 +325,37 @@ fn push_child(kids: &mut Vec<Node>, start: usize, node: Node) {
 
 /// Parse XML text. `path` is used in error messages only.
 pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
+    // The size cap, before any work.
+    check_size(text, path)?;
+    // A reader that keeps text as written and checks end names and comments.
+    let mut reader = Reader::from_str(text);
+    {
+        let cfg = reader.config_mut();
+        cfg.trim_text(false);
+        cfg.check_end_names = true;
+        cfg.expand_empty_elements = false;
+        cfg.check_comments = true;
+    }
+    let mut p = Parser::new(text, path);
+    // Every event in document order: into the open elements, or around the root.
+    loop {
+        let start = reader.buffer_position() as usize;
+        let ev = match reader.read_event() {
+            Ok(ev) => ev,
+            Err(e) => return Err(p.malformed(reader.error_position() as usize, &e)),
+        };
+        let line = p.lines.line_at(start);
+        if let Event::Eof = ev {
+            break;
+        }
+        p.event(ev, line)?;
+    }
+    // Every element closed, and a root.
+    p.finish()
+}
+
+/// Documents over [`MAX_FILE_BYTES`] are refused.
+fn check_size(text: &str, path: &Path) -> Result<()> {
     if text.len() as u64 > MAX_FILE_BYTES {
         return Err(Error::parse(
             path,
@@ -335,253 +366,251 @@ pub fn parse(text: &str, path: &Path) -> Result<XmlTree> {
             ),
         ));
     }
-    let mut reader = Reader::from_str(text);
-    {
-        let cfg = reader.config_mut();
-        cfg.trim_text(false);
-        cfg.check_end_names = true;
-        cfg.expand_empty_elements = false;
-        cfg.check_comments = true;
-    }
-    let mut lines = LineCounter {
-        bytes: text.as_bytes(),
-        pos: 0,
-        line: 1,
-    };
-    let mut declaration = None;
-    let mut prolog = Vec::new();
-    let mut epilog = Vec::new();
-    let mut root: Option<Element> = None;
-    let mut stack: Vec<Open> = Vec::with_capacity(32);
-    // Children of all open elements, innermost last.
-    let mut kids: Vec<Node> = Vec::with_capacity(1024);
+    Ok(())
+}
 
-    // Append a node to the innermost open element, or to prolog/epilog.
-    fn push_node(
-        stack: &[Open],
-        kids: &mut Vec<Node>,
-        root_done: bool,
-        prolog: &mut Vec<Node>,
-        epilog: &mut Vec<Node>,
-        node: Node,
-    ) {
-        if let Some(top) = stack.last() {
-            push_child(kids, top.start, node);
-        } else if root_done {
-            epilog.push(node);
-        } else {
-            prolog.push(node);
+/// The state of a parse: what is read so far around and inside the root.
+struct Parser<'t> {
+    text: &'t str,
+    path: &'t Path,
+    lines: LineCounter<'t>,
+    declaration: Option<String>,
+    prolog: Vec<Node>,
+    epilog: Vec<Node>,
+    root: Option<Element>,
+    /// Open elements, innermost last.
+    stack: Vec<Open>,
+    /// Children of all open elements, innermost last.
+    kids: Vec<Node>,
+}
+
+impl<'t> Parser<'t> {
+    fn new(text: &'t str, path: &'t Path) -> Self {
+        Parser {
+            text,
+            path,
+            lines: LineCounter {
+                bytes: text.as_bytes(),
+                pos: 0,
+                line: 1,
+            },
+            declaration: None,
+            prolog: Vec::new(),
+            epilog: Vec::new(),
+            root: None,
+            stack: Vec::with_capacity(32),
+            kids: Vec::with_capacity(1024),
         }
     }
 
-    loop {
-        let start = reader.buffer_position() as usize;
-        let ev = match reader.read_event() {
-            Ok(ev) => ev,
-            Err(e) => {
-                let pos = reader.error_position() as usize;
-                let line = lines.line_at(pos);
-                let ctx = match stack.last() {
-                    Some(top) => {
-                        format!(" (inside <{}> opened at line {})", top.el.name, top.el.line)
-                    }
-                    None => String::new(),
-                };
-                return Err(Error::parse(
-                    path,
-                    format!("line {line}"),
-                    format!("malformed XML: {e}{ctx}"),
-                ));
+    /// The error of a reader failure at byte `pos`, naming the open element.
+    fn malformed(&mut self, pos: usize, e: &dyn std::fmt::Display) -> Error {
+        let line = self.lines.line_at(pos);
+        let ctx = match self.stack.last() {
+            Some(top) => {
+                format!(" (inside <{}> opened at line {})", top.el.name, top.el.line)
             }
+            None => String::new(),
         };
-        let line = lines.line_at(start);
-        let loc = || format!("line {line}");
-        let decode_err = |e: &dyn std::fmt::Display| {
-            Error::parse(path, format!("line {line}"), format!("cannot decode: {e}"))
-        };
+        Error::parse(
+            self.path,
+            format!("line {line}"),
+            format!("malformed XML: {e}{ctx}"),
+        )
+    }
+
+    /// An error at `line`.
+    fn err(&self, line: usize, msg: impl Into<String>) -> Error {
+        Error::parse(self.path, format!("line {line}"), msg)
+    }
+
+    /// A decoding error at `line`.
+    fn decode_err(&self, line: usize, e: &dyn std::fmt::Display) -> Error {
+        self.err(line, format!("cannot decode: {e}"))
+    }
+
+    /// Take one event (not end of file) that starts at `line`.
+    fn event(&mut self, ev: Event<'t>, line: usize) -> Result<()> {
         match ev {
-            Event::Decl(d) => {
-                if root.is_some() || !stack.is_empty() {
-                    return Err(Error::parse(
-                        path,
-                        loc(),
-                        "XML declaration not at the start",
-                    ));
-                }
-                let raw = utf8(text, &d).map_err(|e| decode_err(&e))?;
-                declaration = Some(raw.trim_start_matches("xml").trim().to_string());
-            }
-            Event::DocType(_) => {
-                return Err(Error::parse(
-                    path,
-                    loc(),
-                    "DOCTYPE / entity declarations are not allowed (refused: entity expansion, external entities)",
-                ));
-            }
-            Event::Start(s) => {
-                if root.is_some() && stack.is_empty() {
-                    return Err(Error::parse(path, loc(), "more than one root element"));
-                }
-                if stack.len() >= MAX_DEPTH {
-                    return Err(Error::parse(
-                        path,
-                        loc(),
-                        format!("elements nested deeper than {MAX_DEPTH} levels"),
-                    ));
-                }
-                let el = start_element(text, &s, line, path)?;
-                stack.push(Open {
-                    el,
-                    start: kids.len(),
-                });
-            }
-            Event::Empty(s) => {
-                if root.is_some() && stack.is_empty() {
-                    return Err(Error::parse(path, loc(), "more than one root element"));
-                }
-                let el = start_element(text, &s, line, path)?;
-                match stack.last() {
-                    None => root = Some(el),
-                    Some(top) => push_child(&mut kids, top.start, Node::Element(el)),
-                }
-            }
-            Event::End(_) => {
-                // quick-xml checks that the end name matches.
-                let Some(Open { mut el, start }) = stack.pop() else {
-                    return Err(Error::parse(
-                        path,
-                        loc(),
-                        "closing tag without an open element",
-                    ));
-                };
-                // One exactly-sized allocation (none when there are no children).
-                el.children = kids.drain(start.min(kids.len())..).collect();
-                match stack.last() {
-                    None => root = Some(el),
-                    Some(top) => push_child(&mut kids, top.start, Node::Element(el)),
-                }
-            }
-            Event::Text(t) => {
-                // Formatting whitespace after markup is dropped without allocating.
-                let ws = t.iter().all(|b| b.is_ascii_whitespace());
-                if ws {
-                    if let Some(top) = stack.last() {
-                        if kids.len() > top.start && kids.last().is_some_and(is_markup) {
-                            continue;
-                        }
-                    }
-                }
-                let s = utf8(text, &t).map_err(|e| decode_err(&e))?;
-                if stack.is_empty() {
-                    if !s.trim().is_empty() {
-                        return Err(Error::parse(path, loc(), "text outside the root element"));
-                    }
-                } else {
-                    push_node(
-                        &stack,
-                        &mut kids,
-                        root.is_some(),
-                        &mut prolog,
-                        &mut epilog,
-                        Node::Text(s.to_owned()),
-                    );
-                }
-            }
-            Event::GeneralRef(r) => {
-                if stack.is_empty() {
-                    return Err(Error::parse(
-                        path,
-                        loc(),
-                        "entity reference outside the root element",
-                    ));
-                }
-                let resolved: String = if r.is_char_ref() {
-                    match r.resolve_char_ref() {
-                        Ok(Some(c)) => c.to_string(),
-                        _ => {
-                            return Err(Error::parse(path, loc(), "invalid character reference"));
-                        }
-                    }
-                } else {
-                    let name = r.decode().map_err(|e| decode_err(&e))?;
-                    match resolve_entity(&name) {
-                        Some(v) => v.to_string(),
-                        None => {
-                            return Err(Error::parse(
-                                path,
-                                loc(),
-                                format!("undefined entity '&{name};' (only the five XML entities are allowed)"),
-                            ));
-                        }
-                    }
-                };
-                push_node(
-                    &stack,
-                    &mut kids,
-                    root.is_some(),
-                    &mut prolog,
-                    &mut epilog,
-                    Node::Text(resolved),
-                );
-            }
+            Event::Decl(d) => self.declaration(&d, line),
+            Event::DocType(_) => Err(self.err(
+                line,
+                "DOCTYPE / entity declarations are not allowed (refused: entity expansion, external entities)",
+            )),
+            Event::Start(s) => self.open(&s, line),
+            Event::Empty(s) => self.empty(&s, line),
+            Event::End(_) => self.close(line),
+            Event::Text(t) => self.text(&t, line),
+            Event::GeneralRef(r) => self.entity(&r, line),
             Event::CData(c) => {
-                if stack.is_empty() {
-                    return Err(Error::parse(path, loc(), "CDATA outside the root element"));
+                if self.stack.is_empty() {
+                    return Err(self.err(line, "CDATA outside the root element"));
                 }
-                let s = c.decode().map_err(|e| decode_err(&e))?;
-                push_node(
-                    &stack,
-                    &mut kids,
-                    false,
-                    &mut prolog,
-                    &mut epilog,
-                    Node::CData(s.into_owned()),
-                );
+                let s = c.decode().map_err(|e| self.decode_err(line, &e))?;
+                self.push_node(Node::CData(s.into_owned()));
+                Ok(())
             }
             Event::Comment(c) => {
-                let s = utf8(text, &c).map_err(|e| decode_err(&e))?;
-                push_node(
-                    &stack,
-                    &mut kids,
-                    root.is_some(),
-                    &mut prolog,
-                    &mut epilog,
-                    Node::Comment(s.to_owned()),
-                );
+                let s = utf8(self.text, &c).map_err(|e| self.decode_err(line, &e))?;
+                let node = Node::Comment(s.to_owned());
+                self.push_node(node);
+                Ok(())
             }
             Event::PI(p) => {
-                let raw = utf8(text, &p).map_err(|e| decode_err(&e))?;
-                push_node(
-                    &stack,
-                    &mut kids,
-                    root.is_some(),
-                    &mut prolog,
-                    &mut epilog,
-                    Node::ProcessingInstruction(raw.to_string()),
-                );
+                let raw = utf8(self.text, &p).map_err(|e| self.decode_err(line, &e))?;
+                let node = Node::ProcessingInstruction(raw.to_string());
+                self.push_node(node);
+                Ok(())
             }
-            Event::Eof => break,
+            Event::Eof => Ok(()),
         }
     }
-    if let Some(open) = stack.last() {
-        return Err(Error::parse(
-            path,
-            format!("line {}", lines.line_at(text.len())),
-            format!(
-                "unexpected end of file: <{}> opened at line {} is not closed (truncated file?)",
-                open.el.name, open.el.line
-            ),
-        ));
+
+    /// The XML declaration, allowed only before the root.
+    fn declaration(&mut self, d: &quick_xml::events::BytesDecl<'t>, line: usize) -> Result<()> {
+        if self.root.is_some() || !self.stack.is_empty() {
+            return Err(self.err(line, "XML declaration not at the start"));
+        }
+        let raw = utf8(self.text, d).map_err(|e| self.decode_err(line, &e))?;
+        self.declaration = Some(raw.trim_start_matches("xml").trim().to_string());
+        Ok(())
     }
-    let root =
-        root.ok_or_else(|| Error::parse(path, "line 1", "no root element (empty document?)"))?;
-    Ok(XmlTree {
-        declaration,
-        prolog,
-        root,
-        epilog,
-        source_len: text.len(),
-    })
+
+    /// A start tag: a new open element (one root, nesting capped).
+    fn open(&mut self, s: &quick_xml::events::BytesStart<'t>, line: usize) -> Result<()> {
+        if self.root.is_some() && self.stack.is_empty() {
+            return Err(self.err(line, "more than one root element"));
+        }
+        if self.stack.len() >= MAX_DEPTH {
+            return Err(self.err(
+                line,
+                format!("elements nested deeper than {MAX_DEPTH} levels"),
+            ));
+        }
+        let el = start_element(self.text, s, line, self.path)?;
+        self.stack.push(Open {
+            el,
+            start: self.kids.len(),
+        });
+        Ok(())
+    }
+
+    /// An empty-element tag: a complete element.
+    fn empty(&mut self, s: &quick_xml::events::BytesStart<'t>, line: usize) -> Result<()> {
+        if self.root.is_some() && self.stack.is_empty() {
+            return Err(self.err(line, "more than one root element"));
+        }
+        let el = start_element(self.text, s, line, self.path)?;
+        self.place(el);
+        Ok(())
+    }
+
+    /// An end tag (quick-xml checks that the name matches): the innermost
+    /// open element takes its children and is placed in its parent.
+    fn close(&mut self, line: usize) -> Result<()> {
+        let Some(Open { mut el, start }) = self.stack.pop() else {
+            return Err(self.err(line, "closing tag without an open element"));
+        };
+        // One exactly-sized allocation (none when there are no children).
+        el.children = self.kids.drain(start.min(self.kids.len())..).collect();
+        self.place(el);
+        Ok(())
+    }
+
+    /// A complete element: the root, or a child of the innermost open element.
+    fn place(&mut self, el: Element) {
+        match self.stack.last() {
+            None => self.root = Some(el),
+            Some(top) => push_child(&mut self.kids, top.start, Node::Element(el)),
+        }
+    }
+
+    /// Character data: kept inside the root (formatting whitespace beside
+    /// markup dropped), refused outside unless whitespace.
+    fn text(&mut self, t: &quick_xml::events::BytesText<'t>, line: usize) -> Result<()> {
+        // Formatting whitespace after markup is dropped without allocating.
+        let ws = t.iter().all(|b| b.is_ascii_whitespace());
+        if ws {
+            if let Some(top) = self.stack.last() {
+                if self.kids.len() > top.start && self.kids.last().is_some_and(is_markup) {
+                    return Ok(());
+                }
+            }
+        }
+        let s = utf8(self.text, t).map_err(|e| self.decode_err(line, &e))?;
+        if self.stack.is_empty() {
+            if !s.trim().is_empty() {
+                return Err(self.err(line, "text outside the root element"));
+            }
+        } else {
+            self.push_node(Node::Text(s.to_owned()));
+        }
+        Ok(())
+    }
+
+    /// An entity or character reference inside the root: only the five XML
+    /// entities and valid character references, resolved to text.
+    fn entity(&mut self, r: &quick_xml::events::BytesRef<'t>, line: usize) -> Result<()> {
+        if self.stack.is_empty() {
+            return Err(self.err(line, "entity reference outside the root element"));
+        }
+        let resolved: String = if r.is_char_ref() {
+            match r.resolve_char_ref() {
+                Ok(Some(c)) => c.to_string(),
+                _ => return Err(self.err(line, "invalid character reference")),
+            }
+        } else {
+            let name = r.decode().map_err(|e| self.decode_err(line, &e))?;
+            match resolve_entity(&name) {
+                Some(v) => v.to_string(),
+                None => {
+                    return Err(self.err(
+                        line,
+                        format!(
+                            "undefined entity '&{name};' (only the five XML entities are allowed)"
+                        ),
+                    ));
+                }
+            }
+        };
+        self.push_node(Node::Text(resolved));
+        Ok(())
+    }
+
+    /// Append a node to the innermost open element, or to prolog/epilog.
+    fn push_node(&mut self, node: Node) {
+        if let Some(top) = self.stack.last() {
+            push_child(&mut self.kids, top.start, node);
+        } else if self.root.is_some() {
+            self.epilog.push(node);
+        } else {
+            self.prolog.push(node);
+        }
+    }
+
+    /// The tree at end of file: every element closed, a root present.
+    fn finish(mut self) -> Result<XmlTree> {
+        if let Some(open) = self.stack.last() {
+            let (name, opened) = (open.el.name.clone(), open.el.line);
+            let line = self.lines.line_at(self.text.len());
+            return Err(self.err(
+                line,
+                format!(
+                    "unexpected end of file: <{name}> opened at line {opened} is not closed (truncated file?)"
+                ),
+            ));
+        }
+        let root = self.root.ok_or_else(|| {
+            Error::parse(self.path, "line 1", "no root element (empty document?)")
+        })?;
+        Ok(XmlTree {
+            declaration: self.declaration,
+            prolog: self.prolog,
+            root,
+            epilog: self.epilog,
+            source_len: self.text.len(),
+        })
+    }
 }
 
 fn start_element(

@@ -3,7 +3,7 @@
 //! regions and the endplate landmarks (centre, mid-sagittal ends, lateral
 //! extremes).
 
-use super::local::LocalMesh;
+use super::local::{closest_on_segment, LocalMesh};
 use crate::mesh::{MeshQuery, TriMesh};
 use nalgebra::{Point3, Vector3};
 
@@ -31,6 +31,11 @@ impl Walls {
     }
     pub fn y_mid(&self) -> f64 {
         0.5 * (self.y_hi + self.y_lo)
+    }
+    /// X range of the body column (walls with a margin of 4 % of the depth).
+    pub fn column_x(&self) -> (f64, f64) {
+        let m = 0.04 * self.depth();
+        (self.x_post - m, self.x_ant + m)
     }
 }
 
@@ -168,6 +173,13 @@ pub(crate) fn find_endplate(lm: &LocalMesh, w: &Walls, superior: bool) -> Option
     })
 }
 
+/// The most lateral point on `side` (+1 right, -1 left).
+fn lateral_extreme(pts: &[Point3<f64>], side: f64) -> Option<Point3<f64>> {
+    pts.iter()
+        .copied()
+        .max_by(|a, b| (side * a.z).total_cmp(&(side * b.z)))
+}
+
 /// Landmarks of one endplate (local): centre, anterior, posterior, right,
 /// left, and whether the mid-sagittal section was found.
 pub(crate) struct EndplatePoints {
@@ -179,28 +191,44 @@ pub(crate) struct EndplatePoints {
     pub midline_section: bool,
 }
 
-/// SEC/IEC (area centroid projected onto the region), SA/SP (ends of the
-/// region's mid-sagittal section), SR/SL (extreme region points along Z).
-pub(crate) fn endplate_points(lm: &LocalMesh, ep: &Endplate) -> Option<EndplatePoints> {
+/// SEC/IEC (area centroid moved to the nearest point of the region's
+/// mid-sagittal section, so on the surface and on the plane; the nearest
+/// region point where the region has no section), SA/SP (ends of the
+/// region's mid-sagittal section), SR/SL (extreme region points along Z;
+/// with `column`, only points between those X bounds: a large face of a
+/// coarse mesh may reach past the walls into a pedicle).
+pub(crate) fn endplate_points(
+    lm: &LocalMesh,
+    ep: &Endplate,
+    column: Option<(f64, f64)>,
+) -> Option<EndplatePoints> {
     let region: TriMesh = lm.submesh(&ep.faces);
-    let rq = MeshQuery::new(&region).ok()?;
-    let c = ep.faces.iter().fold(Vector3::zeros(), |a, &f| {
-        a + lm.centroids[f].coords * lm.areas[f]
-    }) / ep.area;
-    let centre = rq.closest_point(&Point3::from(c)).point;
+    // Area centroid of the region.
+    let c = Point3::from(
+        ep.faces.iter().fold(Vector3::zeros(), |a, &f| {
+            a + lm.centroids[f].coords * lm.areas[f]
+        }) / ep.area,
+    );
+    // Lateral extremes among the region's vertices (inside the column).
     let corners: Vec<Point3<f64>> = region.vertices.clone();
-    let ext = |key: &dyn Fn(&Point3<f64>) -> f64| {
-        corners
-            .iter()
-            .copied()
-            .max_by(|a, b| key(a).total_cmp(&key(b)))
+    let in_column = |p: &Point3<f64>| column.is_none_or(|(lo, hi)| p.x >= lo && p.x <= hi);
+    let inside: Vec<Point3<f64>> = corners.iter().copied().filter(in_column).collect();
+    let pool = if inside.is_empty() { &corners } else { &inside };
+    let right = lateral_extreme(pool, 1.0)?;
+    let left = lateral_extreme(pool, -1.0)?;
+    // The mid-sagittal section: the centre on it, its two ends.
+    let section = lm.cut_segments(ep.faces.iter().copied(), 2, 0.0);
+    let midline_section = !section.is_empty();
+    let centre = match section
+        .iter()
+        .map(|[a, b]| closest_on_segment(&c, a, b))
+        .min_by(|a, b| (a - c).norm().total_cmp(&(b - c).norm()))
+    {
+        Some(p) => p,
+        None => MeshQuery::new(&region).ok()?.closest_point(&c).point,
     };
-    let right = ext(&|p| p.z)?;
-    let left = ext(&|p| -p.z)?;
-    let section = lm.cut(ep.faces.iter().copied(), 2, 0.0);
-    let midline_section = section.len() >= 2;
-    let pts = if midline_section {
-        section
+    let pts: Vec<Point3<f64>> = if midline_section {
+        section.into_iter().flatten().collect()
     } else {
         corners.clone()
     };

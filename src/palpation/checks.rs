@@ -11,6 +11,9 @@ use nalgebra::Point3;
 pub const DISTINCT_M: f64 = 0.001;
 /// Midline codes must lie this close to the mid-sagittal plane (m).
 pub const MIDLINE_M: f64 = 0.002;
+/// The posterior elements (laminae, spinous process) reach at least this
+/// share of the body depth behind the pedicle cut on a whole vertebra.
+const POSTERIOR_REACH: f64 = 0.3;
 /// Relative mirror cost above which a mesh is not left-right symmetric.
 const ASYMMETRY_WARN: f64 = 0.02;
 const ASYMMETRY_ERROR: f64 = 0.04;
@@ -118,21 +121,54 @@ pub(crate) fn anatomy_findings(st: &BodyState, sym_cost: f64, p: &mut VertebraPa
         );
         out.push(finding(p, Some(Code::PTR), Severity::Error, msg));
     }
+    out.extend(posterior_elements(st, p));
     out.extend(centre_findings(st, p));
     p.findings.extend(out);
 }
 
-/// The vertebral centre must lie between the walls and the endplates.
+/// A whole vertebra has posterior elements behind its pedicles; a body
+/// alone, a ball or a box has none, and its "pedicle" landmarks are not.
+fn posterior_elements(st: &BodyState, p: &VertebraPalpation) -> Option<Finding> {
+    let x_cut = super::pedicle::pedicle_cut_x(&st.sup_pts, &st.inf_pts);
+    let depth = 0.5 * (st.sup_pts.front.x + st.inf_pts.front.x)
+        - 0.5 * (st.sup_pts.back.x + st.inf_pts.back.x);
+    let x_min = st
+        .lm
+        .verts
+        .iter()
+        .map(|q| q.x)
+        .fold(f64::INFINITY, f64::min);
+    let reach = x_cut - x_min;
+    (reach < POSTERIOR_REACH * depth).then(|| {
+        finding(
+            p,
+            Some(Code::PTR),
+            Severity::Error,
+            format!(
+                "nothing behind the pedicles ({:.1} mm of mesh behind the pedicle cut, a whole vertebra has at least {:.0} % of the body depth, {:.1} mm): a vertebral body alone or not a vertebra; PTR, PTL, PBR, PBL are not pedicle points",
+                reach * 1e3,
+                POSTERIOR_REACH * 100.0,
+                POSTERIOR_REACH * depth * 1e3
+            ),
+        )
+    })
+}
+
+/// The vertebral centre must lie between the walls (the endplates'
+/// mid-sagittal ends, as the centre rule and the pedicle cut use them) and
+/// between the endplates.
 fn centre_findings(st: &BodyState, p: &VertebraPalpation) -> Vec<Finding> {
     let c = st.lm.to_mesh.inverse() * p.centre;
-    let w = &st.walls;
+    let (s, i) = (&st.sup_pts, &st.inf_pts);
+    let x_post = s.back.x.min(i.back.x);
+    let x_ant = s.front.x.max(i.front.x);
     let mut why = Vec::new();
-    if c.x < w.x_post || c.x > w.x_ant {
+    if c.x < x_post || c.x > x_ant {
         why.push(format!(
             "x = {:.1} mm outside the walls {:.1}..{:.1} mm",
             c.x * 1e3,
-            w.x_post * 1e3,
-            w.x_ant * 1e3
+            x_post * 1e3,
+            x_ant * 1e3
         ));
     }
     if st.sup.normal.dot(&c.coords) > st.sup.offset || st.inf.normal.dot(&c.coords) > st.inf.offset

@@ -39,12 +39,14 @@ fn tilted(n0: &Vector3<f64>, u: &Vector3<f64>, v: &Vector3<f64>, a: f64, b: f64)
     (rb * ra * n0).normalize()
 }
 
-/// Pattern search from one starting normal; returns (normal, offset, cost).
+/// Pattern search from one starting normal, with angular steps from
+/// `steps_deg.0` down to `steps_deg.1`; returns (normal, offset, cost).
 fn refine(
     q: &MeshQuery,
     pts: &[Point3<f64>],
     n0: Vector3<f64>,
     size: f64,
+    steps_deg: (f64, f64),
 ) -> (Vector3<f64>, f64, f64) {
     let u = n0
         .cross(&Vector3::x())
@@ -56,7 +58,8 @@ fn refine(
     let mut x = [0.0, 0.0, n0.dot(&mean)];
     let eval = |x: &[f64; 3]| mirror_cost(q, pts, &tilted(&n0, &u, &v, x[0], x[1]), x[2], cap);
     let mut f = eval(&x);
-    let mut step = [8f64.to_radians(), 8f64.to_radians(), 0.04 * size];
+    let a0 = steps_deg.0.to_radians();
+    let mut step = [a0, a0, 0.04 * size * steps_deg.0 / 8.0];
     for _ in 0..300 {
         let mut improved = false;
         for k in 0..3 {
@@ -72,7 +75,7 @@ fn refine(
         }
         if !improved {
             step.iter_mut().for_each(|s| *s *= 0.5);
-            if step[0] < 0.1f64.to_radians() {
+            if step[0] < steps_deg.1.to_radians() {
                 break;
             }
         }
@@ -80,11 +83,16 @@ fn refine(
     (tilted(&n0, &u, &v, x[0], x[1]), x[2], f)
 }
 
+/// Turns of the hint's right axis about the cranial and anterior axes
+/// tried as starting normals (deg): the hint may be off by about 45 deg.
+const START_TURNS_DEG: [f64; 4] = [-30.0, -15.0, 15.0, 30.0];
+
 /// The symmetry plane nearest the hint's right direction.
 pub(crate) fn symmetry_plane(
     mesh: &TriMesh,
     q: &MeshQuery,
     right_hint: &Vector3<f64>,
+    cranial_hint: &Vector3<f64>,
 ) -> Option<SymmetryPlane> {
     let (lo, hi) = mesh.bounds()?;
     let size = (hi - lo).norm();
@@ -96,8 +104,19 @@ pub(crate) fn symmetry_plane(
         return None;
     }
     let hint = right_hint.try_normalize(1e-12)?;
-    // Starting normals: the hint and principal axes within 50 deg of it.
+    // Starting normals: the hint, the hint turned about its cranial and
+    // anterior axes, and the principal axes within 50 deg of it.
     let mut starts = vec![hint];
+    let cranial = (cranial_hint - hint * hint.dot(cranial_hint)).try_normalize(1e-12);
+    if let Some(up) = cranial {
+        let front = up.cross(&hint);
+        for axis in [up, front] {
+            for deg in START_TURNS_DEG {
+                let r = Rotation3::from_axis_angle(&Unit::new_normalize(axis), deg.to_radians());
+                starts.push(r * hint);
+            }
+        }
+    }
     if let Some(axes) = crate::mesh::geom::point_principal_axes(&pts) {
         for c in 0..3 {
             let a: Vector3<f64> = axes.axes.column(c).into_owned();
@@ -106,9 +125,16 @@ pub(crate) fn symmetry_plane(
             }
         }
     }
-    let best = starts
+    // Every start searched coarsely (to 1 deg), the best two to 0.1 deg.
+    let mut coarse: Vec<(Vector3<f64>, f64, f64)> = starts
         .into_iter()
-        .map(|n0| refine(q, &pts, n0, size))
+        .map(|n0| refine(q, &pts, n0, size, (8.0, 1.0)))
+        .collect();
+    coarse.sort_by(|a, b| a.2.total_cmp(&b.2));
+    let best = coarse
+        .into_iter()
+        .take(2)
+        .map(|(n0, _, _)| refine(q, &pts, n0, size, (1.0, 0.1)))
         .min_by(|a, b| a.2.total_cmp(&b.2))?;
     let (mut n, mut d) = (best.0, best.1);
     if n.dot(&hint) < 0.0 {

@@ -116,9 +116,24 @@ impl LocalMesh {
         axis: usize,
         value: f64,
     ) -> Vec<Point3<f64>> {
+        self.cut_segments(faces, axis, value)
+            .into_iter()
+            .flatten()
+            .collect()
+    }
+
+    /// The section of the given faces by the plane `p[axis] = value`: one
+    /// segment per face that crosses it (end points on its edges).
+    pub fn cut_segments(
+        &self,
+        faces: impl Iterator<Item = usize>,
+        axis: usize,
+        value: f64,
+    ) -> Vec<[Point3<f64>; 2]> {
         let mut out = Vec::new();
         for f in faces {
             let t = self.tris[f];
+            let mut ends = Vec::with_capacity(2);
             for j in 0..3 {
                 let (a, b) = (
                     self.verts[t[j] as usize],
@@ -129,10 +144,23 @@ impl LocalMesh {
                     let s = da / (da - db);
                     let mut p = a + (b - a) * s;
                     p[axis] = value;
-                    out.push(p);
+                    ends.push(p);
                 }
+            }
+            if let [a, b] = ends[..] {
+                out.push([a, b]);
             }
         }
         out
     }
+}
+
+/// The point of segment `ab` closest to `p`.
+pub(crate) fn closest_on_segment(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> Point3<f64> {
+    let ab = b - a;
+    let l2 = ab.norm_squared();
+    if l2 <= 0.0 {
+        return *a;
+    }
+    a + ab * ((p - a).dot(&ab) / l2).clamp(0.0, 1.0)
 }

@@ -197,7 +197,7 @@ fn body_in_frame(
     let sup = ep(true, Code::SEC)?;
     let inf = ep(false, Code::IEC)?;
     let pts = |e: &body::Endplate, code: Code| {
-        body::endplate_points(&lm, e).ok_or_else(|| {
+        body::endplate_points(&lm, e, Some(walls.column_x())).ok_or_else(|| {
             Error::invalid(ctx, format!("{code}: the endplate region is degenerate"))
         })
     };
@@ -213,18 +213,49 @@ fn body_in_frame(
     })
 }
 
-/// The mid-sagittal plane, then the in-plane rotation refined until Y is
-/// the IEC -> SEC direction.
+/// In-plane turns of the hint's anterior axis tried before refining (deg):
+/// the hint may be off by up to about 45 deg.
+const HINT_TURNS_DEG: [f64; 7] = [-45.0, -30.0, -15.0, 0.0, 15.0, 30.0, 45.0];
+
+/// The mid-sagittal plane, then the in-plane rotation: the trial turn of
+/// the hint whose endplate regions are largest (endplates found edge-on
+/// when the frame is right), refined until Y is the IEC -> SEC direction.
 fn estimate_frame(ctx: &str, mesh: &TriMesh, hint: &FrameHint) -> Result<(BodyState, f64)> {
+    // Mid-sagittal plane and an origin on it.
     let q = MeshQuery::new(mesh)?;
-    let plane = frame::symmetry_plane(mesh, &q, &hint.right())
+    let plane = frame::symmetry_plane(mesh, &q, &hint.right(), &hint.cranial)
         .ok_or_else(|| Error::invalid(ctx, "cannot estimate the mid-sagittal plane"))?;
     let n = plane.normal;
     let c = mesh.area_centroid().unwrap_or(mesh.vertices[0]);
     let origin = c - n * (n.dot(&c.coords) - plane.offset);
-    let mut rot = local::frame_rotation(&hint.anterior, &n);
-    let mut state = body_in_frame(ctx, mesh, rot, origin)?;
-    for _ in 0..3 {
+    // Coarse search over the in-plane turn of the hint.
+    let trial = |deg: f64| {
+        let turn = Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(n), deg.to_radians());
+        let rot = local::frame_rotation(&(turn * hint.anterior), &n);
+        body_in_frame(ctx, mesh, rot, origin).map(|st| (rot, st))
+    };
+    let mut best: Option<(Rotation3<f64>, BodyState)> = None;
+    let mut first_err = None;
+    for deg in HINT_TURNS_DEG {
+        match trial(deg) {
+            Ok((rot, st)) => {
+                let area = st.sup.area + st.inf.area;
+                if best
+                    .as_ref()
+                    .is_none_or(|(_, b)| area > b.sup.area + b.inf.area)
+                {
+                    best = Some((rot, st));
+                }
+            }
+            Err(e) => first_err = first_err.or(Some(e)),
+        }
+    }
+    let (mut rot, mut state) = match best {
+        Some(b) => b,
+        None => return Err(first_err.expect("at least one trial ran")),
+    };
+    // Refine: Y along IEC -> SEC in the mid-sagittal plane.
+    for _ in 0..10 {
         let y_local = state.sup_pts.centre - state.inf_pts.centre;
         let y = rot * Vector3::new(y_local.x, y_local.y, 0.0);
         let Some(y) = y.try_normalize(1e-12) else {
@@ -235,7 +266,7 @@ fn estimate_frame(ctx: &str, mesh: &TriMesh, hint: &FrameHint) -> Result<(BodySt
         let change = (new_rot * rot.inverse()).angle();
         rot = new_rot;
         state = body_in_frame(ctx, mesh, rot, origin)?;
-        if change < 0.2f64.to_radians() {
+        if change < 0.01f64.to_radians() {
             break;
         }
     }

@@ -185,7 +185,7 @@ pub fn palpate_sacrum(
     let ctx = "palpation of S1";
     let prepared = prepare(mesh, ctx)?;
     let q = MeshQuery::new(&prepared)?;
-    let plane = frame::symmetry_plane(&prepared, &q, &hint.right())
+    let plane = frame::symmetry_plane(&prepared, &q, &hint.right(), &hint.cranial)
         .ok_or_else(|| Error::invalid(ctx, "cannot estimate the mid-sagittal plane"))?;
     let n = plane.normal;
     let c = prepared.area_centroid().unwrap_or(prepared.vertices[0]);
@@ -203,7 +203,7 @@ pub fn palpate_sacrum(
     })?;
     let ep = plateau_region(&lm, &patch)
         .ok_or_else(|| Error::invalid(ctx, "SEC: the sacral plateau region is empty"))?;
-    let pts = endplate_points(&lm, &ep)
+    let pts = endplate_points(&lm, &ep, None)
         .ok_or_else(|| Error::invalid(ctx, "SEC: the sacral plateau region is degenerate"))?;
     let rot = plateau_rotation(&ep.normal);
     let mut findings = Vec::new();

@@ -594,7 +594,51 @@ pub fn resolve(
 ) -> Result<Vec<(Level, LevelLaw)>> {
     let lv = levels(doc)?;
     let tpath = table.path.display().to_string();
-    // match rows to levels
+    // Each row names one level of the model, and no level twice.
+    let row_of = match_rows(table, &lv, doc, &tpath)?;
+    let all = table.all.as_ref();
+    let mut out = Vec::new();
+    for (li, l) in lv.iter().enumerate() {
+        let row = row_of[li].map(|r| &table.levels[r]);
+        if row.is_none() && all.is_none() {
+            continue;
+        }
+        let loc = format!(
+            "{tpath}: {}",
+            row.map(|r| r.location.clone())
+                .unwrap_or_else(|| "[all]".into())
+        );
+        let ctx = format!("{loc} (level '{}')", l.name);
+        // The bushing's current law fills what the table leaves out.
+        let e = doc
+            .component("ForceSet", &l.bushing)
+            .ok_or_else(|| Error::invalid(&ctx, format!("bushing '{}' not found", l.bushing)))?;
+        let current = read_law(e, doc.path()).ok();
+        // The new law of the row's form (`[all]` and the current law as fallbacks).
+        let form = pick(row, all, |r| r.form).unwrap_or(Form::Linear);
+        let law = level_law(form, row, all, current.as_ref(), &ctx)?;
+        // Values that the form does not use are mistakes, not silently ignored.
+        if row.is_some_and(|r| gives_unused_values(r, form)) {
+            return Err(Error::invalid(
+                &ctx,
+                format!("the row gives values the {} form does not use", form.name()),
+            ));
+        }
+        validate_law(&law, allow_softening).map_err(|m| Error::invalid(&ctx, m))?;
+        out.push((l.clone(), law));
+    }
+    Ok(out)
+}
+
+/// For each level of `lv`, the index of the table row that names it (by
+/// name or alias). A row naming no level, several levels, or a level
+/// already named is an error.
+fn match_rows(
+    table: &Table,
+    lv: &[Level],
+    doc: &Document,
+    tpath: &str,
+) -> Result<Vec<Option<usize>>> {
     let mut row_of: Vec<Option<usize>> = vec![None; lv.len()];
     for (ri, r) in table.levels.iter().enumerate() {
         let hits: Vec<usize> = lv
@@ -647,151 +691,148 @@ pub fn resolve(
             }
         }
     }
-    let all = table.all.as_ref();
-    let mut out = Vec::new();
-    for (li, l) in lv.iter().enumerate() {
-        let row = row_of[li].map(|r| &table.levels[r]);
-        if row.is_none() && all.is_none() {
-            continue;
-        }
-        let loc = format!(
-            "{tpath}: {}",
-            row.map(|r| r.location.clone())
-                .unwrap_or_else(|| "[all]".into())
-        );
-        let ctx = format!("{loc} (level '{}')", l.name);
-        let e = doc
-            .component("ForceSet", &l.bushing)
-            .ok_or_else(|| Error::invalid(&ctx, format!("bushing '{}' not found", l.bushing)))?;
-        let current = read_law(e, doc.path()).ok();
-        let form = pick(row, all, |r| r.form).unwrap_or(Form::Linear);
-        let mut c = [0.0; 6];
-        for (i, ci) in c.iter_mut().enumerate() {
-            *ci = match pick(row, all, |r| r.damping[i]) {
-                Some(v) => v,
-                None => match &current {
-                    Some(cur) => cur.damping()[i],
-                    None => {
-                        return Err(Error::invalid(
-                            &ctx,
-                            format!("no damping for {}", DOF_NAMES[i]),
-                        ))
-                    }
-                },
-            };
-        }
-        let ratio: [f64; 6] =
-            std::array::from_fn(|i| pick(row, all, |r| r.ratio[i]).unwrap_or(1.0));
-        if form != Form::Linear {
-            if let Some(i) = (0..6).find(|&i| pick(row, all, |r| r.ratio[i]).is_some()) {
-                return Err(Error::invalid(
-                    &ctx,
-                    format!("ratio {} applies to the linear form only", DOF_NAMES[i]),
-                ));
-            }
-        }
-        for (i, r) in ratio.iter().enumerate() {
-            if !(*r > 0.0 && r.is_finite()) {
-                return Err(Error::invalid(
-                    &ctx,
-                    format!("ratio {} must be positive, got {r}", DOF_NAMES[i]),
-                ));
-            }
-        }
-        let law = match form {
-            Form::Linear => {
-                let mut k = [0.0; 6];
-                for i in 0..6 {
-                    let base = match pick(row, all, |r| r.stiffness[i]) {
-                        Some(v) => v,
-                        None => match &current {
-                            Some(LevelLaw::Linear { k, .. }) => k[i],
-                            _ => {
-                                return Err(Error::invalid(
-                                    &ctx,
-                                    format!(
-                                        "no stiffness for {} (give it in the row or in [all])",
-                                        DOF_NAMES[i]
-                                    ),
-                                ))
-                            }
-                        },
-                    };
-                    k[i] = base * ratio[i];
+    Ok(row_of)
+}
+
+/// The law of `form` for one level from its row, `[all]` and the current
+/// law (damping and linear stiffness default to the current values; ratios
+/// apply to the linear form only). `ctx` names the row in errors.
+fn level_law(
+    form: Form,
+    row: Option<&Row>,
+    all: Option<&Row>,
+    current: Option<&LevelLaw>,
+    ctx: &str,
+) -> Result<LevelLaw> {
+    let mut c = [0.0; 6];
+    for (i, ci) in c.iter_mut().enumerate() {
+        *ci = match pick(row, all, |r| r.damping[i]) {
+            Some(v) => v,
+            None => match current {
+                Some(cur) => cur.damping()[i],
+                None => {
+                    return Err(Error::invalid(
+                        ctx,
+                        format!("no damping for {}", DOF_NAMES[i]),
+                    ))
                 }
-                LevelLaw::Linear { k, c }
-            }
-            Form::Nonlinear => {
-                let mut curves: Vec<CurveSpec> = Vec::with_capacity(6);
-                for i in 0..6 {
-                    let cv = match pick(row, all, |r| r.curves[i].clone()) {
-                        Some(cv) => cv,
-                        None => match pick(row, all, |r| r.stiffness[i]) {
-                            Some(k) => CurveSpec::Linear { k },
-                            None => {
-                                return Err(Error::invalid(
-                                    &ctx,
-                                    format!("no curve and no stiffness for {}", DOF_NAMES[i]),
-                                ))
-                            }
-                        },
-                    };
-                    curves.push(cv);
-                }
-                let curves: [CurveSpec; 6] = curves
-                    .try_into()
-                    .map_err(|_| Error::invalid(&ctx, "six curves expected"))?;
-                LevelLaw::Nonlinear {
-                    curves: Box::new(curves),
-                    c,
-                }
-            }
-            Form::Coupled => {
-                let k = pick(row, all, |r| r.matrix)
-                    .ok_or_else(|| Error::invalid(&ctx, "the coupled form needs `matrix`"))?;
-                LevelLaw::Coupled { k, c }
-            }
-            Form::Expression => {
-                let e = pick(row, all, |r| r.expressions.clone()).ok_or_else(|| {
-                    Error::invalid(&ctx, "the expression form needs `expressions`")
-                })?;
-                LevelLaw::Expression {
-                    exprs: Box::new(e),
-                    c,
-                }
-            }
+            },
         };
-        // values that the form does not use are mistakes, not silently ignored
-        if let Some(r) = row {
-            let unused = match form {
-                Form::Linear => {
-                    r.curves.iter().any(|c| c.is_some())
-                        || r.matrix.is_some()
-                        || r.expressions.is_some()
-                }
-                Form::Nonlinear => r.matrix.is_some() || r.expressions.is_some(),
-                Form::Coupled => {
-                    r.curves.iter().any(|c| c.is_some())
-                        || r.stiffness.iter().any(|c| c.is_some())
-                        || r.expressions.is_some()
-                }
-                Form::Expression => {
-                    r.curves.iter().any(|c| c.is_some())
-                        || r.stiffness.iter().any(|c| c.is_some())
-                        || r.matrix.is_some()
-                }
-            };
-            if unused {
-                return Err(Error::invalid(
-                    &ctx,
-                    format!("the row gives values the {} form does not use", form.name()),
-                ));
+    }
+    let ratio: [f64; 6] = std::array::from_fn(|i| pick(row, all, |r| r.ratio[i]).unwrap_or(1.0));
+    if form != Form::Linear {
+        if let Some(i) = (0..6).find(|&i| pick(row, all, |r| r.ratio[i]).is_some()) {
+            return Err(Error::invalid(
+                ctx,
+                format!("ratio {} applies to the linear form only", DOF_NAMES[i]),
+            ));
+        }
+    }
+    for (i, r) in ratio.iter().enumerate() {
+        if !(*r > 0.0 && r.is_finite()) {
+            return Err(Error::invalid(
+                ctx,
+                format!("ratio {} must be positive, got {r}", DOF_NAMES[i]),
+            ));
+        }
+    }
+    Ok(match form {
+        Form::Linear => LevelLaw::Linear {
+            k: linear_stiffness(row, all, current, &ratio, ctx)?,
+            c,
+        },
+        Form::Nonlinear => LevelLaw::Nonlinear {
+            curves: Box::new(curves(row, all, ctx)?),
+            c,
+        },
+        Form::Coupled => {
+            let k = pick(row, all, |r| r.matrix)
+                .ok_or_else(|| Error::invalid(ctx, "the coupled form needs `matrix`"))?;
+            LevelLaw::Coupled { k, c }
+        }
+        Form::Expression => {
+            let e = pick(row, all, |r| r.expressions.clone())
+                .ok_or_else(|| Error::invalid(ctx, "the expression form needs `expressions`"))?;
+            LevelLaw::Expression {
+                exprs: Box::new(e),
+                c,
             }
         }
-        validate_law(&law, allow_softening).map_err(|m| Error::invalid(&ctx, m))?;
-        out.push((l.clone(), law));
+    })
+}
+
+/// Linear stiffness per DoF: the table's (or the current linear law's)
+/// value times the ratio.
+fn linear_stiffness(
+    row: Option<&Row>,
+    all: Option<&Row>,
+    current: Option<&LevelLaw>,
+    ratio: &[f64; 6],
+    ctx: &str,
+) -> Result<[f64; 6]> {
+    let mut k = [0.0; 6];
+    for i in 0..6 {
+        let base = match pick(row, all, |r| r.stiffness[i]) {
+            Some(v) => v,
+            None => match current {
+                Some(LevelLaw::Linear { k, .. }) => k[i],
+                _ => {
+                    return Err(Error::invalid(
+                        ctx,
+                        format!(
+                            "no stiffness for {} (give it in the row or in [all])",
+                            DOF_NAMES[i]
+                        ),
+                    ))
+                }
+            },
+        };
+        k[i] = base * ratio[i];
     }
-    Ok(out)
+    Ok(k)
+}
+
+/// One curve per DoF: the table's curve, else its linear stiffness.
+fn curves(row: Option<&Row>, all: Option<&Row>, ctx: &str) -> Result<[CurveSpec; 6]> {
+    let mut curves: Vec<CurveSpec> = Vec::with_capacity(6);
+    for i in 0..6 {
+        let cv = match pick(row, all, |r| r.curves[i].clone()) {
+            Some(cv) => cv,
+            None => match pick(row, all, |r| r.stiffness[i]) {
+                Some(k) => CurveSpec::Linear { k },
+                None => {
+                    return Err(Error::invalid(
+                        ctx,
+                        format!("no curve and no stiffness for {}", DOF_NAMES[i]),
+                    ))
+                }
+            },
+        };
+        curves.push(cv);
+    }
+    curves
+        .try_into()
+        .map_err(|_| Error::invalid(ctx, "six curves expected"))
+}
+
+/// Whether row `r` gives values that `form` does not use.
+fn gives_unused_values(r: &Row, form: Form) -> bool {
+    match form {
+        Form::Linear => {
+            r.curves.iter().any(|c| c.is_some()) || r.matrix.is_some() || r.expressions.is_some()
+        }
+        Form::Nonlinear => r.matrix.is_some() || r.expressions.is_some(),
+        Form::Coupled => {
+            r.curves.iter().any(|c| c.is_some())
+                || r.stiffness.iter().any(|c| c.is_some())
+                || r.expressions.is_some()
+        }
+        Form::Expression => {
+            r.curves.iter().any(|c| c.is_some())
+                || r.stiffness.iter().any(|c| c.is_some())
+                || r.matrix.is_some()
+        }
+    }
 }
 
 // ------------------------------------------------------------ writing

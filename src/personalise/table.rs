@@ -590,14 +590,57 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
         .trim(csv::Trim::All)
         .from_reader(text.as_bytes());
     let mut records = rdr.records();
+    // The header row: what each column holds, in which unit.
     let header = match records.next() {
         Some(Ok(h)) => h,
         Some(Err(e)) => return Err(Error::parse(path, "line 1", e.to_string())),
         None => return Err(Error::parse(path, "line 1", "empty table (no header row)")),
     };
     let hline = header.position().map(line_at).unwrap_or(1);
-    // column -> (kind 0 stiffness / 1 damping / 2 ratio, dof, factor)
-    let mut cols: Vec<Option<(usize, usize, f64)>> = Vec::new();
+    let cols = csv_columns(&header, hline, path)?;
+    // One row per level; the `*` row (at most one) is `[all]`.
+    let mut all = None;
+    let mut levels = Vec::new();
+    for rec in records {
+        let rec = rec.map_err(|e| Error::parse(path, "CSV", e.to_string()))?;
+        let line = rec.position().map(line_at).unwrap_or(0);
+        let mut row = csv_row(&rec, line, &cols, path)?;
+        if row.name == "*" {
+            if all.is_some() {
+                return Err(Error::parse(path, &row.location, "a second `*` row"));
+            }
+            row.form = None;
+            all = Some(row);
+        } else {
+            levels.push(row);
+        }
+    }
+    Ok(Table {
+        path: path.to_path_buf(),
+        all,
+        levels,
+    })
+}
+
+/// What a CSV column holds.
+#[derive(Debug, Clone, Copy)]
+enum CsvKind {
+    Stiffness,
+    Damping,
+    Ratio,
+}
+
+/// A value column of a CSV table: kind, DoF and factor to SI.
+type CsvColumn = (CsvKind, usize, f64);
+
+/// The columns of the header row at line `hline` (`None` for `level`):
+/// known names, each once, with an accepted unit.
+fn csv_columns(
+    header: &csv::StringRecord,
+    hline: u64,
+    path: &Path,
+) -> Result<Vec<Option<CsvColumn>>> {
+    let mut cols: Vec<Option<CsvColumn>> = Vec::new();
     let mut seen = std::collections::BTreeSet::new();
     for (ci, h) in header.iter().enumerate() {
         let loc = format!("line {hline}, column {}", ci + 1);
@@ -617,11 +660,11 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
             _ => (h.trim(), None),
         };
         let (kind, dof) = if let Some(d) = name.strip_prefix("c_") {
-            (1, d)
+            (CsvKind::Damping, d)
         } else if let Some(d) = name.strip_prefix("ratio_") {
-            (2, d)
+            (CsvKind::Ratio, d)
         } else {
-            (0, name)
+            (CsvKind::Stiffness, name)
         };
         let i = dof_index(dof).ok_or_else(|| {
             Error::parse(
@@ -646,125 +689,100 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
                 format!("column '{name}' has no unit: write it as `{name} [unit]`"),
             ));
         };
-        let factor = match kind {
-            2 => {
-                if unit != "1" {
-                    return Err(Error::parse(
-                        path,
-                        &loc,
-                        format!("ratio column '{name}' must have unit [1]"),
-                    ));
-                }
-                1.0
-            }
-            1 => unit_factor(
-                path,
-                name,
-                Some(unit),
-                if i < 3 { ROT_DAMP } else { TRANS_DAMP },
-            )
-            .map_err(|_| {
-                Error::parse(
-                    path,
-                    &loc,
-                    format!(
-                        "column '{name}': unit [{unit}] is not accepted (accepted: {})",
-                        if i < 3 {
-                            "N*m*s/rad, N*m*s/deg"
-                        } else {
-                            "N*s/m, N*s/mm"
-                        }
-                    ),
-                )
-            })?,
-            _ => unit_factor(
-                path,
-                name,
-                Some(unit),
-                if i < 3 { ROT_STIFF } else { TRANS_STIFF },
-            )
-            .map_err(|_| {
-                Error::parse(
-                    path,
-                    &loc,
-                    format!(
-                        "column '{name}': unit [{unit}] is not accepted (accepted: {})",
-                        if i < 3 {
-                            "N*m/rad, N*m/deg"
-                        } else {
-                            "N/m, N/mm"
-                        }
-                    ),
-                )
-            })?,
-        };
+        let factor = csv_unit_factor(kind, i, name, unit, &loc, path)?;
         cols.push(Some((kind, i, factor)));
     }
-    let mut all = None;
-    let mut levels = Vec::new();
-    for rec in records {
-        let rec = rec.map_err(|e| Error::parse(path, "CSV", e.to_string()))?;
-        let line = rec.position().map(line_at).unwrap_or(0);
-        let name = rec.get(0).unwrap_or("").to_string();
-        if name.is_empty() {
-            return Err(Error::parse(
-                path,
-                format!("line {line}"),
-                "empty level name",
-            ));
-        }
-        let loc = format!("line {line} '{name}'");
-        let mut row = Row {
-            name: name.clone(),
-            location: loc.clone(),
-            form: Some(Form::Linear),
-            ..Row::default()
-        };
-        for (ci, cell) in rec.iter().enumerate().skip(1) {
-            let Some(Some((kind, i, f))) = cols.get(ci) else {
-                continue;
-            };
-            if cell.is_empty() {
-                continue;
-            }
-            let v: f64 = cell.parse().map_err(|_| {
-                Error::parse(
-                    path,
-                    &loc,
-                    format!("column {}: '{cell}' is not a number", ci + 1),
-                )
-            })?;
-            if !v.is_finite() || v.abs() > MAX_STIFFNESS {
+    Ok(cols)
+}
+
+/// Factor to SI of column `name` (kind `kind`, DoF `i`) in `unit`.
+fn csv_unit_factor(
+    kind: CsvKind,
+    i: usize,
+    name: &str,
+    unit: &str,
+    loc: &str,
+    path: &Path,
+) -> Result<f64> {
+    let (table, accepted) = match kind {
+        CsvKind::Ratio => {
+            if unit != "1" {
                 return Err(Error::parse(
                     path,
-                    &loc,
-                    format!(
-                        "column {}: not finite or beyond +-{MAX_STIFFNESS:e}",
-                        ci + 1
-                    ),
+                    loc,
+                    format!("ratio column '{name}' must have unit [1]"),
                 ));
             }
-            match kind {
-                0 => row.stiffness[*i] = Some(v * f),
-                1 => row.damping[*i] = Some(v * f),
-                _ => row.ratio[*i] = Some(v),
-            }
+            return Ok(1.0);
         }
-        if name == "*" {
-            if all.is_some() {
-                return Err(Error::parse(path, &loc, "a second `*` row"));
-            }
-            row.form = None;
-            all = Some(row);
-        } else {
-            levels.push(row);
+        CsvKind::Damping if i < 3 => (ROT_DAMP, "N*m*s/rad, N*m*s/deg"),
+        CsvKind::Damping => (TRANS_DAMP, "N*s/m, N*s/mm"),
+        CsvKind::Stiffness if i < 3 => (ROT_STIFF, "N*m/rad, N*m/deg"),
+        CsvKind::Stiffness => (TRANS_STIFF, "N/m, N/mm"),
+    };
+    unit_factor(path, name, Some(unit), table).map_err(|_| {
+        Error::parse(
+            path,
+            loc,
+            format!("column '{name}': unit [{unit}] is not accepted (accepted: {accepted})"),
+        )
+    })
+}
+
+/// The level row of record `rec` at `line`: its name and the non-empty
+/// cells of the value columns, converted to SI.
+fn csv_row(
+    rec: &csv::StringRecord,
+    line: u64,
+    cols: &[Option<CsvColumn>],
+    path: &Path,
+) -> Result<Row> {
+    let name = rec.get(0).unwrap_or("").to_string();
+    if name.is_empty() {
+        return Err(Error::parse(
+            path,
+            format!("line {line}"),
+            "empty level name",
+        ));
+    }
+    let loc = format!("line {line} '{name}'");
+    let mut row = Row {
+        name,
+        location: loc.clone(),
+        form: Some(Form::Linear),
+        ..Row::default()
+    };
+    for (ci, cell) in rec.iter().enumerate().skip(1) {
+        let Some(Some((kind, i, f))) = cols.get(ci) else {
+            continue;
+        };
+        if cell.is_empty() {
+            continue;
+        }
+        let v: f64 = cell.parse().map_err(|_| {
+            Error::parse(
+                path,
+                &loc,
+                format!("column {}: '{cell}' is not a number", ci + 1),
+            )
+        })?;
+        if !v.is_finite() || v.abs() > MAX_STIFFNESS {
+            return Err(Error::parse(
+                path,
+                &loc,
+                format!(
+                    "column {}: not finite or beyond +-{MAX_STIFFNESS:e}",
+                    ci + 1
+                ),
+            ));
+        }
+        match kind {
+            CsvKind::Stiffness => row.stiffness[*i] = Some(v * f),
+            CsvKind::Damping => row.damping[*i] = Some(v * f),
+            CsvKind::Ratio => row.ratio[*i] = Some(v),
         }
     }
-    Ok(Table {
-        path: path.to_path_buf(),
-        all,
-        levels,
-    })
+    Ok(row)
 }
 
 /// Read a table file: `.csv` as CSV, anything else as TOML.

@@ -14,7 +14,7 @@
 use super::forces::{self, LoadSet};
 use super::kinematics;
 use super::scalar::Scalar;
-use super::system::{DenseLu, System, Workspace};
+use super::system::{BodyIndex, DenseLu, System, Workspace};
 use crate::error::{Error, Result};
 use nalgebra::{DVector, Matrix3, Vector3};
 use num_dual::Dual64;
@@ -129,10 +129,10 @@ impl System {
         for bi in 0..self.bodies.len() {
             let b = &self.bodies[bi];
             let (mut v, mut a) = match b.parent {
-                Some(p) => (ws.vel[p], ws.acc[p]),
+                Some(p) => (ws.vel[p.0], ws.acc[p.0]),
                 None => ([Vector3::zeros(); 2], [Vector3::zeros(); 2]),
             };
-            for k in b.joint.dof_start..b.joint.dof_start + b.joint.dof_count {
+            for k in b.joint.dofs() {
                 let h = ws.k64.h[k];
                 let hd = ws.hdot[k];
                 v[0] += h[0] * u[k];
@@ -242,23 +242,23 @@ impl System {
         for bi in (0..self.bodies.len()).rev() {
             if let Some(p) = self.bodies[bi].parent {
                 let c = ws.comp[bi];
-                ws.comp[p].add(&c);
+                ws.comp[p.0].add(&c);
             }
         }
         ws.mass.fill(0.0);
         for bi in 0..self.bodies.len() {
             let j = &self.bodies[bi].joint;
-            for k in j.dof_start..j.dof_start + j.dof_count {
+            for k in j.dofs() {
                 let f = ws.comp[bi].mul(&ws.k64.h[k]);
-                let mut a = Some(bi);
+                let mut a = Some(BodyIndex(bi));
                 while let Some(ai) = a {
-                    let ja = &self.bodies[ai].joint;
-                    for l in ja.dof_start..ja.dof_start + ja.dof_count {
+                    let ja = &self.bodies[ai.0].joint;
+                    for l in ja.dofs() {
                         let v = dot6(&ws.k64.h[l], &f);
                         ws.mass[(l, k)] = v;
                         ws.mass[(k, l)] = v;
                     }
-                    a = self.bodies[ai].parent;
+                    a = self.bodies[ai.0].parent;
                 }
             }
         }
@@ -299,32 +299,6 @@ impl System {
             gravity: pg,
             bushing: pb,
         })
-    }
-
-    /// Power of the loads at (q, u): their generalised force on the speeds
-    /// dotted with `u`.
-    pub fn load_power(
-        &self,
-        q: &[f64],
-        u: &[f64],
-        loads: &LoadSet,
-        ws: &mut Workspace,
-    ) -> Result<f64> {
-        self.check_inputs(q, loads, ws)?;
-        if u.len() != q.len() {
-            return Err(Error::invalid(
-                "solver",
-                "load power: one speed per free coordinate",
-            ));
-        }
-        ws.k64.q.copy_from_slice(q);
-        kinematics::forward_speeds(self, &mut ws.k64);
-        for w in ws.k64.w.iter_mut() {
-            *w = [Vector3::zeros(), Vector3::zeros()];
-        }
-        forces::load_wrenches(loads, &mut ws.k64);
-        forces::project(self, &mut ws.k64);
-        Ok(ws.k64.tau.iter().zip(u).map(|(t, v)| t * v).sum())
     }
 }
 

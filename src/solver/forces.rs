@@ -6,7 +6,7 @@
 use super::kinematics;
 use super::scalar::{body_xyz, v3, Scalar};
 use super::spec::{Load, LoadFrame};
-use super::system::{Bushing, KinBuf, Pose, System};
+use super::system::{BodyIndex, Bushing, KinBuf, Pose, System};
 use crate::error::{Error, Result};
 use nalgebra::{Matrix3, Vector3};
 
@@ -44,21 +44,21 @@ impl GimbalLock {
 #[derive(Debug, Clone)]
 pub(crate) enum Resolved {
     Moment {
-        body: usize,
+        body: BodyIndex,
         vec: Vector3<f64>,
         frame: LoadFrame,
     },
     Force {
-        body: usize,
+        body: BodyIndex,
         point: Vector3<f64>,
         vec: Vector3<f64>,
         frame: LoadFrame,
     },
     /// Pair of guide points: `upper` body point pushed towards `lower` body point.
     Follower {
-        upper: usize,
+        upper: BodyIndex,
         upper_pt: Vector3<f64>,
-        lower: Option<usize>,
+        lower: Option<BodyIndex>,
         lower_pt: Vector3<f64>,
         magnitude: f64,
     },
@@ -104,7 +104,7 @@ fn finite3(v: &Vector3<f64>) -> bool {
 impl System {
     /// Resolve loads: unknown bodies, ground and non-finite numbers are errors.
     pub fn prepare_loads(&self, loads: &[Load]) -> Result<LoadSet> {
-        let find = |name: &str, what: &str| -> Result<usize> {
+        let find = |name: &str, what: &str| -> Result<BodyIndex> {
             self.body_index(name).ok_or_else(|| {
                 let known: Vec<&str> = self.body_names().collect();
                 Error::invalid(
@@ -170,11 +170,11 @@ impl System {
 
     /// Guide-point pairs of every joint on the tree path between a and b,
     /// placed in the default pose.
-    fn follower_pairs(&self, a: usize, b: usize, magnitude: f64, out: &mut Vec<Resolved>) {
+    fn follower_pairs(&self, a: BodyIndex, b: BodyIndex, magnitude: f64, out: &mut Vec<Resolved>) {
         let pa = self.path_to_root(a);
         let pb = self.path_to_root(b);
         // joints on the path: child bodies below the lowest common ancestor
-        let mut joints: Vec<usize> = Vec::new();
+        let mut joints: Vec<BodyIndex> = Vec::new();
         for &x in &pa {
             if !pb.contains(&x) {
                 joints.push(x);
@@ -190,18 +190,18 @@ impl System {
         kb.q.copy_from_slice(self.default_q().as_slice());
         kinematics::forward(self, &mut kb);
         for c in joints {
-            let body = &self.bodies[c];
+            let body = &self.bodies[c.0];
             let x_gp = match body.parent {
-                Some(p) => kb.x_gb[p],
+                Some(p) => kb.x_gb[p.0],
                 None => Pose::identity(),
             };
             let x_gf = x_gp.compose_c(&body.joint.x_pf);
-            let x_gm = kb.x_gb[c].compose_c(&body.joint.x_bm);
+            let x_gm = kb.x_gb[c.0].compose_c(&body.joint.x_bm);
             let y = x_gf.r.column(1).into_owned();
             let centre = x_gm.p;
             let up_g = centre + y * 0.010;
             let lo_g = centre - y * 0.010;
-            let xc = kb.x_gb[c];
+            let xc = kb.x_gb[c.0];
             let upper_pt = xc.r.transpose() * (up_g - xc.p);
             let lower_pt = x_gp.r.transpose() * (lo_g - x_gp.p);
             out.push(Resolved::Follower {
@@ -218,13 +218,13 @@ impl System {
 #[inline]
 fn add_wrench<T: Scalar>(
     w: &mut [[Vector3<T>; 2]],
-    body: Option<usize>,
+    body: Option<BodyIndex>,
     point: &Vector3<T>,
     f: &Vector3<T>,
     m: &Vector3<T>,
 ) {
     if let Some(b) = body {
-        if let Some(wb) = w.get_mut(b) {
+        if let Some(wb) = w.get_mut(b.0) {
             wb[0] += m + point.cross(f);
             wb[1] += f;
         }
@@ -233,9 +233,13 @@ fn add_wrench<T: Scalar>(
 
 /// Pose of a frame fixed in a body (None = ground).
 #[inline]
-pub(crate) fn frame_pose<T: Scalar>(kb: &KinBuf<T>, body: Option<usize>, x: &Pose<f64>) -> Pose<T> {
+pub(crate) fn frame_pose<T: Scalar>(
+    kb: &KinBuf<T>,
+    body: Option<BodyIndex>,
+    x: &Pose<f64>,
+) -> Pose<T> {
     match body {
-        Some(b) => kb.x_gb[b].compose_c(x),
+        Some(b) => kb.x_gb[b.0].compose_c(x),
         None => Pose {
             r: x.r.map(T::c),
             p: v3(&x.p),
@@ -335,7 +339,7 @@ pub(crate) fn gravity_wrenches<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
         }
         let c = kb.x_gb[bi].point(&b.com);
         let f = g * T::c(b.mass);
-        add_wrench(&mut kb.w, Some(bi), &c, &f, &Vector3::zeros());
+        add_wrench(&mut kb.w, Some(BodyIndex(bi)), &c, &f, &Vector3::zeros());
     }
 }
 
@@ -345,7 +349,7 @@ pub(crate) fn load_wrenches<T: Scalar>(loads: &LoadSet, kb: &mut KinBuf<T>) {
             Resolved::Moment { body, vec, frame } => {
                 let m = match frame {
                     LoadFrame::Ground => v3(vec),
-                    LoadFrame::Body => kb.x_gb[*body].r * v3::<T>(vec),
+                    LoadFrame::Body => kb.x_gb[body.0].r * v3::<T>(vec),
                 };
                 add_wrench(
                     &mut kb.w,
@@ -361,7 +365,7 @@ pub(crate) fn load_wrenches<T: Scalar>(loads: &LoadSet, kb: &mut KinBuf<T>) {
                 vec,
                 frame,
             } => {
-                let x = kb.x_gb[*body];
+                let x = kb.x_gb[body.0];
                 let f = match frame {
                     LoadFrame::Ground => v3(vec),
                     LoadFrame::Body => x.r * v3::<T>(vec),
@@ -376,9 +380,9 @@ pub(crate) fn load_wrenches<T: Scalar>(loads: &LoadSet, kb: &mut KinBuf<T>) {
                 lower_pt,
                 magnitude,
             } => {
-                let pu = kb.x_gb[*upper].point(upper_pt);
+                let pu = kb.x_gb[upper.0].point(upper_pt);
                 let pl = match lower {
-                    Some(l) => kb.x_gb[*l].point(lower_pt),
+                    Some(l) => kb.x_gb[l.0].point(lower_pt),
                     None => v3(lower_pt),
                 };
                 let d = pu - pl;
@@ -450,13 +454,13 @@ pub(crate) fn project<T: Scalar>(sys: &System, kb: &mut KinBuf<T>) {
         let b = &sys.bodies[bi];
         let wb = kb.w[bi];
         let j = &b.joint;
-        for k in j.dof_start..j.dof_start + j.dof_count {
+        for k in j.dofs() {
             let h = kb.h[k];
             kb.tau[k] = h[0].dot(&wb[0]) + h[1].dot(&wb[1]);
         }
         if let Some(p) = b.parent {
-            kb.w[p][0] += wb[0];
-            kb.w[p][1] += wb[1];
+            kb.w[p.0][0] += wb[0];
+            kb.w[p.0][1] += wb[1];
         }
     }
 }

@@ -60,7 +60,7 @@ impl System {
             .map(|b| &b.joint)
             .find(|j| j.name == joint)
             .ok_or_else(|| Error::invalid("solver", format!("no joint named '{joint}'")))?;
-        let own = q.get(j.dof_start..j.dof_start + j.dof_count).unwrap_or(&[]);
+        let own = q.get(j.dofs()).unwrap_or(&[]);
         let mut local = [[Vector3::zeros(); 2]; 6];
         Ok(joint_local(j, own, &mut local).to_isometry())
     }
@@ -83,11 +83,11 @@ fn forward_mode<T: Scalar>(sys: &System, kb: &mut KinBuf<T>, speeds: bool) {
     for bi in 0..sys.bodies.len() {
         let b = &sys.bodies[bi];
         let x_gp = match b.parent {
-            Some(p) => kb.x_gb[p],
+            Some(p) => kb.x_gb[p.0],
             None => Pose::identity(),
         };
         let j = &b.joint;
-        let range = j.dof_start..j.dof_start + j.dof_count;
+        let range = j.dofs();
         let q = kb.q.get(range.clone()).unwrap_or(&[]);
         let h = kb.h.get_mut(range).unwrap_or(&mut []);
         kb.x_gb[bi] = joint_forward(j, &x_gp, q, h, speeds && j.euler_speeds);
@@ -330,7 +330,7 @@ impl System {
     pub fn dof_speed_is_angular_velocity(&self, i: usize) -> bool {
         self.dof_body
             .get(i)
-            .and_then(|&b| self.bodies.get(b))
+            .and_then(|&b| self.bodies.get(b.0))
             .is_some_and(|b| b.joint.euler_speeds && i < b.joint.dof_start + 3)
     }
 

@@ -242,11 +242,6 @@ impl BushingModel {
         }
     }
 
-    /// The stiffness part `g(q)` of the law at the deflection `q`.
-    pub fn stiffness_force(&self, q: &[f64; 6]) -> [f64; 6] {
-        Law::from_model(self).g(q)
-    }
-
     /// Check the law's numbers (finite; curves well formed). Errors say which DoF.
     pub fn validate(&self) -> Result<(), String> {
         if !self.damping().iter().all(|v| v.is_finite()) {

@@ -4,7 +4,7 @@
 //! | file | what lives there |
 //! |---|---|
 //! | `spec` | [`SystemSpec`] (bodies, joints, coordinates, bushings, gravity) and [`Load`] |
-//! | `system` | [`System`] (validated, parent-before-child), [`Workspace`] (scratch) |
+//! | `system` | [`System`] (validated, parent-before-child), [`Workspace`] (scratch), the two index spaces: [`BodyIndex`] (system order; spec bodies are plain `usize` in spec order) and [`DofIndex`] (free dofs; spec coordinates are plain `usize`) |
 //! | `scalar`, `function` | scalar types (f64, dual numbers) and transform-axis functions |
 //! | `kinematics` | body poses and motion subspaces, generic over the scalar |
 //! | `law`, `expr` | bushing force laws (linear, per-DoF curves, coupled 6x6, Lepton expressions) |
@@ -36,7 +36,7 @@ pub use spec::{
     JointKind, JointSpec, Load, LoadFrame, SystemSpec, TransformAxis,
 };
 pub use statics::{StaticOptions, StaticSolution};
-pub use system::{Pose, System, SystemId, Workspace};
+pub use system::{BodyIndex, DofIndex, Pose, System, SystemId, Workspace};
 pub use tree::TangentMethod;
 
 #[cfg(test)]

@@ -117,8 +117,8 @@ impl System {
             );
             let m2 = x2.r * forces::n_transpose_mul(&qr, &fr);
             let f2 = x1.r * ft;
-            let origin = |body: Option<usize>| {
-                body.map(|bi| ws.kd1.x_gb[bi].p.map(|v| v.re))
+            let origin = |body: Option<super::BodyIndex>| {
+                body.map(|bi| ws.kd1.x_gb[bi.0].p.map(|v| v.re))
                     .unwrap_or_else(Vector3::zeros)
             };
             let o1 = origin(b.body1);

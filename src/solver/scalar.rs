@@ -80,18 +80,6 @@ pub fn m3<T: Scalar>(m: &Matrix3<f64>) -> Matrix3<T> {
     m.map(T::c)
 }
 
-/// Value parts of a vector.
-#[inline]
-pub fn re3<T: Scalar>(v: &Vector3<T>) -> Vector3<f64> {
-    v.map(|x| x.re())
-}
-
-/// Value parts of a matrix.
-#[inline]
-pub fn rem3<T: Scalar>(m: &Matrix3<T>) -> Matrix3<f64> {
-    m.map(|x| x.re())
-}
-
 /// Rotation matrix by `angle` about the unit `axis` (Rodrigues).
 #[inline]
 pub fn rot_axis<T: Scalar>(axis: &Vector3<f64>, angle: T) -> Matrix3<T> {

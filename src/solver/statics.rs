@@ -157,6 +157,260 @@ fn subtract(tau: &mut [f64], offset: Option<&[f64]>) {
 }
 
 /// Loads scaled by the load factor `s`.
+/// The state of a load continuation ([`System::solve_static_continuation`]):
+/// the point `(q, s)` on the path of `H(q, s) = tau_s(q) - (1 - s) c = 0`
+/// and the step control.
+struct Continuation<'a> {
+    sys: &'a System,
+    loads: &'a LoadSet,
+    /// The system without gravity, and the loads scaled to 0.
+    sys0: System,
+    loads0: LoadSet,
+    /// The system with gravity scaled by the current load factor.
+    sys_s: System,
+    /// `tau_0(q0)`: the unloaded forces at the start.
+    c: Vec<f64>,
+    q: Vec<f64>,
+    q_try: Vec<f64>,
+    /// The path tangent `dq/ds` (or `-dH/ds` when the tangent is singular).
+    v: Vec<f64>,
+    offset: Vec<f64>,
+    /// Load factor reached.
+    s: f64,
+    /// Next step length.
+    ds: f64,
+    iterations: usize,
+    steps: usize,
+    attempts: usize,
+    /// Largest rotational `|dq/ds|` at the start and now.
+    slope0: Option<f64>,
+    slope: f64,
+    singular: bool,
+    was_stable: Option<bool>,
+    lost_stability_at: Option<f64>,
+}
+
+/// The outcome of one continuation step.
+enum Step {
+    Accepted,
+    /// At `s = 1`: the solution.
+    Arrived(StaticSolution),
+    /// No step possible; the last corrector failure.
+    Stuck(Option<Error>),
+}
+
+impl<'a> Continuation<'a> {
+    /// The path from `q0` at `s = 0`, after `first_iterations` Newton
+    /// iterations of the plain solve.
+    fn start(
+        sys: &'a System,
+        loads: &'a LoadSet,
+        q0: &[f64],
+        ws: &mut Workspace,
+        first_iterations: usize,
+    ) -> Result<Self> {
+        let n = sys.n_dofs();
+        let mut sys0 = sys.clone();
+        sys0.gravity = Vector3::zeros();
+        let loads0 = scaled_loads(loads, 0.0);
+        ws.k64.q.copy_from_slice(q0);
+        eval_tau(&sys0, &loads0, &mut ws.k64).map_err(|e| e.to_error(sys))?;
+        Ok(Continuation {
+            sys,
+            loads,
+            sys0,
+            loads0,
+            sys_s: sys.clone(),
+            c: ws.k64.tau.clone(),
+            q: q0.to_vec(),
+            q_try: vec![0.0; n],
+            v: vec![0.0; n],
+            offset: vec![0.0; n],
+            s: 0.0,
+            ds: CONT_INITIAL_STEP,
+            iterations: first_iterations,
+            steps: 0,
+            attempts: 0,
+            slope0: None,
+            slope: 0.0,
+            singular: false,
+            was_stable: None,
+            lost_stability_at: None,
+        })
+    }
+
+    /// The path tangent at `(q, s)`: `dq/ds = -T^-1 dH/ds` with
+    /// `dH/ds = tau_1(q) - tau_0(q) + c`; whether `T` is singular, where the
+    /// path first loses stability, and the slope.
+    fn tangent(&mut self, ws: &mut Workspace, opts: &StaticOptions) -> Result<()> {
+        let (sys, n) = (self.sys, self.q.len());
+        ws.k64.q.copy_from_slice(&self.q);
+        eval_tau(&self.sys0, &self.loads0, &mut ws.k64).map_err(|e| e.to_error(sys))?;
+        self.v.copy_from_slice(&ws.k64.tau);
+        eval_tau(sys, self.loads, &mut ws.k64).map_err(|e| e.to_error(sys))?;
+        for i in 0..n {
+            self.v[i] = -(ws.k64.tau[i] - self.v[i] + self.c[i]);
+        }
+        self.sys_s.gravity = sys.gravity * self.s;
+        let loads_s = scaled_loads(self.loads, self.s);
+        eval_tau(&self.sys_s, &loads_s, &mut ws.k64).map_err(|e| e.to_error(sys))?;
+        ws.dq.copy_from_slice(&self.v);
+        self.sys_s
+            .factor_and_solve(&self.q, &loads_s, ws, opts.tangent)
+            .map_err(|e| e.to_error(sys))?;
+        self.singular = ws.factored == Factored::None || ws.dq.iter().any(|x| !x.is_finite());
+        if !self.singular {
+            self.v.copy_from_slice(&ws.dq);
+            let st = self.sys_s.stability(&loads_s, ws);
+            if self.was_stable == Some(true)
+                && st == Some(false)
+                && self.lost_stability_at.is_none()
+            {
+                self.lost_stability_at = Some(self.s);
+            }
+            self.was_stable = st;
+        }
+        self.slope = self.max_rotation(|i| self.v[i].abs());
+        self.slope0.get_or_insert(self.slope);
+        Ok(())
+    }
+
+    /// Largest `f(i)` over the rotational DoFs (0 without any).
+    fn max_rotation(&self, f: impl Fn(usize) -> f64) -> f64 {
+        (0..self.q.len())
+            .filter(|&i| self.sys.dof_rotational[i])
+            .fold(0.0f64, |m, i| m.max(f(i)))
+    }
+
+    /// Predictor-corrector attempts along the tangent until one is accepted
+    /// (halving the step after each failure), the step is too small, or the
+    /// attempts run out.
+    fn step(&mut self, ws: &mut Workspace, opts: &StaticOptions) -> Step {
+        let n = self.q.len();
+        let mut last: Option<Error> = None;
+        loop {
+            self.attempts += 1;
+            let mut h = self.ds.min(1.0 - self.s);
+            if self.slope * h > CONT_MAX_PREDICTED_ROTATION {
+                h = CONT_MAX_PREDICTED_ROTATION / self.slope;
+            }
+            if self.singular || h < CONT_MIN_STEP || self.attempts > CONT_MAX_ATTEMPTS {
+                return Step::Stuck(last);
+            }
+            let s1 = if self.s + h >= 1.0 - 1e-12 {
+                1.0
+            } else {
+                self.s + h
+            };
+            for i in 0..n {
+                self.q_try[i] = self.q[i] + (s1 - self.s) * self.v[i];
+            }
+            let mut q_new = self.q_try.clone();
+            match self.correct(s1, &mut q_new, ws, opts) {
+                Ok(Newton::Converged {
+                    iterations: it,
+                    residual_norm,
+                }) => {
+                    self.iterations += it;
+                    // the corrector must stay near the predicted point,
+                    // or it has jumped to another equilibrium branch
+                    let jump = self.max_rotation(|i| (q_new[i] - self.q_try[i]).abs());
+                    if jump <= CONT_MAX_CORRECTION {
+                        self.q.copy_from_slice(&q_new);
+                        self.s = s1;
+                        self.steps += 1;
+                        self.ds = if it <= 4 { (2.0 * h).min(1.0) } else { h };
+                        if self.s == 1.0 {
+                            return Step::Arrived(StaticSolution {
+                                q: DVector::from_vec(std::mem::take(&mut self.q)),
+                                iterations: self.iterations,
+                                residual_norm,
+                                stable: self.sys.stability(self.loads, ws),
+                                continuation_steps: self.steps,
+                            });
+                        }
+                        return Step::Accepted;
+                    }
+                    last = Some(Error::numerical(
+                        "static equilibrium",
+                        format!("the corrector moved {jump:.3} rad away from the predicted point"),
+                    ));
+                }
+                Ok(Newton::Failed {
+                    error,
+                    iterations: it,
+                    ..
+                }) => {
+                    self.iterations += it;
+                    last = Some(error);
+                }
+                Err(e) => last = Some(e),
+            }
+            self.ds = 0.5 * h;
+        }
+    }
+
+    /// Newton corrector at load factor `s1` from the predicted point `q`:
+    /// the real problem at `s1 = 1`, else the scaled one with its offset.
+    fn correct(
+        &mut self,
+        s1: f64,
+        q: &mut [f64],
+        ws: &mut Workspace,
+        opts: &StaticOptions,
+    ) -> Result<Newton> {
+        if s1 == 1.0 {
+            return self.sys.corrector(self.loads, None, q, ws, opts);
+        }
+        self.sys_s.gravity = self.sys.gravity * s1;
+        let loads_s1 = scaled_loads(self.loads, s1);
+        for i in 0..self.q.len() {
+            self.offset[i] = (1.0 - s1) * self.c[i];
+        }
+        self.sys_s
+            .corrector(&loads_s1, Some(&self.offset), q, ws, opts)
+    }
+
+    /// The error when the path cannot go on: how far the loads were carried
+    /// and why not further (a limit point, the last corrector failure),
+    /// after the plain Newton failure `first`.
+    fn failure(&self, first: Option<&Error>, last: Option<Error>) -> Error {
+        let (s, steps, slope) = (self.s, self.steps, self.slope);
+        let slope_start = self.slope0.unwrap_or(slope);
+        let first = match first {
+            Some(e) => format!("plain Newton failed ({e}); "),
+            None => String::new(),
+        };
+        let mut msg = format!(
+            "no equilibrium found: {first}load continuation (gravity \
+             and loads scaled by a factor s from 0 to 1, {steps} steps) carried them up to s = {s:.4} \
+             and could not go further"
+        );
+        if self.singular || slope > CONT_LIMIT_SLOPE_GROWTH * slope_start.max(1e-12) {
+            msg.push_str(&format!(
+                ": the equilibrium path reaches a limit point there (the tangent stiffness \
+                 becomes singular; |dq/ds| grew from {slope_start:.3e} to {} rad per unit load factor), \
+                 i.e. snap-through or buckling: the model cannot carry the full loads on this \
+                 equilibrium branch",
+                if self.singular {
+                    "infinity".to_string()
+                } else {
+                    format!("{slope:.3e}")
+                }
+            ));
+        } else if let Some(e) = last {
+            msg.push_str(&format!(" (last corrector failure: {e})"));
+        }
+        if let Some(sl) = self.lost_stability_at {
+            msg.push_str(&format!(
+                "; the path had lost stability at s = {sl:.4} (the tangent stiffness was no longer \
+                 positive definite)"
+            ));
+        }
+        Error::numerical("static equilibrium", msg)
+    }
+}
+
 fn scaled_loads(loads: &LoadSet, s: f64) -> LoadSet {
     let items = loads
         .items
@@ -610,165 +864,17 @@ impl System {
         first: Option<Error>,
         first_iterations: usize,
     ) -> Result<StaticSolution> {
-        let n = self.n_dofs();
-        let ctx = "static equilibrium";
-        let g = self.gravity;
-        let mut sys0 = self.clone();
-        sys0.gravity = Vector3::zeros();
-        let loads0 = scaled_loads(loads, 0.0);
-        let mut sys_s = self.clone();
-        ws.k64.q.copy_from_slice(q0);
-        eval_tau(&sys0, &loads0, &mut ws.k64).map_err(|e| e.to_error(self))?;
-        let c: Vec<f64> = ws.k64.tau.clone();
-        let mut q: Vec<f64> = q0.to_vec();
-        let mut q_try = vec![0.0; n];
-        let mut v = vec![0.0; n];
-        let mut offset = vec![0.0; n];
-        let mut s = 0.0f64;
-        let mut ds = CONT_INITIAL_STEP;
-        let mut iterations = first_iterations;
-        let mut steps = 0usize;
-        let mut attempts = 0usize;
-        let mut slope0: Option<f64> = None;
-        let mut slope;
-        let mut was_stable: Option<bool> = None;
-        let mut lost_stability_at: Option<f64> = None;
+        // The start of the path: q0 at s = 0, c = tau_0(q0).
+        let mut path = Continuation::start(self, loads, q0, ws, first_iterations)?;
         loop {
-            // path tangent at (q, s): dH/ds = tau_1(q) - tau_0(q) + c
-            ws.k64.q.copy_from_slice(&q);
-            eval_tau(&sys0, &loads0, &mut ws.k64).map_err(|e| e.to_error(self))?;
-            v.copy_from_slice(&ws.k64.tau);
-            eval_tau(self, loads, &mut ws.k64).map_err(|e| e.to_error(self))?;
-            for i in 0..n {
-                v[i] = -(ws.k64.tau[i] - v[i] + c[i]);
+            // The path tangent dq/ds at (q, s), and its stability.
+            path.tangent(ws, opts)?;
+            // One accepted predictor-corrector step, or the end of the path.
+            match path.step(ws, opts) {
+                Step::Accepted => {}
+                Step::Arrived(sol) => return Ok(sol),
+                Step::Stuck(last) => return Err(path.failure(first.as_ref(), last)),
             }
-            sys_s.gravity = g * s;
-            let loads_s = scaled_loads(loads, s);
-            eval_tau(&sys_s, &loads_s, &mut ws.k64).map_err(|e| e.to_error(self))?;
-            ws.dq.copy_from_slice(&v);
-            sys_s
-                .factor_and_solve(&q, &loads_s, ws, opts.tangent)
-                .map_err(|e| e.to_error(self))?;
-            let singular = ws.factored == Factored::None || ws.dq.iter().any(|x| !x.is_finite());
-            if !singular {
-                v.copy_from_slice(&ws.dq);
-                let st = sys_s.stability(&loads_s, ws);
-                if was_stable == Some(true) && st == Some(false) && lost_stability_at.is_none() {
-                    lost_stability_at = Some(s);
-                }
-                was_stable = st;
-            }
-            slope = (0..n)
-                .filter(|&i| self.dof_rotational[i])
-                .fold(0.0f64, |m, i| m.max(v[i].abs()));
-            let slope_start = *slope0.get_or_insert(slope);
-            let mut last: Option<Error> = None;
-            // one accepted step (or give up)
-            let accepted = loop {
-                attempts += 1;
-                let mut h = ds.min(1.0 - s);
-                if slope * h > CONT_MAX_PREDICTED_ROTATION {
-                    h = CONT_MAX_PREDICTED_ROTATION / slope;
-                }
-                if singular || h < CONT_MIN_STEP || attempts > CONT_MAX_ATTEMPTS {
-                    break false;
-                }
-                let s1 = if s + h >= 1.0 - 1e-12 { 1.0 } else { s + h };
-                for i in 0..n {
-                    q_try[i] = q[i] + (s1 - s) * v[i];
-                }
-                let mut q_new = q_try.clone();
-                let outcome = if s1 == 1.0 {
-                    self.corrector(loads, None, &mut q_new, ws, opts)
-                } else {
-                    sys_s.gravity = g * s1;
-                    let loads_s1 = scaled_loads(loads, s1);
-                    for i in 0..n {
-                        offset[i] = (1.0 - s1) * c[i];
-                    }
-                    sys_s.corrector(&loads_s1, Some(&offset), &mut q_new, ws, opts)
-                };
-                match outcome {
-                    Ok(Newton::Converged {
-                        iterations: it,
-                        residual_norm,
-                    }) => {
-                        iterations += it;
-                        // the corrector must stay near the predicted point,
-                        // or it has jumped to another equilibrium branch
-                        let jump = (0..n)
-                            .filter(|&i| self.dof_rotational[i])
-                            .fold(0.0f64, |m, i| m.max((q_new[i] - q_try[i]).abs()));
-                        if jump <= CONT_MAX_CORRECTION {
-                            q.copy_from_slice(&q_new);
-                            s = s1;
-                            steps += 1;
-                            ds = if it <= 4 { (2.0 * h).min(1.0) } else { h };
-                            if s == 1.0 {
-                                return Ok(StaticSolution {
-                                    q: DVector::from_vec(q),
-                                    iterations,
-                                    residual_norm,
-                                    stable: self.stability(loads, ws),
-                                    continuation_steps: steps,
-                                });
-                            }
-                            break true;
-                        }
-                        last = Some(Error::numerical(
-                            ctx,
-                            format!(
-                                "the corrector moved {jump:.3} rad away from the predicted point"
-                            ),
-                        ));
-                    }
-                    Ok(Newton::Failed {
-                        error,
-                        iterations: it,
-                        ..
-                    }) => {
-                        iterations += it;
-                        last = Some(error);
-                    }
-                    Err(e) => last = Some(e),
-                }
-                ds = 0.5 * h;
-            };
-            if accepted {
-                continue;
-            }
-            // give up: say how far the loads could be carried and why not further
-            let first = match &first {
-                Some(e) => format!("plain Newton failed ({e}); "),
-                None => String::new(),
-            };
-            let mut msg = format!(
-                "no equilibrium found: {first}load continuation (gravity \
-                 and loads scaled by a factor s from 0 to 1, {steps} steps) carried them up to s = {s:.4} \
-                 and could not go further"
-            );
-            if singular || slope > CONT_LIMIT_SLOPE_GROWTH * slope_start.max(1e-12) {
-                msg.push_str(&format!(
-                    ": the equilibrium path reaches a limit point there (the tangent stiffness \
-                     becomes singular; |dq/ds| grew from {slope_start:.3e} to {} rad per unit load factor), \
-                     i.e. snap-through or buckling: the model cannot carry the full loads on this \
-                     equilibrium branch",
-                    if singular {
-                        "infinity".to_string()
-                    } else {
-                        format!("{slope:.3e}")
-                    }
-                ));
-            } else if let Some(e) = last {
-                msg.push_str(&format!(" (last corrector failure: {e})"));
-            }
-            if let Some(sl) = lost_stability_at {
-                msg.push_str(&format!(
-                    "; the path had lost stability at s = {sl:.4} (the tangent stiffness was no longer \
-                     positive definite)"
-                ));
-            }
-            return Err(Error::numerical(ctx, msg));
         }
     }
 

@@ -79,6 +79,21 @@ impl Pose<f64> {
     }
 }
 
+/// Index of a body in system order (every parent before its children):
+/// the index of the bodies of a [`System`] and of [`KinBuf::x_gb`]. The
+/// bodies of a [`SystemSpec`] are numbered in spec order with plain
+/// `usize`; [`System::new`] maps one order to the other.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
+#[serde(transparent)]
+pub struct BodyIndex(pub usize);
+
+/// Index of a free degree of freedom: the position in the vectors `q`,
+/// `u` and `tau` of a [`System`]. The coordinates of a [`SystemSpec`] are
+/// numbered in spec order with plain `usize` (a locked coordinate has no
+/// degree of freedom).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct DofIndex(pub usize);
+
 /// Where an axis' value comes from.
 #[derive(Debug, Clone)]
 pub(crate) enum AxisSource {
@@ -113,11 +128,18 @@ pub(crate) struct Joint {
     pub euler_speeds: bool,
 }
 
+impl Joint {
+    /// The joint's free dofs: their positions in `q`, `u` and `tau`.
+    pub fn dofs(&self) -> std::ops::Range<usize> {
+        self.dof_start..self.dof_start + self.dof_count
+    }
+}
+
 /// A compiled body.
 #[derive(Debug, Clone)]
 pub(crate) struct Body {
     pub name: String,
-    pub parent: Option<usize>,
+    pub parent: Option<BodyIndex>,
     pub mass: f64,
     pub com: Vector3<f64>,
     pub inertia: Matrix3<f64>,
@@ -128,9 +150,9 @@ pub(crate) struct Body {
 #[derive(Debug, Clone)]
 pub(crate) struct Bushing {
     pub name: String,
-    pub body1: Option<usize>,
+    pub body1: Option<BodyIndex>,
     pub x_b1: Pose<f64>,
-    pub body2: Option<usize>,
+    pub body2: Option<BodyIndex>,
     pub x_b2: Pose<f64>,
     pub model: BushingModel,
     /// Compiled stiffness law `g(q)`.
@@ -194,15 +216,13 @@ impl SystemId {
 pub struct System {
     pub(crate) id: SystemId,
     pub(crate) bodies: Vec<Body>,
-    /// spec body index -> system body index
-    pub(crate) body_map: Vec<usize>,
     pub(crate) coords: Vec<CoordinateSpec>,
     /// spec coordinate -> free dof index (None when locked or unused)
-    pub(crate) coord_dof: Vec<Option<usize>>,
+    pub(crate) coord_dof: Vec<Option<DofIndex>>,
     /// free dof -> spec coordinate
     pub(crate) dof_coord: Vec<usize>,
     /// free dof -> owning system body
-    pub(crate) dof_body: Vec<usize>,
+    pub(crate) dof_body: Vec<BodyIndex>,
     /// dof drives a rotation axis
     pub(crate) dof_rotational: Vec<bool>,
     pub(crate) bushings: Vec<Bushing>,
@@ -410,9 +430,9 @@ fn check_coordinate_defaults(spec: &SystemSpec) -> Result<()> {
 /// the free dofs.
 struct Lowered {
     bodies: Vec<Body>,
-    coord_dof: Vec<Option<usize>>,
+    coord_dof: Vec<Option<DofIndex>>,
     dof_coord: Vec<usize>,
-    dof_body: Vec<usize>,
+    dof_body: Vec<BodyIndex>,
     dof_rotational: Vec<bool>,
 }
 
@@ -427,8 +447,8 @@ impl Lowered {
         js: &JointSpec,
         ai: usize,
         ta: &TransformAxis,
-        owner: &mut [Option<usize>],
-        si: usize,
+        owner: &mut [Option<BodyIndex>],
+        si: BodyIndex,
         local: &mut Vec<usize>,
     ) -> Result<AxisSource> {
         let Some(c) = ta.coord else {
@@ -461,7 +481,7 @@ impl Lowered {
             Some(k) => k,
             None => {
                 local.push(c);
-                self.coord_dof[c] = Some(self.dof_coord.len());
+                self.coord_dof[c] = Some(DofIndex(self.dof_coord.len()));
                 self.dof_coord.push(c);
                 self.dof_body.push(si);
                 self.dof_rotational.push(false);
@@ -482,8 +502,8 @@ fn lower_axes(
     spec: &SystemSpec,
     js: &JointSpec,
     lw: &mut Lowered,
-    owner: &mut [Option<usize>],
-    si: usize,
+    owner: &mut [Option<BodyIndex>],
+    si: BodyIndex,
     local: &mut Vec<usize>,
 ) -> Result<[Axis; 6]> {
     let mut axes: Vec<Axis> = Vec::with_capacity(6);
@@ -521,7 +541,7 @@ fn lower_bodies(
     spec: &SystemSpec,
     joint_of: &[Option<usize>],
     order: &[usize],
-    body_map: &[usize],
+    body_map: &[BodyIndex],
 ) -> Result<Lowered> {
     let mut lw = Lowered {
         bodies: Vec::with_capacity(order.len()),
@@ -530,8 +550,9 @@ fn lower_bodies(
         dof_body: Vec::new(),
         dof_rotational: Vec::new(),
     };
-    let mut owner: Vec<Option<usize>> = vec![None; spec.coordinates.len()];
+    let mut owner: Vec<Option<BodyIndex>> = vec![None; spec.coordinates.len()];
     for (si, &bi) in order.iter().enumerate() {
+        let si = BodyIndex(si);
         let js = &spec.joints[joint_of[bi].unwrap_or(0)];
         let dof_start = lw.dof_coord.len();
         let mut local: Vec<usize> = Vec::new(); // spec coords of this joint's dofs
@@ -565,8 +586,8 @@ fn bushing_frame(
     f: &FrameSpec,
     name: &str,
     which: u8,
-    body_map: &[usize],
-) -> Result<(Option<usize>, Pose<f64>)> {
+    body_map: &[BodyIndex],
+) -> Result<(Option<BodyIndex>, Pose<f64>)> {
     let body = match f.body {
         None => None,
         Some(b) if b < body_map.len() => Some(body_map[b]),
@@ -592,12 +613,12 @@ fn bushing_frame(
 /// `Bushing::fast`).
 fn fast_path(
     bodies: &[Body],
-    body1: Option<usize>,
+    body1: Option<BodyIndex>,
     x_b1: &Pose<f64>,
-    body2: Option<usize>,
+    body2: Option<BodyIndex>,
     x_b2: &Pose<f64>,
 ) -> Option<usize> {
-    let b = &bodies[body2?];
+    let b = &bodies[body2?.0];
     let j = &b.joint;
     let same = |a: &Pose<f64>, b: &Pose<f64>| a.r == b.r && a.p == b.p;
     let unit = [Vector3::x(), Vector3::y(), Vector3::z()];
@@ -615,7 +636,7 @@ fn fast_path(
 fn compile_bushings(
     spec: &SystemSpec,
     bodies: &[Body],
-    body_map: &[usize],
+    body_map: &[BodyIndex],
 ) -> Result<Vec<Bushing>> {
     let mut bushings = Vec::with_capacity(spec.bushings.len());
     for bs in &spec.bushings {
@@ -648,9 +669,9 @@ impl System {
         check_bodies(spec, &joint_of)?;
         // parent before child
         let order = topological_order(spec, &joint_of)?;
-        let mut body_map = vec![0usize; spec.bodies.len()];
+        let mut body_map = vec![BodyIndex(0); spec.bodies.len()];
         for (si, &bi) in order.iter().enumerate() {
-            body_map[bi] = si;
+            body_map[bi] = BodyIndex(si);
         }
         check_coordinate_defaults(spec)?;
         // lower joints to six axes and number the free dofs
@@ -670,7 +691,6 @@ impl System {
             id: SystemId::new(&bodies, dof_coord.len(), bushings.len()),
             any_euler_speeds: bodies.iter().any(|b| b.joint.euler_speeds),
             bodies,
-            body_map,
             coords: spec.coordinates.clone(),
             coord_dof,
             dof_coord,
@@ -721,29 +741,24 @@ impl System {
         self.bodies.iter().map(|b| b.name.as_str())
     }
     /// System index of a body by name.
-    pub fn body_index(&self, name: &str) -> Option<usize> {
-        self.bodies.iter().position(|b| b.name == name)
-    }
-    /// Joint names in system order (the joint of each body).
-    pub fn joint_names(&self) -> impl Iterator<Item = &str> {
-        self.bodies.iter().map(|b| b.joint.name.as_str())
+    pub fn body_index(&self, name: &str) -> Option<BodyIndex> {
+        self.bodies
+            .iter()
+            .position(|b| b.name == name)
+            .map(BodyIndex)
     }
     /// The force law of bushing `i`.
     pub fn bushing_model(&self, i: usize) -> Option<&BushingModel> {
         self.bushings.get(i).map(|b| &b.model)
     }
-    /// System body index of a spec body index.
-    pub fn body_of_spec(&self, spec_body: usize) -> Option<usize> {
-        self.body_map.get(spec_body).copied()
-    }
-    /// Body (system index) moved by free dof `i`.
-    pub fn dof_body(&self, i: usize) -> Option<usize> {
+    /// Body moved by free dof `i`.
+    pub fn dof_body(&self, i: usize) -> Option<BodyIndex> {
         self.dof_body.get(i).copied()
     }
     /// True when body `i` hangs on ground through a joint without free dofs.
-    pub fn is_welded_to_ground(&self, i: usize) -> bool {
+    pub fn is_welded_to_ground(&self, i: BodyIndex) -> bool {
         self.bodies
-            .get(i)
+            .get(i.0)
             .map(|b| b.parent.is_none() && b.joint.dof_count == 0)
             .unwrap_or(false)
     }
@@ -766,7 +781,7 @@ impl System {
     /// Free dof index of a coordinate by name (None when locked/unknown).
     pub fn dof_of(&self, coord_name: &str) -> Option<usize> {
         let c = self.coords.iter().position(|c| c.name == coord_name)?;
-        self.coord_dof.get(c).copied().flatten()
+        self.coord_dof.get(c).copied().flatten().map(|d| d.0)
     }
     /// Gravity vector.
     pub fn gravity(&self) -> Vector3<f64> {
@@ -786,7 +801,7 @@ impl System {
             .iter()
             .zip(&self.coord_dof)
             .map(|(c, d)| match d {
-                Some(i) => q.get(*i).copied().unwrap_or(c.default),
+                Some(i) => q.get(i.0).copied().unwrap_or(c.default),
                 None => c.default,
             })
             .collect()
@@ -811,11 +826,11 @@ impl System {
             .map(|(c, v)| (c.name.clone(), v, c.range))
             .collect()
     }
-    /// Path of system body indices from `b` up to the root (inclusive of b).
-    pub(crate) fn path_to_root(&self, b: usize) -> Vec<usize> {
+    /// Path of bodies from `b` up to the root (inclusive of b).
+    pub(crate) fn path_to_root(&self, b: BodyIndex) -> Vec<BodyIndex> {
         let mut out = vec![b];
         let mut cur = b;
-        while let Some(p) = self.bodies[cur].parent {
+        while let Some(p) = self.bodies[cur.0].parent {
             out.push(p);
             cur = p;
         }
@@ -1210,7 +1225,7 @@ impl System {
         }
         b.x_b1 = p1;
         b.x_b2 = p2;
-        let Some(body) = self.bodies.get_mut(c2) else {
+        let Some(body) = self.bodies.get_mut(c2.0) else {
             return Err(Error::invalid("solver", "bushing body out of range"));
         };
         body.joint.x_pf = p1;
@@ -1219,14 +1234,14 @@ impl System {
         Ok(())
     }
 
-    /// The two bodies (system indices, None = ground) a bushing connects.
-    pub fn bushing_bodies(&self, i: usize) -> Option<(Option<usize>, Option<usize>)> {
+    /// The two bodies (None = ground) a bushing connects.
+    pub fn bushing_bodies(&self, i: usize) -> Option<(Option<BodyIndex>, Option<BodyIndex>)> {
         self.bushings.get(i).map(|b| (b.body1, b.body2))
     }
 
-    /// Parent body (system index) of body `i` (None = ground or out of range).
-    pub fn parent_of(&self, i: usize) -> Option<usize> {
-        self.bodies.get(i).and_then(|b| b.parent)
+    /// Parent body of body `i` (None = ground or out of range).
+    pub fn parent_of(&self, i: BodyIndex) -> Option<BodyIndex> {
+        self.bodies.get(i.0).and_then(|b| b.parent)
     }
 }
 

@@ -54,7 +54,7 @@
 use super::forces::{self, GimbalLock, LoadSet, Resolved};
 use super::kinematics;
 use super::scalar::{d6_eps, d6_var, D6};
-use super::system::{lu_factor, lu_solve, KinBuf, Pose, System};
+use super::system::{lu_factor, lu_solve, BodyIndex, KinBuf, Pose, System};
 use nalgebra::{Matrix3, Matrix6, SVector, Vector3, Vector6};
 use num_dual::Derivative;
 
@@ -216,10 +216,10 @@ fn wrench_jacobian(w: &[Vector3<D6>; 2]) -> Matrix6<f64> {
 /// parent (or ground): the condition for the structured tangent. Loads
 /// always are (follower pairs sit on a joint's parent and child).
 fn tree_coupled(sys: &System) -> bool {
-    let adjacent = |a: usize, b: usize| {
+    let adjacent = |a: BodyIndex, b: BodyIndex| {
         a == b
-            || sys.bodies.get(a).and_then(|x| x.parent) == Some(b)
-            || sys.bodies.get(b).and_then(|x| x.parent) == Some(a)
+            || sys.bodies.get(a.0).and_then(|x| x.parent) == Some(b)
+            || sys.bodies.get(b.0).and_then(|x| x.parent) == Some(a)
     };
     sys.bushings.iter().all(|b| {
         b.fast.is_some()
@@ -237,15 +237,15 @@ fn tree_coupled(sys: &System) -> bool {
 /// tests catch a miss).
 fn mark_touched(sys: &System, loads: &LoadSet, touched: &mut [bool]) {
     touched.fill(false);
-    let mut mark = |b: Option<usize>| {
-        if let Some(t) = b.and_then(|b| touched.get_mut(b)) {
+    let mut mark = |b: Option<BodyIndex>| {
+        if let Some(t) = b.and_then(|b| touched.get_mut(b.0)) {
             *t = true;
         }
     };
     if sys.gravity != Vector3::zeros() {
         for (bi, b) in sys.bodies.iter().enumerate() {
             if b.mass != 0.0 {
-                mark(Some(bi));
+                mark(Some(BodyIndex(bi)));
             }
         }
     }
@@ -276,12 +276,12 @@ fn distance2_colouring(sys: &System) -> (Vec<usize>, usize) {
     let mut used_by_children: Vec<Vec<usize>> = vec![Vec::new(); nb + 1];
     let mut n_colours = 0;
     for bi in 0..nb {
-        let parent = sys.bodies[bi].parent;
+        let parent = sys.bodies[bi].parent.map(|p| p.0);
         let mut forbidden: Vec<usize> = Vec::new();
         if let Some(p) = parent {
             forbidden.push(colour[p]);
             if let Some(gp) = sys.bodies[p].parent {
-                forbidden.push(colour[gp]);
+                forbidden.push(colour[gp.0]);
             }
             forbidden.extend_from_slice(&used_by_children[p]);
         }
@@ -405,7 +405,7 @@ impl TreeTangent {
                 // joint-local rates (w_k, v_k) and p_FM, and the subtree
                 // wrench in F: f_F = R_F^T f, n' = R_F^T (n - o_F x f).
                 let x_gf = match b.parent {
-                    Some(p) => k64.x_gb[p].compose_c(&j.x_pf),
+                    Some(p) => k64.x_gb[p.0].compose_c(&j.x_pf),
                     None => j.x_pf,
                 };
                 let w = &k64.w[bi];
@@ -456,7 +456,7 @@ impl TreeTangent {
                 if !self.touched[bi] {
                     continue;
                 }
-                let parent = sys.bodies[bi].parent;
+                let parent = sys.bodies[bi].parent.map(|p| p.0);
                 if self.colour[bi] == colour {
                     self.g_self[bi] = wrench_jacobian(&kd6.w[bi]);
                     if let Some(p) = parent.filter(|&p| self.touched[p]) {
@@ -508,7 +508,7 @@ impl TreeTangent {
             let ph = p * h;
             if let Some(par) = sys.bodies[bi].parent {
                 let ka = p + self.g_par[bi] + ph * v;
-                self.acc[par] += ka;
+                self.acc[par.0] += ka;
             }
             self.lu[bi] = lu;
             self.v[bi] = v;
@@ -596,13 +596,13 @@ impl TreeTangent {
             u[bi] = ub;
             if let Some(p) = sys.bodies[bi].parent {
                 let za = self.ph[bi] * ub + zb;
-                z[p] += za;
+                z[p.0] += za;
             }
         }
         for bi in 0..nb {
             let b = &sys.bodies[bi];
             let dxp = match b.parent {
-                Some(p) => dx[p],
+                Some(p) => dx[p.0],
                 None => Vector6::zeros(),
             };
             let dq = u[bi] + self.v[bi] * dxp;
@@ -782,9 +782,9 @@ mod tests {
         // distance-2 property: parent, grandparent and siblings differ
         for (bi, b) in sys.bodies.iter().enumerate() {
             if let Some(p) = b.parent {
-                assert_ne!(colour[bi], colour[p]);
-                if let Some(gp) = sys.bodies[p].parent {
-                    assert_ne!(colour[bi], colour[gp]);
+                assert_ne!(colour[bi], colour[p.0]);
+                if let Some(gp) = sys.bodies[p.0].parent {
+                    assert_ne!(colour[bi], colour[gp.0]);
                 }
                 for (si, s) in sys.bodies.iter().enumerate() {
                     if si != bi && s.parent == Some(p) {

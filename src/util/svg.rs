@@ -11,6 +11,10 @@
 //! projected triangles rasterised on a grid of about 2 px and written as
 //! one rectangle per run of covered cells in a row, so a figure of many
 //! meshes stays small (tens of kB instead of a dot per vertex).
+//!
+//! Also the one SVG escaper ([`esc`]), text measuring and wrapping for
+//! hand-laid figures ([`text_width`], [`wrap`], [`figure_open`]) and the box
+//! plots of the variability study ([`boxplot_svg`]).
 
 use nalgebra::Point3;
 use plotters::prelude::*;
@@ -388,11 +392,13 @@ fn legend_corner(
         .unwrap_or(SeriesLabelPosition::UpperLeft)
 }
 
-/// Escape text for SVG character data.
+/// Escape text for SVG character data and attribute values: the crate's
+/// one SVG escaper.
 pub fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
+        .replace('"', "&quot;")
 }
 
 /// Width (px) that `text` may take at `font_px` in the sans-serif fonts
@@ -443,6 +449,171 @@ pub fn figure_open(w: f64, h: f64, title: &str, subtitle: &str) -> (String, f64)
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{total:.0}\" viewBox=\"0 0 {w:.0} {total:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
     );
     (open + &body, head)
+}
+
+/// Tick step of a "nice" axis (1, 2 or 5 times a power of ten) for `span`.
+fn nice_step(span: f64) -> f64 {
+    let raw = (span / 5.0).max(1e-12);
+    let p = 10f64.powf(raw.log10().floor());
+    let m = raw / p;
+    let k = if m <= 1.0 {
+        1.0
+    } else if m <= 2.0 {
+        2.0
+    } else if m <= 5.0 {
+        5.0
+    } else {
+        10.0
+    };
+    k * p
+}
+
+/// A plain SVG box plot, one box per `(label, values)` series: boxes at
+/// the quartiles (type 7), median line, whiskers to the furthest value
+/// within 1.5 IQR, outliers as circles. The value axis includes 0 and is
+/// rounded to a 1/2/5 tick step. Non-finite values are ignored; an empty
+/// series gets its label and no box. Deterministic text.
+pub fn boxplot_svg(title: &str, y_label: &str, series: &[(String, Vec<f64>)]) -> String {
+    boxplot_svg_axis(title, y_label, series, true)
+}
+
+/// [`boxplot_svg`], with the value axis fitted to the data alone when
+/// `include_zero` is false.
+pub fn boxplot_svg_axis(
+    title: &str,
+    y_label: &str,
+    series: &[(String, Vec<f64>)],
+    include_zero: bool,
+) -> String {
+    let slot_w = 120.0;
+    let (left, right, top, bottom) = (60.0, 20.0, 40.0, 50.0);
+    let w = (left + right + slot_w * series.len().max(1) as f64).max(560.0);
+    let h = 380.0;
+    let series: Vec<(&str, Vec<f64>)> = series
+        .iter()
+        .map(|(n, v)| {
+            (
+                n.as_str(),
+                v.iter().copied().filter(|x| x.is_finite()).collect(),
+            )
+        })
+        .collect();
+    let all = series.iter().flat_map(|(_, v)| v.iter().copied());
+    let start = if include_zero {
+        (0.0f64, 0.0f64)
+    } else {
+        (f64::INFINITY, f64::NEG_INFINITY)
+    };
+    let (dmin, dmax) = all.fold(start, |(a, b), x| (a.min(x), b.max(x)));
+    let (dmin, dmax) = if dmin.is_finite() {
+        (dmin, dmax)
+    } else {
+        (0.0, 1.0)
+    };
+    let dmax = if dmax - dmin < 1e-12 {
+        dmin + 1.0
+    } else {
+        dmax
+    };
+    let step = nice_step(dmax - dmin);
+    let ymin = (dmin / step).floor() * step;
+    let ymax = (dmax / step).ceil() * step;
+    let sy = |v: f64| top + (h - top - bottom) * (1.0 - (v - ymin) / (ymax - ymin));
+    let slot = (w - left - right) / series.len().max(1) as f64;
+    let decimals = (-step.log10().floor()).max(0.0) as usize;
+    let mut s = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{}\" y=\"22\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n",
+        w / 2.0,
+        esc(title)
+    );
+    // Axis and ticks.
+    s.push_str(&format!(
+        "<line x1=\"{left}\" y1=\"{top}\" x2=\"{left}\" y2=\"{}\" stroke=\"black\"/>\n",
+        h - bottom
+    ));
+    let ticks = ((ymax - ymin) / step).round() as i64;
+    for i in 0..=ticks {
+        let t = ymin + step * i as f64;
+        s.push_str(&format!(
+            "<line x1=\"{}\" y1=\"{y:.1}\" x2=\"{left}\" y2=\"{y:.1}\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">{t:.decimals$}</text>\n",
+            left - 4.0,
+            left - 6.0,
+            sy(t) + 4.0,
+            y = sy(t)
+        ));
+    }
+    if ymin < 0.0 && ymax > 0.0 {
+        s.push_str(&format!(
+            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{}\" y2=\"{y:.1}\" stroke=\"#bbbbbb\" stroke-dasharray=\"4 3\"/>\n",
+            w - right,
+            y = sy(0.0)
+        ));
+    }
+    s.push_str(&format!(
+        "<text x=\"16\" y=\"{:.1}\" transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">{}</text>\n",
+        (top + h - bottom) / 2.0,
+        (top + h - bottom) / 2.0,
+        esc(y_label)
+    ));
+    for (i, (name, v)) in series.iter().enumerate() {
+        let cx = left + slot * (i as f64 + 0.5);
+        s.push_str(&format!(
+            "<text x=\"{cx:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>\n",
+            h - bottom + 18.0,
+            esc(name)
+        ));
+        let (Some(q1), Some(q2), Some(q3)) = (
+            crate::util::quantile(v, 0.25),
+            crate::util::quantile(v, 0.5),
+            crate::util::quantile(v, 0.75),
+        ) else {
+            continue;
+        };
+        let iqr = q3 - q1;
+        let lo = v
+            .iter()
+            .copied()
+            .filter(|x| *x >= q1 - 1.5 * iqr)
+            .fold(f64::INFINITY, f64::min);
+        let hi = v
+            .iter()
+            .copied()
+            .filter(|x| *x <= q3 + 1.5 * iqr)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let bw = (slot * 0.5).min(80.0);
+        s.push_str(&format!(
+            "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{bw:.1}\" height=\"{:.1}\" fill=\"#9ecae1\" stroke=\"black\"/>\n",
+            cx - bw / 2.0,
+            sy(q3),
+            (sy(q1) - sy(q3)).max(0.5)
+        ));
+        s.push_str(&format!(
+            "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"black\" stroke-width=\"2\"/>\n",
+            cx - bw / 2.0,
+            sy(q2),
+            cx + bw / 2.0,
+            sy(q2)
+        ));
+        for (a, b) in [(q3, hi), (q1, lo)] {
+            s.push_str(&format!(
+                "<line x1=\"{cx:.1}\" y1=\"{:.1}\" x2=\"{cx:.1}\" y2=\"{:.1}\" stroke=\"black\"/><line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"black\"/>\n",
+                sy(a),
+                sy(b),
+                cx - bw / 4.0,
+                sy(b),
+                cx + bw / 4.0,
+                sy(b)
+            ));
+        }
+        for x in v.iter().filter(|x| **x < lo || **x > hi) {
+            s.push_str(&format!(
+                "<circle cx=\"{cx:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"none\" stroke=\"#d62728\"/>\n",
+                sy(*x)
+            ));
+        }
+    }
+    s.push_str("</svg>\n");
+    s
 }
 
 #[cfg(test)]
@@ -498,5 +669,47 @@ mod tests {
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
         assert!(svg.contains("centres") && svg.contains("spheres"));
         assert!(svg.matches("<circle").count() >= 2);
+    }
+
+    fn attr(svg: &str, tag: &str, name: &str) -> f64 {
+        let at = svg.find(tag).unwrap();
+        let rest = &svg[at..];
+        let k = rest.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
+        let end = rest[k..].find('"').unwrap();
+        rest[k..k + end].parse().unwrap()
+    }
+
+    #[test]
+    fn box_spans_the_quartiles_on_the_axis() {
+        // 1..=5: quartiles (type 7) 2 and 4; axis 0..5 in steps of 1.
+        let svg = boxplot_svg("t", "mm", &[("a".into(), vec![5.0, 1.0, 3.0, 2.0, 4.0])]);
+        let (top, bottom, h) = (40.0, 50.0, 380.0);
+        let sy = |v: f64| top + (h - top - bottom) * (1.0 - v / 5.0);
+        let y = attr(&svg, "<rect x=", "y");
+        let height = attr(&svg, "<rect x=", "height");
+        assert!((y - sy(4.0)).abs() < 0.06, "{y}");
+        assert!((y + height - sy(2.0)).abs() < 0.11, "{height}");
+        assert!(svg.contains(">5</text>") && !svg.contains(">6</text>"));
+    }
+
+    #[test]
+    fn box_plot_survives_empty_and_non_finite_series() {
+        let svg = boxplot_svg_axis(
+            "a & b",
+            "deg",
+            &[
+                ("empty".into(), vec![]),
+                ("nan".into(), vec![f64::NAN, f64::INFINITY]),
+                ("neg".into(), vec![-40.0, -41.0, -39.5]),
+            ],
+            false,
+        );
+        assert!(svg.starts_with("<svg") && svg.ends_with("</svg>\n"));
+        assert!(svg.contains("a &amp; b"));
+        assert_eq!(svg.matches("<rect x=").count(), 1);
+        assert!(!svg.contains("NaN") && !svg.contains("inf"));
+        assert_eq!(nice_step(4.0), 1.0);
+        assert_eq!(nice_step(0.04), 0.01);
+        assert_eq!(nice_step(30.0), 10.0);
     }
 }

@@ -1,15 +1,10 @@
 //! Wrapping spheres on the vertebral bodies and the muscles that wrap over
 //! them.
 //!
-//! * Node selection: the vertebral body is cut out of the vertebra mesh
-//!   ([`super::palpate::body_region`]: vertices anterior of the posterior
-//!   wall, between the lateral walls); on that sub-mesh
-//!   [`crate::mesh::anterior_body_nodes`] keeps the anterior-wall nodes
-//!   (central 50 % of the height, anterior of the centroid, normal within
-//!   60 degrees of anterior and mostly horizontal); [`crate::mesh::fit_sphere`]
-//!   fits the sphere to them by least squares. With a body-only mesh for
-//!   the level, that mesh is first registered onto the vertebra mesh (ICP,
-//!   similarity) and used whole instead of the cut-out body.
+//! * Sphere: centred on the vertebral centre the palpation engine finds
+//!   (the thesis's rule, [`crate::palpation`]: least-squares sphere through
+//!   the anterior-surface nodes of the body), with that sphere's radius;
+//!   a modeller's `--centres` file replaces the centre.
 //! * Crossing rule: a muscle wraps over the sphere of vertebra V when its
 //!   attachments span V strictly (a point on a level cranial of V and a
 //!   point on a level caudal of V; sacrum and pelvis count as S1), it has
@@ -34,10 +29,6 @@
 //!   the whole path (range -1 -1).
 
 use super::kin::{point_segment_distance, Values};
-use crate::error::{Error, Result};
-use crate::mesh::{
-    anterior_body_nodes, fit_sphere, icp_mesh, AnatomicalFrame, IcpOptions, MeshQuery, TriMesh,
-};
 use nalgebra::Point3;
 
 /// Extra reach of the crossing rule beyond the radius (m).
@@ -78,63 +69,6 @@ pub struct SphereRow {
     pub muscles: Vec<String>,
     /// Muscles that would cross it but had a path point too deep inside.
     pub muscles_refused: Vec<String>,
-}
-
-/// Fit the anterior-body sphere of a vertebra from the nodes `nodes`.
-pub fn fit_nodes(ctx: &str, nodes: &[Point3<f64>]) -> Result<crate::mesh::Sphere> {
-    fit_sphere(nodes).map_err(|e| Error::invalid(ctx, format!("sphere fit: {e}")))
-}
-
-/// Anterior-wall nodes of a vertebral body mesh already in the body frame.
-pub fn anterior_nodes(ctx: &str, body: &TriMesh) -> Result<Vec<Point3<f64>>> {
-    let idx = anterior_body_nodes(body, &AnatomicalFrame::opensim_body())
-        .map_err(|e| Error::invalid(ctx, e.to_string()))?;
-    Ok(idx.into_iter().map(|i| body.vertices[i]).collect())
-}
-
-/// Relaxed anterior-node rule for coarse meshes (used when the standard
-/// rule keeps fewer than [`MIN_NODES`] nodes or its sphere is implausible):
-/// vertices of the consistently oriented body mesh in the central 60 % of
-/// its height, anterior of its area centroid, with a mostly horizontal
-/// normal (`|n . Y| <= 0.5`): the anterior half of the body's wall.
-pub fn anterior_nodes_relaxed(ctx: &str, body: &TriMesh) -> Result<Vec<Point3<f64>>> {
-    let mut oriented = body.clone();
-    oriented.orient_consistently();
-    let normals = oriented.vertex_normals();
-    let c = body
-        .area_centroid()
-        .ok_or_else(|| Error::invalid(ctx, "the vertebral body has no area"))?;
-    let mut h: Vec<f64> = body.vertices.iter().map(|p| p.y).collect();
-    h.sort_by(f64::total_cmp);
-    let pct = |f: f64| {
-        h.get(((h.len().saturating_sub(1)) as f64 * f).round() as usize)
-            .copied()
-    };
-    let (Some(lo), Some(hi)) = (pct(0.02), pct(0.98)) else {
-        return Err(Error::invalid(ctx, "the vertebral body has no vertices"));
-    };
-    let (b0, b1) = (lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo));
-    Ok(body
-        .vertices
-        .iter()
-        .zip(&normals)
-        .filter(|(p, n)| p.y >= b0 && p.y <= b1 && p.x > c.x && n.y.abs() <= 0.5)
-        .map(|(p, _)| *p)
-        .collect())
-}
-
-/// Fewest nodes the standard rule must give before the relaxed one is tried.
-pub const MIN_NODES: usize = 12;
-
-/// Register a body-only mesh onto the vertebra mesh `target` (similarity
-/// ICP); returns the moved mesh and the RMS residual (m).
-pub fn register_body_mesh(ctx: &str, body: &TriMesh, target: &MeshQuery) -> Result<(TriMesh, f64)> {
-    let opts = IcpOptions {
-        allow_scale: true,
-        ..IcpOptions::default()
-    };
-    let r = icp_mesh(body, target, &opts).map_err(|e| Error::invalid(ctx, e.to_string()))?;
-    Ok((r.transform.apply_mesh(body), r.residuals.rms))
 }
 
 /// The test poses: label and coordinate values, given the default values
@@ -282,7 +216,7 @@ mod tests {
                     c + d * (r + noise.sample(&mut rng))
                 })
                 .collect();
-            let s = fit_nodes("test", &pts).unwrap();
+            let s = crate::mesh::fit_sphere(&pts).unwrap();
             assert!(
                 (s.centre - c).norm() < 1e-4,
                 "case {case}: centre off by {}",

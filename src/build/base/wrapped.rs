@@ -287,6 +287,10 @@ impl Entry {
     }
 }
 
+/// A PathWrap over a sphere: its index among the muscle's PathWraps, the
+/// sphere, and its range of path points (1-based, -1 = first/last).
+type PathWrap<'a> = (usize, &'a SphereAt, [i64; 2]);
+
 /// The path of `muscle` at coordinate values `q` (body poses `poses`) as
 /// OpenSim computes it, over the spheres `spheres` (from [`spheres_at`]);
 /// PathWraps over other objects (cylinders, ellipsoids) are ignored.
@@ -297,6 +301,7 @@ pub fn wrapped_path(
     q: &Values,
     spheres: &BTreeMap<String, SphereAt>,
 ) -> Result<WrappedPath> {
+    // The active path points in ground, and the straight path's length.
     let active = muscle_path(model, muscle, poses, q)?;
     let index: BTreeMap<&str, usize> = muscle
         .points
@@ -318,88 +323,21 @@ pub fn wrapped_path(
         .windows(2)
         .map(|w| (w[1].ground - w[0].ground).norm())
         .sum();
-    let wraps: Vec<(usize, &SphereAt, [i64; 2])> = muscle
+    // The sphere PathWraps, applied in turn; with several, repeated until
+    // the length settles (0.5 mm, at most 8 passes).
+    let wraps: Vec<PathWrap> = muscle
         .wraps
         .iter()
         .enumerate()
         .filter_map(|(k, w)| Some((k, spheres.get(&w.wrap_object)?, w.range)))
         .collect();
-    let n_points = muscle.points.len();
     // Arc length of each applied wrap, by PathWrap index.
     let mut arcs: BTreeMap<usize, f64> = BTreeMap::new();
     let iterations = if wraps.len() < 2 { 1 } else { 8 };
     let mut last = f64::INFINITY;
     for _ in 0..iterations {
-        for &(k, sphere, range) in &wraps {
-            path.retain(|e| !matches!(e, Entry::Tangent(j, _) if *j == k));
-            arcs.remove(&k);
-            let lo = if range[0] < 1 {
-                0
-            } else {
-                range[0] as usize - 1
-            };
-            let hi = if range[1] < 1 {
-                n_points.saturating_sub(1)
-            } else {
-                range[1] as usize - 1
-            };
-            let own_pos = |want_first: bool| -> Option<usize> {
-                let mut it = path.iter().enumerate().filter_map(|(pos, e)| match e {
-                    Entry::Own(i, _, _) if *i >= lo && *i <= hi => Some(pos),
-                    _ => None,
-                });
-                if want_first {
-                    it.next()
-                } else {
-                    it.next_back()
-                }
-            };
-            let (Some(start), Some(end)) = (own_pos(true), own_pos(false)) else {
-                continue;
-            };
-            let mut best: Option<(usize, SphereWrap)> = None;
-            let mut min_change = f64::INFINITY;
-            for pt1 in start..end {
-                let (Some(e1), Some(e2)) = (path.get(pt1), path.get(pt1 + 1)) else {
-                    continue;
-                };
-                if let (Entry::Tangent(j1, _), Entry::Tangent(j2, _)) = (e1, e2) {
-                    let same_object = wraps
-                        .iter()
-                        .find(|w| w.0 == *j1)
-                        .zip(wraps.iter().find(|w| w.0 == *j2))
-                        .map(|(a, b)| a.1.name == b.1.name)
-                        .unwrap_or(false);
-                    if same_object {
-                        continue;
-                    }
-                }
-                let (a, b) = (e1.at(), e2.at());
-                let w = wrap_segment(&a, &b, sphere);
-                if let SphereWrap::Wrapped {
-                    r1,
-                    r2,
-                    length,
-                    mandatory,
-                    ..
-                } = &w
-                {
-                    if *mandatory {
-                        best = Some((pt1, w.clone()));
-                        break;
-                    }
-                    let change = (r1 - a).norm() + length + (b - r2).norm() - (b - a).norm();
-                    if change < min_change {
-                        min_change = change;
-                        best = Some((pt1, w.clone()));
-                    }
-                }
-            }
-            if let Some((pt1, SphereWrap::Wrapped { r1, r2, length, .. })) = best {
-                path.insert(pt1 + 1, Entry::Tangent(k, r1));
-                path.insert(pt1 + 2, Entry::Tangent(k, r2));
-                arcs.insert(k, length);
-            }
+        for &wrap in &wraps {
+            apply_wrap(&mut path, &mut arcs, wrap, &wraps, muscle.points.len());
         }
         let length = path_length(&path, &arcs);
         if (length - last).abs() < 0.0005 {
@@ -408,11 +346,122 @@ pub fn wrapped_path(
         last = length;
     }
     let length = path_length(&path, &arcs);
-    // Polyline with sampled arcs.
+    // The polyline with the arcs sampled.
+    let (polyline, wrapped_over) = polyline(&path, &wraps, &arcs);
+    Ok(WrappedPath {
+        polyline,
+        length,
+        straight,
+        wrapped_over,
+    })
+}
+
+/// Apply one PathWrap to `path`: its previous tangent points removed, then
+/// the segment of its range it wraps (the first mandatory one, else the
+/// smallest length change) gets its two tangent points and its arc.
+fn apply_wrap(
+    path: &mut Vec<Entry>,
+    arcs: &mut BTreeMap<usize, f64>,
+    (k, sphere, range): PathWrap,
+    wraps: &[PathWrap],
+    n_points: usize,
+) {
+    path.retain(|e| !matches!(e, Entry::Tangent(j, _) if *j == k));
+    arcs.remove(&k);
+    let lo = if range[0] < 1 {
+        0
+    } else {
+        range[0] as usize - 1
+    };
+    let hi = if range[1] < 1 {
+        n_points.saturating_sub(1)
+    } else {
+        range[1] as usize - 1
+    };
+    let own_pos = |want_first: bool| -> Option<usize> {
+        let mut it = path.iter().enumerate().filter_map(|(pos, e)| match e {
+            Entry::Own(i, _, _) if *i >= lo && *i <= hi => Some(pos),
+            _ => None,
+        });
+        if want_first {
+            it.next()
+        } else {
+            it.next_back()
+        }
+    };
+    let (Some(start), Some(end)) = (own_pos(true), own_pos(false)) else {
+        return;
+    };
+    if let Some((pt1, SphereWrap::Wrapped { r1, r2, length, .. })) =
+        best_segment(path, start, end, sphere, wraps)
+    {
+        path.insert(pt1 + 1, Entry::Tangent(k, r1));
+        path.insert(pt1 + 2, Entry::Tangent(k, r2));
+        arcs.insert(k, length);
+    }
+}
+
+/// The segment of `path[start..=end]` that wraps over `sphere` (not one
+/// between two tangent points of the same object): the first mandatory
+/// wrap, else the one with the smallest length change.
+fn best_segment(
+    path: &[Entry],
+    start: usize,
+    end: usize,
+    sphere: &SphereAt,
+    wraps: &[PathWrap],
+) -> Option<(usize, SphereWrap)> {
+    let mut best: Option<(usize, SphereWrap)> = None;
+    let mut min_change = f64::INFINITY;
+    for pt1 in start..end {
+        let (Some(e1), Some(e2)) = (path.get(pt1), path.get(pt1 + 1)) else {
+            continue;
+        };
+        if let (Entry::Tangent(j1, _), Entry::Tangent(j2, _)) = (e1, e2) {
+            let same_object = wraps
+                .iter()
+                .find(|w| w.0 == *j1)
+                .zip(wraps.iter().find(|w| w.0 == *j2))
+                .map(|(a, b)| a.1.name == b.1.name)
+                .unwrap_or(false);
+            if same_object {
+                continue;
+            }
+        }
+        let (a, b) = (e1.at(), e2.at());
+        let w = wrap_segment(&a, &b, sphere);
+        if let SphereWrap::Wrapped {
+            r1,
+            r2,
+            length,
+            mandatory,
+            ..
+        } = &w
+        {
+            if *mandatory {
+                return Some((pt1, w.clone()));
+            }
+            let change = (r1 - a).norm() + length + (b - r2).norm() - (b - a).norm();
+            if change < min_change {
+                min_change = change;
+                best = Some((pt1, w.clone()));
+            }
+        }
+    }
+    best
+}
+
+/// The path as a polyline (arcs between the tangent points of one wrap
+/// sampled every [`ARC_STEP`]), and the spheres it wraps over.
+fn polyline(
+    path: &[Entry],
+    wraps: &[PathWrap],
+    arcs: &BTreeMap<usize, f64>,
+) -> (Vec<PathVertex>, Vec<String>) {
     let mut polyline = Vec::new();
     let mut wrapped_over = Vec::new();
     let mut prev_tangent: Option<(usize, Point3<f64>)> = None;
-    for e in &path {
+    for e in path {
         match e {
             Entry::Own(_, p, body) => {
                 prev_tangent = None;
@@ -443,12 +492,7 @@ pub fn wrapped_path(
             }
         }
     }
-    Ok(WrappedPath {
-        polyline,
-        length,
-        straight,
-        wrapped_over,
-    })
+    (polyline, wrapped_over)
 }
 
 fn path_length(path: &[Entry], arcs: &BTreeMap<usize, f64>) -> f64 {

@@ -9,6 +9,9 @@
 //! with `a`, `b` solved so that T1's centre lies on the vertical through
 //! S1_SEC and its cranial axis is level (no coronal tilt). With one
 //! unmeasured joint the two goals are met in the least-squares sense.
+//! No joint bends more than [`MAX_BEND_DEG`] (a severe scoliotic curve's
+//! angulation per level): with few unmeasured levels the goals are
+//! then met only as far as that allows, and the report says so.
 //! `keep` leaves the base joints as they are. Both report the unmeasured
 //! levels and where T1 ends.
 
@@ -20,6 +23,15 @@ use crate::osim::Document;
 use crate::{Error, Result};
 use nalgebra::{Isometry3, Matrix2, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
 use std::collections::BTreeMap;
+
+/// Largest frontal bend added at one unmeasured joint (deg): the steepest
+/// per-level angulation of a severe scoliotic curve (a 90 deg Cobb angle
+/// over six levels), so a compensatory curve is never sharper than a
+/// scoliotic one.
+pub const MAX_BEND_DEG: f64 = 15.0;
+
+/// Weight of T1's lateral offset against its tilt in the balance.
+const POSITION_WEIGHT: f64 = 10.0;
 
 /// How levels above the field of view are placed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -62,6 +74,9 @@ pub struct AboveFovReport {
     pub t1_anterior_offset_mm: f64,
     /// Coronal tilt of T1's cranial axis from vertical (deg, + toward the right).
     pub t1_coronal_tilt_deg: f64,
+    /// Whether a bend reached [`MAX_BEND_DEG`] (balance only as far as
+    /// the joints allow).
+    pub bend_limited: bool,
 }
 
 /// One unmeasured joint: its child level, its frames and the child's pose
@@ -108,9 +123,9 @@ pub fn place_above_fov(
     }
     let x_top = poses[&top.body_name()];
     // Solve the curve (balance) or keep zeros.
-    let thetas = match mode {
+    let (thetas, bend_limited) = match mode {
         AboveFov::Balance => solve_curve(&links, &x_top, &t1, s1_sec),
-        AboveFov::Keep => vec![0.0; links.len()],
+        AboveFov::Keep => (vec![0.0; links.len()], false),
     };
     if mode == AboveFov::Balance {
         write_bends(doc, base_model, &links, &x_top, &thetas)?;
@@ -130,6 +145,7 @@ pub fn place_above_fov(
         t1_lateral_offset_mm: (centre.z - s1_sec.z) * 1e3,
         t1_anterior_offset_mm: (centre.x - s1_sec.x) * 1e3,
         t1_coronal_tilt_deg: axis.z.atan2(axis.y).to_degrees(),
+        bend_limited,
     }))
 }
 
@@ -200,8 +216,9 @@ fn t1_state(
     (centre, axis)
 }
 
-/// Bends `theta_k = a + b s_k` for the curve parameters `p = (a, b)`.
-fn curve(p: &Vector2<f64>, n: usize) -> Vec<f64> {
+/// Bends along the chain for the curve parameters `q` = (bend of the
+/// lowest joint, bend of the highest), linear in between.
+fn curve(q: &Vector2<f64>, n: usize) -> Vec<f64> {
     (0..n)
         .map(|k| {
             let s = if n > 1 {
@@ -209,50 +226,72 @@ fn curve(p: &Vector2<f64>, n: usize) -> Vec<f64> {
             } else {
                 0.0
             };
-            p.x + p.y * s
+            q.x + (q.y - q.x) * s
         })
         .collect()
 }
 
-/// Solve `(a, b)` by Gauss-Newton (finite-difference Jacobian) so that T1's
-/// centre is on the vertical through `s1_sec` and T1 is level; returns
-/// the bends.
+/// Solve `q` by projected Gauss-Newton (finite-difference Jacobian, both
+/// ends kept within [`MAX_BEND_DEG`]) so that T1's centre is on the
+/// vertical through `s1_sec` and T1 is level; returns the bends and
+/// whether a bound was reached.
 fn solve_curve(
     links: &[Link],
     x_top: &Isometry3<f64>,
     t1: &T1Markers,
     s1_sec: Point3<f64>,
-) -> Vec<f64> {
+) -> (Vec<f64>, bool) {
     let n = links.len();
+    let cap = MAX_BEND_DEG.to_radians();
     // Lateral offset over the chain length: both residuals in radians.
     let (c0, _) = t1_state(links, x_top, &vec![0.0; n], t1);
     let len = (c0 - x_top.translation.vector).coords.norm().max(1e-3);
-    let resid = |p: &Vector2<f64>| {
-        let (c, a) = t1_state(links, x_top, &curve(p, n), t1);
-        Vector2::new((c.z - s1_sec.z) / len, a.z.atan2(a.y))
+    // T1 over the sacrum first: when the bends are limited, a T1 that
+    // leans is better than one that stands off to the side.
+    let resid = |q: &Vector2<f64>| {
+        let (c, a) = t1_state(links, x_top, &curve(q, n), t1);
+        Vector2::new(POSITION_WEIGHT * (c.z - s1_sec.z) / len, a.z.atan2(a.y))
     };
-    let mut p = Vector2::zeros();
-    for _ in 0..30 {
-        let r = resid(&p);
+    let clamp = |q: Vector2<f64>| {
+        let q = q.map(|v| v.clamp(-cap, cap));
+        // One joint: its single bend is the lowest end's.
+        if n > 1 {
+            q
+        } else {
+            Vector2::new(q.x, q.x)
+        }
+    };
+    let mut q = Vector2::zeros();
+    for _ in 0..50 {
+        let r = resid(&q);
         if r.norm() < 1e-12 {
             break;
         }
         let h = 1e-7;
-        let jx = (resid(&(p + Vector2::new(h, 0.0))) - r) / h;
-        let jy = (resid(&(p + Vector2::new(0.0, h))) - r) / h;
-        let j = if n > 1 {
-            Matrix2::from_columns(&[jx, jy])
+        let jx = if n > 1 {
+            (resid(&(q + Vector2::new(h, 0.0))) - r) / h
         } else {
-            Matrix2::from_columns(&[jx, Vector2::zeros()])
+            (resid(&(q + Vector2::new(h, h))) - r) / h
         };
+        let jy = if n > 1 {
+            (resid(&(q + Vector2::new(0.0, h))) - r) / h
+        } else {
+            Vector2::zeros()
+        };
+        let j = Matrix2::from_columns(&[jx, jy]);
         // Damped normal equations (the 1-joint case has a zero column).
         let jtj = j.transpose() * j + Matrix2::identity() * 1e-12;
         let Some(step) = jtj.try_inverse().map(|m| m * (j.transpose() * r)) else {
             break;
         };
-        p -= step;
+        let next = clamp(q - step);
+        if (next - q).norm() < 1e-14 {
+            break;
+        }
+        q = next;
     }
-    curve(&p, n)
+    let limited = q.iter().any(|v| v.abs() >= cap * (1.0 - 1e-9));
+    (curve(&q, n), limited)
 }
 
 /// Write the bent joint frames: each parent frame turned about the joint

@@ -44,6 +44,11 @@ pub const MAX_ROUNDS: usize = 12;
 /// [`wrapped::DEPTH_TOLERANCE`].
 pub const GRAZE: f64 = 0.0001;
 
+/// A via point that clears no crossing completely may still leave its
+/// segments this share of the self-check's tolerance inside other
+/// vertebrae (a graze of a coarse mesh's surface).
+pub const FALLBACK_INSIDE: f64 = 0.8;
+
 /// One edit made to clear a path.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct PathEdit {
@@ -208,24 +213,97 @@ fn place_via(
     let (_, mq) = vertebrae.iter().find(|(n, _)| n == vertebra)?;
     let inv = x.inverse();
     let (la, lb) = (inv * a, inv * b);
-    // Middle of the chord inside the bone (vertebra frame).
+    // Points along the chord inside the bone (vertebra frame): its middle
+    // first, then its quarters (a detour from the middle may be blocked by
+    // a neighbouring vertebra where one from a quarter is not).
     let hits = mq.segment_hits(&la, &lb);
-    let mid = if hits.len() >= 2 {
-        let first = hits.first()?.point;
-        let last = hits.last()?.point;
-        nalgebra::center(&first, &last)
+    let (c0, c1) = if hits.len() >= 2 {
+        (hits.first()?.point, hits.last()?.point)
     } else {
-        nalgebra::center(&la, &lb)
+        (la, lb)
     };
+    let starts = [0.5, 0.25, 0.75].map(|f| c0 + (c1 - c0) * f);
     let axis = (lb - la).try_normalize(1e-12)?;
     let u = axis
         .cross(&Vector3::x())
         .try_normalize(1e-6)
         .unwrap_or_else(|| axis.cross(&Vector3::y()).normalize());
     let v = axis.cross(&u);
+    // A detour that clears everything from any start point, else the best
+    // graze.
+    let mut found = Vec::new();
+    for mid in starts {
+        found.push(detour_from(
+            &mid,
+            &u,
+            &v,
+            x,
+            mq,
+            |g| {
+                let ok =
+                    clear_of(
+                        a,
+                        g,
+                        vertebrae,
+                        poses,
+                        end_bodies.first().cloned().flatten(),
+                    ) && clear_of(g, b, vertebrae, poses, end_bodies.get(1).cloned().flatten());
+                let inside = || {
+                    inside_length(
+                        a,
+                        g,
+                        vertebrae,
+                        poses,
+                        end_bodies.first().cloned().flatten(),
+                    ) + inside_length(g, b, vertebrae, poses, end_bodies.get(1).cloned().flatten())
+                };
+                match outside_wraps(g) {
+                    false => None,
+                    true if ok => Some(Fit::Clear),
+                    true => Some(Fit::Graze(inside())),
+                }
+            },
+            a,
+            b,
+        ));
+    }
+    let clear = found.iter().find_map(|(best, _)| *best);
+    let graze = found.iter().filter_map(|(_, f)| *f).min_by(|p, q| {
+        (p.0, p.1)
+            .partial_cmp(&(q.0, q.1))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    clear.map(|(_, p)| p).or(graze.map(|(_, _, p)| p))
+}
+
+/// How a trial via point's two segments pass the other vertebrae.
+enum Fit {
+    /// Clear of every vertebra.
+    Clear,
+    /// Running this length (m) inside them.
+    Graze(f64),
+}
+
+/// A detour found from one start: the shortest clearing one (detour
+/// length, point) and the least-inside graze (inside, detour, point).
+type Detour = (Option<(f64, Point3<f64>)>, Option<(f64, f64, Point3<f64>)>);
+
+/// The detour point from `mid` (vertebra frame) over 36 directions in the
+/// plane of `u`, `v`: the shortest detour whose segments `score` clears
+/// (score 0), and the one running least inside other vertebrae (under
+/// [`FALLBACK_INSIDE`] of the self-check's tolerance). Ground coordinates.
+#[allow(clippy::too_many_arguments)]
+fn detour_from(
+    mid: &Point3<f64>,
+    u: &Vector3<f64>,
+    v: &Vector3<f64>,
+    x: &nalgebra::Isometry3<f64>,
+    mq: &MeshQuery,
+    score: impl Fn(&Point3<f64>) -> Option<Fit>,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+) -> Detour {
     let mut best: Option<(f64, Point3<f64>)> = None;
-    // When no point clears every vertebra: the one whose two segments run
-    // least inside the others (under half the self-check's tolerance).
     let mut fallback: Option<(f64, f64, Point3<f64>)> = None;
     for i in 0..36 {
         let th = (i as f64) * std::f64::consts::TAU / 36.0;
@@ -235,54 +313,29 @@ fn place_via(
             let p = mid + d * t;
             if mq.signed_distance(&p) > CLEARANCE {
                 let g = x * p;
-                if clear_of(
-                    a,
-                    &g,
-                    vertebrae,
-                    poses,
-                    end_bodies.first().cloned().flatten(),
-                ) && clear_of(
-                    &g,
-                    b,
-                    vertebrae,
-                    poses,
-                    end_bodies.get(1).cloned().flatten(),
-                ) && outside_wraps(&g)
-                {
-                    let detour = (g - a).norm() + (b - g).norm();
-                    if best.map(|(bd, _)| detour < bd).unwrap_or(true) {
-                        best = Some((detour, g));
+                let detour = (g - a).norm() + (b - g).norm();
+                match score(&g) {
+                    Some(Fit::Clear) => {
+                        if best.map(|(bd, _)| detour < bd).unwrap_or(true) {
+                            best = Some((detour, g));
+                        }
+                        break;
                     }
-                    break;
-                }
-                if outside_wraps(&g) {
-                    let inside = inside_length(
-                        a,
-                        &g,
-                        vertebrae,
-                        poses,
-                        end_bodies.first().cloned().flatten(),
-                    ) + inside_length(
-                        &g,
-                        b,
-                        vertebrae,
-                        poses,
-                        end_bodies.get(1).cloned().flatten(),
-                    );
-                    let detour = (g - a).norm() + (b - g).norm();
-                    if inside < 0.5 * wrapped::DEPTH_TOLERANCE
-                        && fallback
-                            .map(|(fi, fd, _)| (inside, detour) < (fi, fd))
-                            .unwrap_or(true)
+                    Some(Fit::Graze(inside))
+                        if inside < FALLBACK_INSIDE * wrapped::DEPTH_TOLERANCE
+                            && fallback
+                                .map(|(fi, fd, _)| (inside, detour) < (fi, fd))
+                                .unwrap_or(true) =>
                     {
                         fallback = Some((inside, detour, g));
                     }
+                    _ => {}
                 }
             }
             t += 0.001;
         }
     }
-    best.map(|(_, p)| p).or(fallback.map(|(_, _, p)| p))
+    (best, fallback)
 }
 
 /// Total length (m) of the segment `a`-`b` (ground) inside the vertebrae

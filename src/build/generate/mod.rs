@@ -45,6 +45,7 @@ pub mod chain;
 pub mod clear;
 pub mod example;
 pub mod pose;
+pub mod residuals;
 pub mod scale;
 pub mod smooth;
 pub mod views;
@@ -180,6 +181,9 @@ pub struct GenerateReport {
     pub noise_sd_mm: Option<f64>,
     /// Outliers flagged (`<LEVEL>_<CODE> (error mm)`).
     pub outliers: Vec<String>,
+    /// Landmark codes off the same way at several levels: the set follows
+    /// another palpation protocol than the base's markers ([`residuals`]).
+    pub protocol_mismatches: Vec<residuals::ProtocolMismatch>,
     /// Spinal-continuity smoothing of the orientations ([`smooth`]).
     pub smoothing: SmoothingReport,
     /// RMS of all landmark-to-marker residuals (mm), outliers excluded.
@@ -199,6 +203,12 @@ pub struct GenerateReport {
     /// Levels fitted on fewer landmarks than the protocol's (missing ones
     /// named); empty for a complete set.
     pub reduced_fits: Vec<ReducedFit>,
+    /// The generated model's spine shape from its markers and centres at
+    /// the default pose ([`crate::landmarks::metrics::shape`]).
+    pub shape: crate::landmarks::metrics::Shape,
+    /// Every landmark's residual after its vertebra's fit (as OpenSim's
+    /// Scale tool lists marker errors), vertebra frames.
+    pub landmark_residuals: Vec<residuals::LandmarkResidual>,
 }
 
 /// What the orientation smoothing did ([`smooth`]).
@@ -431,9 +441,10 @@ pub fn generate(
     let registration = register_sacrum(&mut patient, &markers, &x_sacrum, set_name)?;
 
     // ---- 2. fits (lsq: palpation noise estimated over the whole set for
-    // the outlier test)
-    let (fits, noise, smoothing) =
-        fit_levels(&model, &poses0, &vert_levels, &patient, &markers, opts)?;
+    // the outlier test); a code off the same way at several levels is a
+    // protocol mismatch, refitted without it ([`residuals`])
+    let (fits, noise, smoothing, landmark_residuals, protocol_mismatches) =
+        fit_with_protocol_check(&model, &poses0, &vert_levels, &patient, &markers, opts)?;
 
     // ---- 3. scaling
     let mut doc = base.clone();
@@ -500,14 +511,10 @@ pub fn generate(
         .iter()
         .flat_map(|(l, pts)| pts.iter().map(move |(c, p)| (format!("{l}_{c}"), *p)))
         .collect();
+    let model_set = model_marker_set(&out_model, &poses2)?;
+    let shape = crate::landmarks::metrics::shape(&model_set, &centres);
     let views = if opts.views {
-        let mut model_markers = Vec::new();
-        for mk in &out_model.markers {
-            let (body, x) = out_model.marker_frame(mk)?;
-            if let Some(pb) = poses2.get(&body) {
-                model_markers.push(pb * x * Point3::from(mk.location));
-            }
-        }
+        let model_markers: Vec<Point3<f64>> = model_set.points.values().copied().collect();
         views::generate_views(&centres, &registered, &model_markers)
     } else {
         Vec::new()
@@ -525,6 +532,7 @@ pub fn generate(
         vertebrae: rows,
         noise_sd_mm: noise.map(|n| n * 1e3),
         outliers,
+        protocol_mismatches,
         smoothing,
         landmark_rms_mm: landmark_rms * 1e3,
         joints_rewritten: rewritten,
@@ -538,8 +546,28 @@ pub fn generate(
         self_check,
         above_fov,
         reduced_fits,
+        shape,
+        landmark_residuals,
     };
     Ok(Generated { doc, report, views })
+}
+
+/// The model's landmark markers in ground at the pose `poses`.
+fn model_marker_set(
+    model: &Model,
+    poses: &BTreeMap<String, Isometry3<f64>>,
+) -> Result<LandmarkSet> {
+    let mut set = LandmarkSet::new();
+    for mk in &model.markers {
+        let Some((id, _)) = LandmarkId::parse_name(&mk.name) else {
+            continue;
+        };
+        let (body, x) = model.marker_frame(mk)?;
+        if let Some(pb) = poses.get(&body) {
+            set.insert(id.level, id.code, pb * x * Point3::from(mk.location));
+        }
+    }
+    Ok(set)
 }
 
 /// Step 1: register the landmarks to the base model through the sacrum
@@ -663,6 +691,62 @@ fn fit_levels(
     )?;
     Ok((fits, noise, smoothing))
 }
+
+/// Step 2 with the protocol check: fit, list the per-landmark residuals,
+/// and when one code is off the same way at several levels (a set
+/// palpated by another protocol than the base's markers), say so and refit
+/// without that code (lsq; at least 8 landmarks stay at every level).
+#[allow(clippy::type_complexity)]
+fn fit_with_protocol_check(
+    model: &Model,
+    poses0: &BTreeMap<String, Isometry3<f64>>,
+    vert_levels: &[Level],
+    patient: &BTreeMap<Level, Points>,
+    markers: &BTreeMap<Level, (String, Points)>,
+    opts: &GenerateOptions,
+) -> Result<(
+    BTreeMap<Level, pose::VertebraFit>,
+    Option<f64>,
+    SmoothingReport,
+    Vec<residuals::LandmarkResidual>,
+    Vec<residuals::ProtocolMismatch>,
+)> {
+    let (fits, noise, smoothing) = fit_levels(model, poses0, vert_levels, patient, markers, opts)?;
+    let res = residuals::landmark_residuals(&fits, patient, markers);
+    let mut mismatches = residuals::protocol_mismatches(&res, noise.unwrap_or(PALPATION_SD));
+    let protocol = mismatches
+        .iter()
+        .all(|m| m.kind == residuals::MismatchKind::Protocol);
+    if mismatches.is_empty() || !protocol || opts.method != Method::Lsq {
+        return Ok((fits, noise, smoothing, res, mismatches));
+    }
+    // Refit every vertebra without the mismatched codes (a level keeps at
+    // least 8 landmarks: at most 3 codes are dropped from 14).
+    let drop: Vec<Code> = mismatches
+        .iter()
+        .filter_map(|m| m.code.parse().ok())
+        .collect();
+    let mut reduced = patient.clone();
+    for l in vert_levels {
+        if let Some(pts) = reduced.get_mut(l) {
+            if pts.len().saturating_sub(drop.len()) >= 8 {
+                pts.retain(|c, _| !drop.contains(c));
+            }
+        }
+    }
+    let (fits, noise, smoothing) = fit_levels(model, poses0, vert_levels, &reduced, markers, opts)?;
+    // The mismatched codes' residuals, now out of the fit, give their offset.
+    let res = residuals::landmark_residuals(&fits, patient, markers);
+    for m in &mut mismatches {
+        m.refitted_without = true;
+        residuals::refresh_offset(m, &res);
+    }
+    Ok((fits, noise, smoothing, res, mismatches))
+}
+
+/// Palpation noise assumed where the set's own cannot be estimated (m per
+/// axis; the thesis's sensitivity studies use 2.9 mm 3-D).
+const PALPATION_SD: f64 = 0.002;
 
 /// Step 3: scale each fitted vertebra's body (meshes, markers, frames).
 #[allow(clippy::type_complexity)]

@@ -22,12 +22,12 @@
 //!   base model's PathWraps over vertebral-body spheres are replaced.
 
 use crate::build::base::body_level_index;
-use crate::build::base::kin::{muscle_path, point_segment_distance, Kinematics};
+use crate::build::base::kin::{muscle_path, point_segment_distance, Kinematics, Values};
 use crate::build::base::wrap::{assign, test_poses, MuscleGeom, SphereGeom};
 use crate::error::{Error, Result};
 use crate::osim::builders;
 use crate::osim::document::set_f64;
-use crate::osim::model::WrapShape;
+use crate::osim::model::{Model, WrapShape};
 use crate::osim::xml::Node;
 use crate::osim::Document;
 use nalgebra::{Point3, Vector3};
@@ -95,6 +95,9 @@ fn limit_overlaps(out: &mut [SphereOut], centres: &[Vec<Point3<f64>>]) {
     }
 }
 
+/// Body poses in ground by body name.
+type Poses = BTreeMap<String, nalgebra::Isometry3<f64>>;
+
 /// Refit and constrain every WrapSphere of `doc` (already scaled, joints
 /// rewritten); `scales` gives each scaled body's factors, `base_radii` the
 /// base model's radius of each sphere by name. Edits `doc`.
@@ -105,6 +108,7 @@ pub fn refit_spheres(
     ivd_prefixes: &[String],
 ) -> Result<Vec<SphereOut>> {
     let model = doc.model()?;
+    // The body poses of the default pose and the test poses around it.
     let kin = Kinematics::new(&model)?;
     let q0 = kin.default_values();
     let poses: Vec<_> = test_poses(&q0, ivd_prefixes);
@@ -112,7 +116,37 @@ pub fn refit_spheres(
     for (_, q) in &poses {
         body_poses.push(kin.body_poses(q)?);
     }
-    // Spheres.
+    // Each sphere's radius refitted to its body's scaling.
+    let mut out = refitted_spheres(&model, scales, base_radii);
+    // Spheres may not overlap at any test pose.
+    let all_c: Vec<Vec<Point3<f64>>> = out
+        .iter()
+        .map(|s| {
+            let c = Point3::from(s.centre);
+            body_poses
+                .iter()
+                .map(|bp| bp.get(&s.body).map(|x| x * c).unwrap_or(c))
+                .collect()
+        })
+        .collect();
+    limit_overlaps(&mut out, &all_c);
+    // Muscles over the test poses, and the base pipeline's crossing rule
+    // and inside-point fix on the generated pose: one sphere per muscle.
+    let mgeo = muscle_geometry(&model, &poses, &body_poses)?;
+    let chosen = assign_muscles(&mut out, &all_c, &mgeo);
+    // Write the radii and the PathWraps.
+    write_radii(doc, &out, &model.file)?;
+    write_path_wraps(doc, &model, &out, &chosen);
+    Ok(out)
+}
+
+/// Every WrapSphere of the model with its base radius and the radius
+/// refitted to its body's scaling.
+fn refitted_spheres(
+    model: &Model,
+    scales: &BTreeMap<String, Vector3<f64>>,
+    base_radii: &BTreeMap<String, f64>,
+) -> Vec<SphereOut> {
     let mut out = Vec::new();
     for b in &model.bodies {
         for w in &b.wrap_objects {
@@ -139,23 +173,22 @@ pub fn refit_spheres(
             }
         }
     }
-    let centres = |s: &SphereOut| -> Vec<Point3<f64>> {
-        let c = Point3::from(s.centre);
-        body_poses
-            .iter()
-            .map(|bp| bp.get(&s.body).map(|x| x * c).unwrap_or(c))
-            .collect()
-    };
-    let all_c: Vec<Vec<Point3<f64>>> = out.iter().map(centres).collect();
-    limit_overlaps(&mut out, &all_c);
-    // Muscles over the test poses, and the base pipeline's crossing rule
-    // and inside-point fix on the generated pose.
+    out
+}
+
+/// Each muscle's straight paths at the test poses `poses` (body poses
+/// `body_poses`), the bodies it touches and their level range.
+fn muscle_geometry(
+    model: &Model,
+    poses: &[(String, Values)],
+    body_poses: &[Poses],
+) -> Result<Vec<MuscleGeom>> {
     let mut mgeo = Vec::new();
     for m in model.muscles() {
         let mut paths = Vec::new();
         let mut bodies = BTreeSet::new();
-        for ((_, q), bp) in poses.iter().zip(&body_poses) {
-            let path = muscle_path(&model, m, bp, q)?;
+        for ((_, q), bp) in poses.iter().zip(body_poses) {
+            let path = muscle_path(model, m, bp, q)?;
             for p in &path {
                 bodies.insert(p.body.clone());
             }
@@ -170,6 +203,18 @@ pub fn refit_spheres(
             paths,
         });
     }
+    Ok(mgeo)
+}
+
+/// The crossing rule and inside-point fix of every sphere (centres
+/// `all_c` at the test poses), shrinking it where needed; then one sphere
+/// per muscle, the one its straight path penetrates deepest. Returns
+/// muscle -> sphere.
+fn assign_muscles(
+    out: &mut [SphereOut],
+    all_c: &[Vec<Point3<f64>>],
+    mgeo: &[MuscleGeom],
+) -> BTreeMap<String, String> {
     // Per muscle: (clearance, sphere index) of every sphere it crosses.
     let mut crossings: BTreeMap<usize, Vec<(f64, usize)>> = BTreeMap::new();
     for (k, s) in out.iter_mut().enumerate() {
@@ -179,7 +224,7 @@ pub fn refit_spheres(
             radius_fit: s.radius,
             centres: all_c[k].clone(),
         };
-        let a = assign(&g, &mgeo);
+        let a = assign(&g, mgeo);
         if a.radius < s.radius {
             s.limited_by = "path points of its muscles (inside-point rule)".into();
         }
@@ -208,21 +253,33 @@ pub fn refit_spheres(
             chosen.insert(mgeo[*i].name.clone(), out[*k].name.clone());
         }
     }
-    // Write radii and PathWraps.
-    for s in &out {
+    chosen
+}
+
+/// Write each sphere's radius into `doc` (the model of `file`).
+fn write_radii(doc: &mut Document, out: &[SphereOut], file: &std::path::Path) -> Result<()> {
+    for s in out {
         let el = doc
             .component_mut("BodySet", &s.body)
             .and_then(|b| b.child_mut("WrapObjectSet"))
             .and_then(|w| w.child_mut("objects"))
             .and_then(|o| o.elements_mut().find(|e| e.name_attr() == s.name))
             .ok_or_else(|| {
-                Error::invalid(
-                    doc_name(&model.file),
-                    format!("wrap sphere '{}' vanished", s.name),
-                )
+                Error::invalid(doc_name(file), format!("wrap sphere '{}' vanished", s.name))
             })?;
         set_f64(el, "radius", s.radius);
     }
+    Ok(())
+}
+
+/// Replace each muscle's PathWraps over the spheres by one over its
+/// `chosen` sphere (none when it has none).
+fn write_path_wraps(
+    doc: &mut Document,
+    model: &Model,
+    out: &[SphereOut],
+    chosen: &BTreeMap<String, String>,
+) {
     let sphere_names: BTreeSet<String> = out.iter().map(|s| s.name.clone()).collect();
     for m in model.muscles() {
         let Some(gp) = doc
@@ -253,7 +310,6 @@ pub fn refit_spheres(
             )));
         }
     }
-    Ok(out)
 }
 
 fn doc_name(p: &std::path::Path) -> String {

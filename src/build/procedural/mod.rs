@@ -100,15 +100,6 @@ pub struct GenericModel {
     pub body_mass: f64,
 }
 
-/// The committed default base model (`base_model/base.osim` in the
-/// repository, written by `osim-spine base --procedural --out base_model`),
-/// for commands run without `--base`. Its meshes are in the same folder.
-pub fn default_base_path() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("base_model")
-        .join("base.osim")
-}
-
 /// Range of every rotational coordinate (rad), as the cyclist model's.
 const ROT_RANGE: [f64; 2] = [-std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_2];
 

@@ -174,6 +174,49 @@ pub fn lordosis(set: &LandmarkSet) -> Option<f64> {
     Some((l1 - s1).to_degrees())
 }
 
+/// Thoracic kyphosis T4-T12 (deg): sagittal tilt of T12's inferior
+/// endplate minus that of T4's superior endplate (positive kyphotic).
+pub fn kyphosis(set: &LandmarkSet) -> Option<f64> {
+    let t4 = endplate_tilts(set, Level::T4).0?.1?;
+    let t12 = endplate_tilts(set, Level::T12).1?.1?;
+    Some((t4 - t12).to_degrees())
+}
+
+/// The shape of a spine in one table (ground frame).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Shape {
+    /// Main curve (end vertebrae found automatically), positive convex to
+    /// the right.
+    pub cobb: Option<Cobb>,
+    /// Apex of the main curve (farthest from the line through its ends).
+    pub apex: Option<String>,
+    /// Lumbar lordosis L1-S1, negative lordotic.
+    pub lumbar_lordosis_deg: Option<f64>,
+    /// Thoracic kyphosis T4-T12, positive kyphotic.
+    pub kyphosis_t4_t12_deg: Option<f64>,
+    pub sacral_slope_deg: Option<f64>,
+    /// The conventions of the numbers above.
+    pub conventions: &'static str,
+}
+
+/// Cobb angle, apex, lordosis, kyphosis and sacral slope of a set whose
+/// vertebral centres are `centres`.
+pub fn shape(set: &LandmarkSet, centres: &BTreeMap<Level, Point3<f64>>) -> Shape {
+    let cobb = cobb(set, None);
+    let apex = cobb
+        .as_ref()
+        .and_then(|c| apex(centres, c.upper.parse().ok()?, c.lower.parse().ok()?))
+        .map(|l| l.to_string());
+    Shape {
+        cobb,
+        apex,
+        lumbar_lordosis_deg: lordosis(set),
+        kyphosis_t4_t12_deg: kyphosis(set),
+        sacral_slope_deg: sacral_slope(set),
+        conventions: "ground frame (X anterior, Y up, Z right); endplate lines are the traces of each endplate's least-squares plane in the frontal and sagittal planes; Cobb = tilt(lower end's inferior endplate) - tilt(upper end's superior endplate), positive convex to the right, ends with the largest magnitude; lordosis = sagittal tilt(L1 superior) - tilt(S1 superior), negative lordotic; kyphosis = tilt(T4 superior) - tilt(T12 inferior), positive kyphotic",
+    }
+}
+
 /// Sacral slope (deg): sagittal tilt of the S1 endplate.
 pub fn sacral_slope(set: &LandmarkSet) -> Option<f64> {
     Some(endplate_tilts(set, Level::S1).0?.1?.to_degrees())
@@ -284,11 +327,6 @@ pub fn curve_compare(truth: &[(f64, f64)], model: &[(f64, f64)]) -> Option<Curve
         truth_fit_rms_mm: own(&pt, &ht, &vt) * 1e3,
         model_fit_rms_mm: own(&pm, &hm, &vm) * 1e3,
     })
-}
-
-/// Quantile by linear interpolation (type 7) of unsorted data.
-pub fn quantile(x: &[f64], p: f64) -> Option<f64> {
-    crate::landmarks::stats::quantile(x, p)
 }
 
 #[cfg(test)]
