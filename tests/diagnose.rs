@@ -181,7 +181,7 @@ fn verdicts_match_the_withheld_labels_and_the_gap_shrinks() {
 }
 
 #[test]
-fn single_magnitude_makes_nonlinear_truth_unidentifiable_and_names_the_cases() {
+fn single_magnitude_tests_nonlinear_only_through_the_levels_and_names_the_cases() {
     let Some(dir) = dev("dev-16") else { return };
     assert_eq!(truth(&dir), "nonlinear_stiffness");
     let tmp = tempfile::tempdir().unwrap();
@@ -194,9 +194,25 @@ fn single_magnitude_makes_nonlinear_truth_unidentifiable_and_names_the_cases() {
     let d: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap())
             .unwrap();
-    assert_eq!(d["verdict"]["effect"], "unidentifiable", "{}", d["verdict"]);
+    // one magnitude per direction: the K-fold design sees the stiffening
+    // only through the levels' different deflections, and says so
+    assert_eq!(
+        d["verdict"]["effect"], "nonlinear_stiffness",
+        "{}",
+        d["verdict"]
+    );
+    assert!(
+        d["weakly_tested"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w["effect"] == "nonlinear_stiffness"),
+        "{}",
+        d["weakly_tested"]
+    );
     assert_diagnosis_schema(&d, &Experiment::read(&red).unwrap(), "dev-16 one magnitude");
-    let named: Vec<String> = d["where"]
+    // the cases that would test it directly
+    let named: Vec<String> = d["missing_cases"]
         .as_array()
         .unwrap()
         .iter()
@@ -523,24 +539,32 @@ fn short_spec(effect: Effect, seed: u64) -> SynthSpec {
     }
 }
 
-// Two effects at once: both in verdict.effects with their shares of the
-// held-out gap (adding up to what the pair closes), the primary first and
-// named by verdict.effect; the augmented model carries both.
+// Two effects at once (the first three of the bench's set; the bench
+// `diagnose_pairs.sh` gives the rate over 30): the primary among the truth's two every time, both in
+// verdict.effects in at least two, with their shares of the held-out gap
+// (adding up to what the pair closes), the primary first and named by
+// verdict.effect; the augmented model carries both.
 #[test]
 fn two_effects_are_both_reported_with_their_shares() {
     let tmp = tempfile::tempdir().unwrap();
-    let spec = SynthSpec {
-        second: Some(Effect::AsymmetricStiffness),
-        ..short_spec(Effect::LevelDependentStiffness, 21)
-    };
-    let Some((truth, o)) = short_synth(spec, &tmp.path().join("pair")) else {
-        return;
-    };
-    let named: Vec<Effect> = o.effects.iter().map(|e| e.effect).collect();
-    assert!(
-        named.contains(&truth.effect) && named.contains(&truth.second.unwrap()),
-        "{named:?}"
-    );
+    let mut both = Vec::new();
+    // the first three of the bench's pair set (on dev-13, loaded at L2)
+    let specimens = vec![("dev-13".to_string(), vec!["lumbar2".to_string()])];
+    for (i, (_, spec)) in synth::pair_set(3, 2026, &specimens).into_iter().enumerate() {
+        let seed = spec.seed;
+        let dir = tmp.path().join(format!("pair-{i}"));
+        let Some((truth, o)) = short_synth(spec, &dir) else {
+            return;
+        };
+        let pair = [truth.effect, truth.second.unwrap()];
+        let named: Vec<Effect> = o.effects.iter().map(|e| e.effect).collect();
+        assert!(pair.contains(&named[0]), "seed {seed}: {named:?}");
+        if pair.iter().all(|e| named.contains(e)) {
+            both.push((dir, o, named));
+        }
+    }
+    assert!(both.len() >= 2, "both named in {} of 3", both.len());
+    let (dir, o, named) = both.swap_remove(0);
     assert_eq!(
         o.verdict,
         osim_spine::diagnose::select::Verdict::Effect(named[0])
@@ -551,7 +575,7 @@ fn two_effects_are_both_reported_with_their_shares() {
     let pair = &o.pairs[o.chosen_pair.unwrap()];
     assert!(pair.accepted && pair.win >= 0.95);
     assert_eq!(o.augmented().family.effects().len(), 2);
-    let exp = Experiment::read(tmp.path().join("pair")).unwrap();
+    let exp = Experiment::read(&dir).unwrap();
     let json = osim_spine::diagnose::report::diagnosis_json(&o, &exp, None);
     assert_diagnosis_schema(&json, &exp, "pair");
     assert_eq!(json["verdict"]["effects"].as_array().unwrap().len(), 2);
@@ -699,15 +723,17 @@ fn noise_is_stated_estimated_or_an_assumed_floor_never_zero() {
         "{line}"
     );
     // one magnitude per direction: K-fold over (case, level) rows keeps the
-    // asymmetry testable; primary rotations only leave coupling and the
-    // joint pose untestable, and the report says which measurement would
+    // asymmetry testable and the stiffening testable only through the
+    // levels; primary rotations only leave coupling and the joint pose
+    // untestable, and the report says which measurement would
     assert_eq!(o.design.folds, osim_spine::diagnose::design::FOLDS);
     assert!(!o.design.is_untestable("asymmetric_stiffness"));
-    for e in [
-        "nonlinear_stiffness",
-        "coupled_stiffness",
-        "joint_pose_error",
-    ] {
+    assert!(o
+        .design
+        .weakly_tested
+        .iter()
+        .any(|(e, _)| e == "nonlinear_stiffness"));
+    for e in ["coupled_stiffness", "joint_pose_error"] {
         assert!(o.design.is_untestable(e), "{e}: {:?}", o.design.untestable);
         assert!(o.design.missing.iter().any(|m| m.effect == e), "{e}");
     }
@@ -799,7 +825,10 @@ fn a_published_table_of_means_names_level_dependent_stiffness() {
     assert!(o.sim.cells.iter().all(|c| c.sd.is_some_and(|s| s > 0.0)));
     assert!(o.noise_model.translation.is_none());
     let line = osim_spine::diagnose::report::separable_line(&o);
-    assert!(line.contains("cannot test: nonlinear_stiffness"), "{line}");
+    assert!(
+        line.contains("only indirectly: nonlinear_stiffness"),
+        "{line}"
+    );
     let json = osim_spine::diagnose::report::diagnosis_json(&o, &exp, None);
     assert_diagnosis_schema(&json, &exp, "means");
 }

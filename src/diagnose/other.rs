@@ -96,7 +96,9 @@ impl Remaining {
         let n = self.structure.len().max(1) as f64;
         self.structure
             .iter()
-            .filter(|s| s.cells == cells && s.p * n < alpha && (!self.noise_given || s.p_noise * n < alpha))
+            .filter(|s| {
+                s.cells == cells && s.p * n < alpha && (!self.noise_given || s.p_noise * n < alpha)
+            })
             .map(|s| s.misfit)
             .fold(1.0, f64::max)
     }

@@ -225,6 +225,7 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
             "separating_measurements": separating_measurements(o),
         },
         "untestable": o.design.untestable.iter().map(|(e, w)| json!({"effect": e, "reason": w})).collect::<Vec<_>>(),
+        "weakly_tested": o.design.weakly_tested.iter().map(|(e, w)| json!({"effect": e, "reason": w})).collect::<Vec<_>>(),
         "missing_cases": missing,
         "noise": noise_json(o),
         "baseline": {"params": params(&o.baseline)},
@@ -680,14 +681,24 @@ pub fn separable_line(o: &Outcome) -> String {
         }
     };
     let cannot: Vec<String> = cannot.iter().map(|e| needs(e)).collect();
-    format!(
-        "The held-out design can test: {}; it cannot test: {}.",
-        can.join(", "),
-        if cannot.is_empty() {
+    let weak: Vec<String> = o
+        .design
+        .weakly_tested
+        .iter()
+        .map(|(e, _)| needs(e))
+        .collect();
+    let list = |v: &[String]| {
+        if v.is_empty() {
             "-".to_string()
         } else {
-            cannot.join("; ")
+            v.join("; ")
         }
+    };
+    format!(
+        "The held-out design can test: {} (only indirectly: {}); it cannot test: {}.",
+        can.join(", "),
+        list(&weak),
+        list(&cannot)
     )
 }
 
@@ -828,10 +839,17 @@ fn design_md(m: &mut String, o: &Outcome) {
         o.design.heldout.len()
     );
     let _ = writeln!(m, "{}\n", separable_line(o));
-    if !o.design.untestable.is_empty() {
-        let _ = writeln!(m, "Untestable by design:\n");
-        for (e, w) in &o.design.untestable {
-            let _ = writeln!(m, "- `{e}`: {w}");
+    if !o.design.untestable.is_empty() || !o.design.weakly_tested.is_empty() {
+        for (title, list) in [
+            ("Untestable by design", &o.design.untestable),
+            ("Tested only indirectly", &o.design.weakly_tested),
+        ] {
+            if !list.is_empty() {
+                let _ = writeln!(m, "{title}:\n");
+                for (e, w) in list {
+                    let _ = writeln!(m, "- `{e}`: {w}");
+                }
+            }
         }
         let _ = writeln!(
             m,

@@ -64,6 +64,14 @@ pub const OTHER_REDUCED_CHI2: f64 = 4.0;
 /// augmented model may close (with [`OTHER_REDUCED_CHI2`]).
 pub const OTHER_CLOSED: f64 = 0.8;
 
+/// Fraction of the baseline's held-out chi-square which, closed with a
+/// held-out reduced chi-square under [`EXPLAINED_REDUCED_CHI2`], makes the
+/// named model the explanation (never `other`).
+pub const EXPLAINED_CLOSED: f64 = 0.9;
+
+/// See [`EXPLAINED_CLOSED`].
+pub const EXPLAINED_REDUCED_CHI2: f64 = 2.0;
+
 /// `other`: structured misfit ratio of the augmented model's residuals
 /// (see [`Remaining::misfit`]). Chosen on the development set,
 /// the standard synthetic set and the out-of-vocabulary tuning seed 7
@@ -478,16 +486,32 @@ fn decide_effect(ev: &Evidence) -> Decision {
 }
 
 /// Decide when no effect earns its parameters: `none`, or
-/// `unidentifiable` when the design leaves an effect untestable.
+/// `unidentifiable` when the design leaves an effect untestable and the
+/// baseline's held-out gap is above the noise (with no gap there is
+/// nothing to explain: `none`, naming what could not be tested).
 fn decide_none(ev: &Evidence) -> Decision {
-    if ev.design_gaps.is_empty() {
+    // no gap above the noise: nothing to explain, whatever the design
+    // cannot test (named in the reasons)
+    let gap_seen = ChiSquared::new(ev.n_ho())
+        .map(|c| c.sf(ev.chi_b) < ALPHA)
+        .unwrap_or(true);
+    if ev.design_gaps.is_empty() || !gap_seen {
         let t = (ev.chi_b / ev.n_ho()).max(1.0);
+        // what the design saw only indirectly: none of it showed, but a
+        // small one would not have
+        let untested = ev.design_gaps.iter().map(|(e, why)| {
+            format!("the nominal model fits within the noise, but {e} cannot be tested: {why}")
+        });
+        let weak = ev.design.weakly_tested.iter();
+        let reasons = untested
+            .chain(weak.map(|(e, why)| format!("{e} not seen; {why}")))
+            .collect();
         return Decision {
             verdict: Verdict::None,
             chosen: None,
             chosen_pair: None,
             confidence: none_confidence(ev.stats, ev.ranked, &ev.hr.fits, &ev.hr.base, t),
-            reasons: Vec::new(),
+            reasons,
             effects: Vec::new(),
         };
     }
@@ -521,7 +545,11 @@ fn other_or(d: Decision, rem: &Remaining) -> Decision {
     let p_structure = rem.p_structure();
     let above = rem.p_noise < ALPHA && rem.reduced_chi2 >= OTHER_REDUCED_CHI2;
     let large = above && rem.closed < OTHER_CLOSED && p_structure < ALPHA;
-    if misfit < OTHER_MISFIT && !large {
+    // a model that closes nearly all of the gap and leaves less than twice
+    // the noise variance explains it, whatever structure its small
+    // residuals keep
+    let explained = rem.closed >= EXPLAINED_CLOSED && rem.reduced_chi2 < EXPLAINED_REDUCED_CHI2;
+    if explained || (misfit < OTHER_MISFIT && !large) {
         return Decision {
             confidence: d.confidence / misfit,
             ..d
