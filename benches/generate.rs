@@ -8,9 +8,9 @@
 //! figures. Run: `cargo bench --bench generate`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use osim_spine::build::base::DirMeshSource;
-use osim_spine::build::generate::{example::posed_example, generate, GenerateOptions};
+use osim_spine::base::DirMeshSource;
 use osim_spine::evaluate::{evaluate, Align, CentreDef, ModelShape, Truth};
+use osim_spine::generate::{example::posed_example, generate, GenerateOptions};
 use osim_spine::osim::Document;
 use std::path::PathBuf;
 

@@ -1,9 +1,9 @@
 //! Regenerate `fixtures/example-scoliosis.csv` and
 //! `fixtures/example-scoliosis-centres.csv` from `base_model/` (see
-//! `osim_spine::build::generate::example`). Run from the repository root:
+//! `osim_spine::generate::example`). Run from the repository root:
 //! `cargo run --example example_scoliosis`.
 
-use osim_spine::build::generate::example::example_scoliosis;
+use osim_spine::generate::example::example_scoliosis;
 use osim_spine::osim::Document;
 use std::path::Path;
 

@@ -7,7 +7,7 @@
 //! `cargo run --release --example palpate_inputs -- OUT_DIR`
 
 use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
-use osim_spine::build::base::kin::Kinematics;
+use osim_spine::base::kin::Kinematics;
 use osim_spine::landmarks::{Frame, Level};
 use osim_spine::mesh::{self, TriMesh};
 use osim_spine::osim::Document;

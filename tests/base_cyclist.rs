@@ -5,7 +5,7 @@
 mod common;
 
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use osim_spine::build::base::kin::Kinematics;
+use osim_spine::base::kin::Kinematics;
 use osim_spine::mesh::{anterior_body_nodes, fit_sphere, AnatomicalFrame, MeshQuery, TriMesh};
 use osim_spine::osim::Document;
 use std::collections::BTreeMap;
@@ -147,7 +147,7 @@ fn cyclist_base_model_in_opensim() {
     // Equilibrium under gravity: tool vs OpenSim. The report rounds its
     // figures (1e-6 rad/m), so the tool's equilibrium is recomputed here at
     // full precision from the written model.
-    let eq = osim_spine::build::base::check::equilibrium(&m).unwrap();
+    let eq = osim_spine::base::check::equilibrium(&m).unwrap();
     let full = od.join("equilibrium_full_precision.json");
     std::fs::write(
         &full,

@@ -6,8 +6,8 @@
 mod common;
 
 use nalgebra::{Point3, Vector3};
-use osim_spine::build::base::kin::Kinematics;
-use osim_spine::build::generate::base_markers;
+use osim_spine::base::kin::Kinematics;
+use osim_spine::generate::base_markers;
 use osim_spine::landmarks::{Code, Level};
 use osim_spine::osim::Document;
 use std::collections::BTreeMap;

@@ -3,13 +3,13 @@
 //! through S1_SEC (acceptance: within 30 mm laterally) and levels it;
 //! `keep` leaves T1 where the base joints put it (far to the right).
 
-use osim_spine::build::generate::{generate, AboveFov, GenerateOptions};
 use osim_spine::embedded::BaseModel;
+use osim_spine::generate::{generate, AboveFov, GenerateOptions};
 use osim_spine::landmarks::{Code, Level};
 
 /// (T1 centre minus the vertical through S1_SEC along the right axis in mm,
 /// the report) for one mode; the centre comes from the written model.
-fn t1_lateral_mm(mode: AboveFov) -> (f64, osim_spine::build::generate::GenerateReport) {
+fn t1_lateral_mm(mode: AboveFov) -> (f64, osim_spine::generate::GenerateReport) {
     let file = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/fixtures/example-scoliosis.csv"
@@ -30,7 +30,7 @@ fn t1_lateral_mm(mode: AboveFov) -> (f64, osim_spine::build::generate::GenerateR
     let s1 = g.report.registration.isometry() * set.get(Level::S1, Code::SEC).unwrap();
     // T1's centre recomputed from the generated model itself.
     let model = g.doc.model().unwrap();
-    let kin = osim_spine::build::base::kin::Kinematics::new(&model).unwrap();
+    let kin = osim_spine::base::kin::Kinematics::new(&model).unwrap();
     let poses = kin.body_poses(&kin.default_values()).unwrap();
     let centres = osim_spine::evaluate::model_centres(&model, &poses, Default::default()).unwrap();
     let t1 = centres[&Level::T1];
@@ -52,7 +52,7 @@ fn balance_puts_t1_over_the_sacrum_and_keep_does_not() {
     assert_eq!(a.unmeasured, expect);
     assert_eq!(a.balanced, expect);
     // No joint bends past the limit; T1 is level unless the limit was hit.
-    let cap = osim_spine::build::generate::balance::MAX_BEND_DEG;
+    let cap = osim_spine::generate::balance::MAX_BEND_DEG;
     assert!(a.bend_deg.iter().all(|b| b.abs() <= cap + 1e-9), "{a:?}");
     assert!(a.bend_limited || a.t1_coronal_tilt_deg.abs() < 0.5, "{a:?}");
     let (keep, rep) = t1_lateral_mm(AboveFov::Keep);

@@ -7,8 +7,8 @@
 mod common;
 
 use nalgebra::{Point3, Rotation3, Vector3};
-use osim_spine::build::generate::example::example_scoliosis;
 use osim_spine::evaluate::{evaluate_model, metrics, Align, ModelShape, Truth};
+use osim_spine::generate::example::example_scoliosis;
 use osim_spine::landmarks::{Code, LandmarkSet, Level};
 use osim_spine::osim::Document;
 use std::collections::BTreeMap;
@@ -325,12 +325,12 @@ fn generator_refuses_degenerate_vertebrae_itself() {
     let base = Document::read(root().join("base_model/base.osim")).unwrap();
     let set =
         osim_spine::landmarks::io::load(&root().join("fixtures/example-scoliosis.csv")).unwrap();
-    let opts = osim_spine::build::generate::GenerateOptions::default();
+    let opts = osim_spine::generate::GenerateOptions::default();
     let mut line = set.clone();
     for (i, c) in Code::ALL.iter().enumerate() {
         line.insert(Level::L2, *c, Point3::new(0.0, 0.1 + 0.002 * i as f64, 0.0));
     }
-    let e = osim_spine::build::generate::generate(&base, &line, "t.csv", &opts, None).unwrap_err();
+    let e = osim_spine::generate::generate(&base, &line, "t.csv", &opts, None).unwrap_err();
     assert!(
         e.to_string().contains("L2") && e.to_string().contains("collinear"),
         "{e}"
@@ -339,7 +339,7 @@ fn generator_refuses_degenerate_vertebrae_itself() {
     for c in Code::ALL {
         same.insert(Level::L2, c, Point3::new(0.0, 0.1, 0.0));
     }
-    let e = osim_spine::build::generate::generate(&base, &same, "t.csv", &opts, None).unwrap_err();
+    let e = osim_spine::generate::generate(&base, &same, "t.csv", &opts, None).unwrap_err();
     assert!(e.to_string().contains("L2"), "{e}");
 }
 

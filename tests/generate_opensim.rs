@@ -18,8 +18,8 @@
 mod common;
 
 use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
-use osim_spine::build::generate::{generate, GenerateOptions, Method, Smooth};
 use osim_spine::evaluate::{evaluate_model, Align, CentreDef, ModelShape, Truth};
+use osim_spine::generate::{generate, GenerateOptions, Method, Smooth};
 use osim_spine::landmarks::{Frame, LandmarkId, LandmarkSet, Level, Units};
 use osim_spine::osim::Document;
 use rand::{Rng, SeedableRng};
@@ -566,7 +566,7 @@ fn one_run(
         outlier_sigmas: std::env::var("OSIM_SPINE_STUDY_SIGMAS")
             .ok()
             .and_then(|v| v.parse().ok())
-            .unwrap_or(osim_spine::build::generate::pose::OUTLIER_SIGMAS),
+            .unwrap_or(osim_spine::generate::pose::OUTLIER_SIGMAS),
         ..GenerateOptions::default()
     };
     let g = generate(base, &set, "noisy.csv", &opts, None).unwrap();

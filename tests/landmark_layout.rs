@@ -5,7 +5,7 @@
 
 mod common;
 
-use osim_spine::build::generate::base_markers;
+use osim_spine::generate::base_markers;
 use osim_spine::landmarks::check::{base_layout, check_file};
 use osim_spine::osim::Document;
 

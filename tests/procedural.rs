@@ -12,11 +12,9 @@ mod common;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use osim_spine::anatomy::DimensionTable;
-use osim_spine::build::procedural::{
-    generate_generic, GenericModel, ProceduralOptions, Sex, Templates,
-};
 use osim_spine::landmarks::Level;
 use osim_spine::mesh::{MeshQuery, TriMesh};
+use osim_spine::procedural::{generate_generic, GenericModel, ProceduralOptions, Sex, Templates};
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 

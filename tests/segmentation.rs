@@ -9,7 +9,7 @@
 mod common;
 
 use nalgebra::{Isometry3, Matrix3, Matrix4, Point3, Rotation3, Translation3, Unit, Vector3};
-use osim_spine::build::base::kin::{Kinematics, Values};
+use osim_spine::base::kin::{Kinematics, Values};
 use osim_spine::landmarks::{Code, Frame, LandmarkSet, Level};
 use osim_spine::mesh::{self, TriMesh};
 use osim_spine::osim::{Document, Model};

@@ -8,10 +8,10 @@
 mod common;
 
 use nalgebra::{Point3, Vector3};
-use osim_spine::build::generate::example::posed_example;
 use osim_spine::evaluate::propagation::{propagate, Propagated, PropagationOptions};
 use osim_spine::evaluate::variability::PalpationSet;
 use osim_spine::evaluate::{metrics, Truth};
+use osim_spine::generate::example::posed_example;
 use osim_spine::landmarks::{Code, LandmarkSet, Level};
 use osim_spine::osim::Document;
 use rand::SeedableRng;

@@ -1,18 +1,18 @@
 //! `osim-spine base`: build the base model from a generic model (see
-//! [`crate::build::base`]). Everything is computed in memory first; then
+//! [`crate::base`]). Everything is computed in memory first; then
 //! `OUT/base.osim`, its meshes, `OUT/base_report.json` and the SVG views
 //! are written, each atomically. Nothing is written on error.
 //!
 //! `--procedural [--stature M] [--sex female|male]` replaces the generic
-//! model by the procedural spine of [`crate::build::procedural`] (also
+//! model by the procedural spine of [`crate::procedural`] (also
 //! writing `OUT/procedural_report.json`); `base_model/` in the repository
 //! is `osim-spine base --procedural --out base_model`.
 
-use crate::build::base::{build_base, BaseOptions, DirMeshSource, FixedBody, IvdParams};
-use crate::build::procedural::{generate_generic, ProceduralOptions, Sex};
+use crate::base::{build_base, BaseOptions, DirMeshSource, FixedBody, IvdParams};
 use crate::error::Error;
 use crate::landmarks::Level;
 use crate::osim::Document;
+use crate::procedural::{generate_generic, ProceduralOptions, Sex};
 use clap::Args as ClapArgs;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -182,7 +182,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         opts.body_meshes = body_meshes(d, top)?;
     }
     opts.overrides =
-        crate::build::base::Overrides::read(args.palpation.as_deref(), args.centres.as_deref())?;
+        crate::base::Overrides::read(args.palpation.as_deref(), args.centres.as_deref())?;
     let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     let built = if args.procedural {
         let popts = ProceduralOptions {
@@ -265,7 +265,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
 }
 
 /// The self-check and every guard result, as the report has them.
-fn print_self_check(r: &crate::build::base::BaseReport) {
+fn print_self_check(r: &crate::base::BaseReport) {
     let sc = &r.self_check;
     let eq = &sc.equilibrium;
     crate::outln!(

@@ -1,16 +1,16 @@
 //! `osim-spine generate [--base DIR] --landmarks FILE --out MODEL.osim`:
 //! a patient-specific scoliotic model from a landmark set (see
-//! [`crate::build::generate`]). The landmark file is checked first
+//! [`crate::generate`]). The landmark file is checked first
 //! ([`crate::landmarks::check`]): any error finding refuses the file.
 //! Everything is computed in memory; then `MODEL.osim`, its meshes in
 //! `Geometry/` beside it, `<stem>_report.json` and the SVG views
 //! `<stem>_frontal.svg` / `<stem>_sagittal.svg` are written, each
 //! atomically. Nothing is written on error.
 
-use crate::build::generate::{generate, GenerateOptions, Method};
 pub use crate::embedded::base_file;
 use crate::embedded::BaseModel;
 use crate::error::Error;
+use crate::generate::{generate, GenerateOptions, Method};
 use crate::landmarks::check::{check_raw, Severity};
 use crate::osim::geometry::check_relative;
 use crate::osim::model::Geometry;
@@ -45,20 +45,20 @@ pub struct Args {
     pub out: PathBuf,
     /// Vertebra pose fit: lsq (all 14 landmarks, one-outlier rejection) or
     /// thesis (ISB frames from the 6 joint landmarks).
-    #[arg(long, default_value = "lsq")]
-    pub method: String,
+    #[arg(long, value_enum, ignore_case = true, default_value_t = Method::Lsq)]
+    pub method: Method,
     /// How the per-vertebra fits are combined along the spine (lsq only):
     /// chain (neighbours meet at their joints, disc mismatch estimated from
     /// the data; unbiased), curvature (smoothness prior on the
     /// orientations; flattens sharp curves; `auto` is an alias) or off
     /// (independent fits).
-    #[arg(long, default_value = "chain")]
-    pub smooth: String,
+    #[arg(long, value_enum, ignore_case = true, default_value_t = crate::generate::Smooth::Chain)]
+    pub smooth: crate::generate::Smooth,
     /// Levels above the landmarks' field of view: balance (a compensatory
     /// frontal curve so that T1 sits over S1_SEC, level) or keep (the base
     /// model's joint angles above the top measured vertebra).
-    #[arg(long, value_name = "balance|keep", default_value = "balance")]
-    pub above_fov: String,
+    #[arg(long, value_enum, ignore_case = true, default_value_t = crate::generate::AboveFov::Balance)]
+    pub above_fov: crate::generate::AboveFov,
     /// Skip the self-check (bushings, muscles through bone, equilibrium).
     #[arg(long)]
     pub no_self_check: bool,
@@ -88,9 +88,7 @@ fn refuse_overwriting_inputs(args: &Args) -> crate::Result<()> {
 
 /// Run `generate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
-    let method: Method = args.method.parse()?;
-    let smooth: crate::build::generate::Smooth = args.smooth.parse()?;
-    let above_fov: crate::build::generate::AboveFov = args.above_fov.parse()?;
+    let (method, smooth, above_fov) = (args.method, args.smooth, args.above_fov);
     if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
@@ -259,7 +257,7 @@ fn print_shape(s: &crate::landmarks::metrics::Shape) {
 const SAGGED_M: f64 = 0.02;
 
 /// The self-check, every result stated; muscles through bone are warned.
-fn print_self_check(sc: &crate::build::base::check::SelfCheck) {
+fn print_self_check(sc: &crate::base::check::SelfCheck) {
     let eq = &sc.equilibrium;
     let disp = eq.max_displacement * 1e3;
     let verdict = match eq.stable {
@@ -314,7 +312,7 @@ fn patient_model_name(stem: &str) -> String {
 
 /// Levels above the field of view: which were not measured, what was
 /// done, where T1 ended.
-fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
+fn print_above_fov(a: Option<&crate::generate::AboveFovReport>) {
     let Some(a) = a else {
         crate::outln!("above the field of view: none (the landmarks reach T1)");
         return;
@@ -329,7 +327,7 @@ fn print_above_fov(a: Option<&crate::build::generate::AboveFovReport>) {
             if a.bend_limited {
                 format!(
                     ", the limit of {:.0} deg: too few unmeasured levels to bring T1 over the sacrum",
-                    crate::build::generate::balance::MAX_BEND_DEG
+                    crate::generate::balance::MAX_BEND_DEG
                 )
             } else {
                 String::new()

@@ -8,9 +8,9 @@
 //! `models/Geometry/`). Everything is computed first, then written
 //! atomically.
 
-use crate::build::generate::Method;
 use crate::evaluate::propagation::PropagationOptions;
 use crate::evaluate::variability;
+use crate::generate::Method;
 use anyhow::Context;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -38,8 +38,8 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     pub base: Option<PathBuf>,
     /// Vertebra pose fit of the generator: lsq or thesis.
-    #[arg(long, default_value = "lsq")]
-    pub method: String,
+    #[arg(long, value_enum, ignore_case = true, default_value_t = Method::Lsq)]
+    pub method: Method,
     /// Reference of the model metrics: truth centres CSV (`level,x,y,z`,
     /// `# units:`, `# frame:`) or a folder of vertebral-body meshes. Without
     /// it: the consensus model of the per-landmark median landmark set.
@@ -91,7 +91,7 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
         if args.no_models {
             None
         } else {
-            let method: Method = args.method.parse()?;
+            let method = args.method;
             let truth = match &args.truth {
                 Some(t) => Some(args.metrics.load_truth(t)?),
                 None => None,

@@ -42,11 +42,11 @@ pub mod plot;
 pub mod propagation;
 pub mod variability;
 
-pub use crate::build::base::centres::{model_centres, model_landmarks, CentreDef};
+pub use crate::base::centres::{model_centres, model_landmarks, CentreDef};
 
-use crate::build::base::kin::Kinematics;
-use crate::build::generate::Registration;
+use crate::base::kin::Kinematics;
 use crate::error::{Error, Result};
+use crate::generate::Registration;
 use crate::landmarks::{Frame, LandmarkSet, Level, Units};
 use crate::osim::Document;
 use nalgebra::{Isometry3, Point3};

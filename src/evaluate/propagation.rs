@@ -1,6 +1,6 @@
 //! Propagation of palpation variability to the model (`osim-spine
 //! variability`, thesis chapter 5, Tables 5.6-5.8): one patient model per
-//! palpation ([`crate::build::generate`], in memory), each evaluated with
+//! palpation ([`crate::generate`], in memory), each evaluated with
 //! the metrics of [`crate::evaluate`] (vertebral-centre RMSE, per-level
 //! errors, sagittal and frontal 4th-order curve RMSE and R2, Cobb angle,
 //! apex, lumbar lordosis).
@@ -41,8 +41,8 @@ use super::{
     centre_definition, evaluate_model, mean_sd, med_iqr, metrics, summarise, truth_transform,
     Align, CentreDef, LevelSummary, MeanSd, MedIqr, ModelMetrics, ModelShape, Truth,
 };
-use crate::build::generate::{generate, GenerateOptions, Generated, Method};
 use crate::error::{Error, Result};
+use crate::generate::{generate, GenerateOptions, Generated, Method};
 use crate::landmarks::check::{check_completeness, check_set, Severity, GENERATE_BLOCKING};
 use crate::landmarks::{LandmarkId, LandmarkSet, Level};
 use crate::osim::Document;

@@ -512,7 +512,7 @@ pub struct Computed {
     /// ([`propagation::boxplots`]) with the propagation.
     pub figures: Vec<(String, String)>,
     /// Generated models `(label, model)` when kept.
-    pub models: Vec<(String, crate::build::generate::Generated)>,
+    pub models: Vec<(String, crate::generate::Generated)>,
 }
 
 /// Load the palpations and compute the statistics, and with `models`

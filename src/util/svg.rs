@@ -3,7 +3,7 @@
 //! -Z, the subject's right on the viewer's left) and sagittal (seen from
 //! the right: horizontal axis = X, anterior to the right); vertical axis
 //! = Y (superior). Lengths in mm, equal scales on both axes. Used by the
-//! base builder's views (`build::base::views`) and the generator's and
+//! base builder's views (`base::views`) and the generator's and
 //! evaluation's figures (`evaluate::plot`).
 //!
 //! A figure holds point series (dots, optionally joined), circles given in

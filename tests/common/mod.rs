@@ -152,14 +152,14 @@ pub fn assert_wrap_rows(rows: &[serde_json::Value]) -> usize {
 /// `generate` adds to clear a vertebra are not exempt from that vertebra's
 /// test, unlike attachments), and the largest
 /// difference between the tool's wrapped path length
-/// ([`osim_spine::build::base::wrapped::wrapped_path`]) and OpenSim's (m).
+/// ([`osim_spine::base::wrapped::wrapped_path`]) and OpenSim's (m).
 pub fn opensim_path_crossings(
     python: &Path,
     model: &Path,
-) -> (Vec<osim_spine::build::base::wrapped::Crossing>, f64) {
+) -> (Vec<osim_spine::base::wrapped::Crossing>, f64) {
     use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion};
-    use osim_spine::build::base::wrapped::{self, PathVertex};
-    use osim_spine::build::base::DirMeshSource;
+    use osim_spine::base::wrapped::{self, PathVertex};
+    use osim_spine::base::DirMeshSource;
     let r = run_py(python, "wrapped_paths.py", &[model.to_str().unwrap()]);
     let p3 = |v: &serde_json::Value| {
         Point3::new(
@@ -193,7 +193,7 @@ pub fn opensim_path_crossings(
     let verts: Vec<(String, &osim_spine::mesh::MeshQuery)> =
         owned.iter().map(|(n, q)| (n.clone(), q)).collect();
     // The tool's own wrapped paths at the default pose, for the length check.
-    let kin = osim_spine::build::base::kin::Kinematics::new(&m).unwrap();
+    let kin = osim_spine::base::kin::Kinematics::new(&m).unwrap();
     let q = kin.default_values();
     let own_poses = kin.body_poses(&q).unwrap();
     let spheres = wrapped::spheres_at(&m, &own_poses);

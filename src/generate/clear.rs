@@ -3,7 +3,7 @@
 //! The scoliotic curve moves vertebrae into the paths of muscles that span
 //! them (psoas fascicles beside the lumbar bodies on the concave side,
 //! multifidus and longissimus fascicles over rotated laminae). The path
-//! tested is the one OpenSim computes ([`crate::build::base::wrapped`]:
+//! tested is the one OpenSim computes ([`crate::base::wrapped`]:
 //! own points, sphere wraps and their arcs) at the default pose, against
 //! the vertebra meshes.
 //!
@@ -24,8 +24,8 @@
 //! Rounds repeat until no crossing is left or [`MAX_ROUNDS`] is reached;
 //! what is left is reported by the self-check.
 
-use crate::build::base::kin::Kinematics;
-use crate::build::base::wrapped::{self, PathVertex};
+use crate::base::kin::Kinematics;
+use crate::base::wrapped::{self, PathVertex};
 use crate::error::Result;
 use crate::mesh::MeshQuery;
 use crate::osim::xml::{Element, Node};
@@ -173,7 +173,7 @@ pub fn clear_paths(
                 .iter()
                 .filter(|v| v.body.is_some())
                 .count();
-            let active = crate::build::base::kin::muscle_path(&model, m, &poses, &q)?;
+            let active = crate::base::kin::muscle_path(&model, m, &poses, &q)?;
             let Some(prev_name) = active
                 .get(prev_idx.saturating_sub(1))
                 .map(|p| p.name.clone())

@@ -16,7 +16,7 @@
 //! levels and where T1 ends.
 
 use super::pose::Points;
-use crate::build::base::kin::Kinematics;
+use crate::base::kin::Kinematics;
 use crate::landmarks::{Code, Level};
 use crate::osim::model::{JointFrames, Model};
 use crate::osim::Document;
@@ -34,7 +34,17 @@ pub const MAX_BEND_DEG: f64 = 15.0;
 const POSITION_WEIGHT: f64 = 10.0;
 
 /// How levels above the field of view are placed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum AboveFov {
     /// Compensatory frontal curve: T1 over S1_SEC, T1 level.

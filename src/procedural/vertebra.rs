@@ -22,7 +22,7 @@
 use super::shapes::{straight, sweep, tube, Station};
 use super::tables::BodyShape;
 use super::tables::PosteriorShape;
-use crate::build::anatomy::LevelDimensions;
+use crate::anatomy::LevelDimensions;
 use crate::error::Result;
 use crate::landmarks::Level;
 use crate::mesh::TriMesh;

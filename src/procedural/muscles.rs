@@ -304,7 +304,7 @@ pub fn generate(sk: &Skeleton, t: &Templates) -> Result<Vec<MuscleSpec>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::build::procedural::{skeleton, ProceduralOptions};
+    use crate::procedural::{skeleton, ProceduralOptions};
 
     #[test]
     fn a_path_through_a_vertebral_body_is_routed_around_it() {

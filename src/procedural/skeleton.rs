@@ -14,7 +14,7 @@ use super::pelvis::{self, PelvisGeometry, PelvisInputs};
 use super::tables::Templates;
 use super::vertebra::{self, LevelShape, VertebraGeometry};
 use super::{ProceduralOptions, Sex};
-use crate::build::anatomy::DimensionTable;
+use crate::anatomy::DimensionTable;
 use crate::error::{Error, Result};
 use crate::landmarks::Level;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};

@@ -32,13 +32,13 @@
 //!    alignment relative to the nearest landmarked vertebra below.
 //! 5. **Wrap spheres** refitted ([`wraps`]).
 //! 6. **Self-check** with the base pipeline's checks
-//!    ([`crate::build::base::check`]: bushing deflection, muscle segments
+//!    ([`crate::base::check`]: bushing deflection, muscle segments
 //!    through vertebrae, reachability, equilibrium with the solver), and
 //!    frontal/sagittal SVG views of the vertebral centres and landmarks.
 //!
 //! Body origins keep the base model's convention (origin at the centre of
 //! the disc below, X anterior, Y cranial, Z right; see
-//! [`crate::build::base`]); only the poses change.
+//! [`crate::base`]); only the poses change.
 
 pub mod balance;
 pub mod chain;
@@ -51,8 +51,8 @@ pub mod smooth;
 pub mod views;
 pub mod wraps;
 
-use crate::build::base::centres::{model_centres, CentreDef};
-use crate::build::base::kin::Kinematics;
+use crate::base::centres::{model_centres, CentreDef};
+use crate::base::kin::Kinematics;
 use crate::error::{Error, Result};
 use crate::landmarks::frames::frame_from_axes;
 use crate::landmarks::{Code, LandmarkId, LandmarkSet, Level};
@@ -196,7 +196,7 @@ pub struct GenerateReport {
     /// Vertebral centres ([`crate::evaluate::CentreDef::Endplates`]) in
     /// ground at the default pose (m).
     pub centres: BTreeMap<String, [f64; 3]>,
-    pub self_check: Option<crate::build::base::check::SelfCheck>,
+    pub self_check: Option<crate::base::check::SelfCheck>,
     /// Levels above the landmarks' field of view and where T1 ended
     /// (`None` when the landmarks reach T1).
     pub above_fov: Option<AboveFovReport>,
@@ -298,7 +298,7 @@ fn isb_rotation(p: &Points) -> Option<Rotation3<f64>> {
 }
 
 fn xyz_deg(r: &UnitQuaternion<f64>) -> [f64; 3] {
-    let a = crate::build::base::joints::xyz_angles(&r.to_rotation_matrix());
+    let a = crate::base::joints::xyz_angles(&r.to_rotation_matrix());
     [a.x.to_degrees(), a.y.to_degrees(), a.z.to_degrees()]
 }
 
@@ -483,7 +483,7 @@ pub fn generate(
     let path_edits = match meshes {
         Some(src) => {
             let m = doc.model()?;
-            let owned = crate::build::base::wrapped::vertebra_meshes(&m, src)?;
+            let owned = crate::base::wrapped::vertebra_meshes(&m, src)?;
             let refs: Vec<(String, &MeshQuery)> =
                 owned.iter().map(|(n, q)| (n.clone(), q)).collect();
             clear::clear_paths(&mut doc, &refs)?
@@ -894,7 +894,7 @@ fn self_check(
     out_model: &Model,
     meshes: Option<&dyn MeshSource>,
     spheres: &[wraps::SphereOut],
-) -> Result<crate::build::base::check::SelfCheck> {
+) -> Result<crate::base::check::SelfCheck> {
     let mut owned = Vec::new();
     if let Some(src) = meshes {
         for b in &out_model.bodies {
@@ -910,9 +910,9 @@ fn self_check(
         }
     }
     let refs: Vec<(String, &MeshQuery)> = owned.iter().map(|(n, q)| (n.clone(), q)).collect();
-    let rows: Vec<crate::build::base::wrap::SphereRow> = spheres
+    let rows: Vec<crate::base::wrap::SphereRow> = spheres
         .iter()
-        .map(|s| crate::build::base::wrap::SphereRow {
+        .map(|s| crate::base::wrap::SphereRow {
             level: Level::from_body_name(&s.body)
                 .map(|l| l.to_string())
                 .unwrap_or_default(),
@@ -931,7 +931,7 @@ fn self_check(
             muscles_refused: s.muscles_refused.clone(),
         })
         .collect();
-    crate::build::base::check::run_wrapped(out_model, &refs, &rows)
+    crate::base::check::run_wrapped(out_model, &refs, &rows)
 }
 
 /// Replace the fitted orientations by their spinal-continuity posterior
@@ -1213,7 +1213,7 @@ fn write_joint(
         set_vec3(
             e,
             "orientation",
-            &crate::build::base::joints::xyz_angles(&x.rotation.to_rotation_matrix()),
+            &crate::base::joints::xyz_angles(&x.rotation.to_rotation_matrix()),
         );
     };
     let el = doc

@@ -54,7 +54,7 @@ pub const MEDIAN_CHI2_3: f64 = 2.365_973_884_375_338;
 pub const SCALE_RANGE: [f64; 2] = [0.5, 2.0];
 
 /// Pose-fit method.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// ISB joint frames from the 6 joint landmarks + body realignment (thesis).

@@ -49,7 +49,7 @@ pub const TAU_RANGE: [f64; 2] = [1e-5, 1.0];
 
 /// `--smooth`: how the per-vertebra fits are combined along the spine
 /// (lsq method only).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Smooth {
     /// Kinematic chain (the default): neighbouring vertebrae meet at the
@@ -59,6 +59,7 @@ pub enum Smooth {
     /// Spinal-continuity prior on the orientations (this module): lower
     /// variance, but it flattens the curve where it turns (1.5-2.5 deg of
     /// Cobb angle on sharp curves). Also accepted as `auto`.
+    #[value(alias = "auto")]
     Curvature,
     /// Per-vertebra fits as they are.
     Off,
@@ -407,7 +408,7 @@ pub(super) mod tests {
 
     /// 14 landmark-like points of a lumbar-sized vertebra (body frame, m,
     /// X anterior, Y cranial, Z right), origin at the body centre.
-    pub(in crate::build::generate) fn lumbar_template() -> Vec<Point3<f64>> {
+    pub(in crate::generate) fn lumbar_template() -> Vec<Point3<f64>> {
         [
             [0.0, 0.012, 0.0],
             [0.0, -0.012, 0.0],

@@ -10,7 +10,7 @@
 //!   the base sphere's anterior wall (the region the base pipeline fitted
 //!   it to: points within 60 degrees of anterior in the transverse plane
 //!   and within 25 degrees of it in elevation);
-//! * then the base pipeline's wrapping rules ([`crate::build::base::wrap`])
+//! * then the base pipeline's wrapping rules ([`crate::base::wrap`])
 //!   are re-applied on the generated pose (its default pose and the base
 //!   test poses around it), since the scoliotic curve changes which
 //!   muscles cross which vertebral body: spheres may not overlap (pairs
@@ -21,9 +21,9 @@
 //!   PathWrap, over the sphere its straight path penetrates deepest; the
 //!   base model's PathWraps over vertebral-body spheres are replaced.
 
-use crate::build::base::body_level_index;
-use crate::build::base::kin::{muscle_path, point_segment_distance, Kinematics, Values};
-use crate::build::base::wrap::{assign, test_poses, MuscleGeom, SphereGeom};
+use crate::base::body_level_index;
+use crate::base::kin::{muscle_path, point_segment_distance, Kinematics, Values};
+use crate::base::wrap::{assign, test_poses, MuscleGeom, SphereGeom};
 use crate::error::{Error, Result};
 use crate::osim::builders;
 use crate::osim::document::set_f64;

@@ -9,7 +9,7 @@ use serde::Deserialize;
 use std::path::Path;
 
 /// The embedded default template.
-pub const EMBEDDED_TOML: &str = include_str!("../../../templates/ivd_defaults.toml");
+pub const EMBEDDED_TOML: &str = include_str!("../../templates/ivd_defaults.toml");
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
