@@ -175,6 +175,40 @@ pub fn assign(sphere: &SphereGeom, muscles: &[MuscleGeom]) -> Assignment {
     }
 }
 
+/// Every muscle's straight path in every test pose (body poses
+/// `pose_bodies`), the bodies it touches and the levels it spans (`base`
+/// and `generate` both assign wraps from it).
+pub fn muscle_geometry(
+    model: &crate::osim::Model,
+    poses: &[(String, Values)],
+    pose_bodies: &[std::collections::BTreeMap<String, nalgebra::Isometry3<f64>>],
+) -> crate::error::Result<Vec<MuscleGeom>> {
+    let mut mgeo = Vec::new();
+    for m in model.muscles() {
+        let mut paths = Vec::new();
+        let mut bodies = std::collections::BTreeSet::new();
+        for ((_, q), pb) in poses.iter().zip(pose_bodies) {
+            let path = super::kin::muscle_path(model, m, pb, q)?;
+            for p in &path {
+                bodies.insert(p.body.clone());
+            }
+            paths.push(path.iter().map(|p| p.ground).collect::<Vec<_>>());
+        }
+        let lv: Vec<usize> = bodies
+            .iter()
+            .filter_map(|b| super::body_level_index(b))
+            .collect();
+        mgeo.push(MuscleGeom {
+            name: m.name.clone(),
+            level_lo: lv.iter().copied().min().unwrap_or(0),
+            level_hi: lv.iter().copied().max().unwrap_or(0),
+            bodies: bodies.into_iter().collect(),
+            paths,
+        });
+    }
+    Ok(mgeo)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -5,13 +5,13 @@
 
 use super::body_level_index;
 use super::kin::{self, Kinematics};
-use super::wrap::{self, MuscleGeom, SphereRow};
+use super::wrap::{self, muscle_geometry, MuscleGeom, SphereRow};
 use crate::error::{Error, Result};
 use crate::osim::builders;
 use crate::osim::xml::Node;
 use crate::osim::Document;
 use nalgebra::{Isometry3, Point3, Vector3};
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 
 /// What the wrapping step did.
 pub(crate) struct Wrapping {
@@ -66,35 +66,6 @@ pub(crate) fn add_wraps(
         path_wraps_added,
         muscles_with_wraps: wraps_for.len(),
     })
-}
-
-/// Every muscle's straight path in every test pose and the levels it spans.
-fn muscle_geometry(
-    base0: &crate::osim::Model,
-    poses: &[(String, kin::Values)],
-    pose_bodies: &[BTreeMap<String, Isometry3<f64>>],
-) -> Result<Vec<MuscleGeom>> {
-    let mut mgeo = Vec::new();
-    for m in base0.muscles() {
-        let mut paths = Vec::new();
-        let mut bodies = BTreeSet::new();
-        for ((_, q), pb) in poses.iter().zip(pose_bodies) {
-            let path = kin::muscle_path(base0, m, pb, q)?;
-            for p in &path {
-                bodies.insert(p.body.clone());
-            }
-            paths.push(path.iter().map(|p| p.ground).collect::<Vec<_>>());
-        }
-        let lv: Vec<usize> = bodies.iter().filter_map(|b| body_level_index(b)).collect();
-        mgeo.push(MuscleGeom {
-            name: m.name.clone(),
-            level_lo: lv.iter().copied().min().unwrap_or(0),
-            level_hi: lv.iter().copied().max().unwrap_or(0),
-            bodies: bodies.into_iter().collect(),
-            paths,
-        });
-    }
-    Ok(mgeo)
 }
 
 /// A sphere's centre in ground in every test pose.

@@ -511,7 +511,7 @@ pub fn generate(
         .iter()
         .flat_map(|(l, pts)| pts.iter().map(move |(c, p)| (format!("{l}_{c}"), *p)))
         .collect();
-    let model_set = model_marker_set(&out_model, &poses2)?;
+    let model_set = crate::base::centres::model_landmarks(&out_model, &poses2)?;
     let shape = crate::landmarks::metrics::shape(&model_set, &centres);
     let views = if opts.views {
         let model_markers: Vec<Point3<f64>> = model_set.points.values().copied().collect();
@@ -550,24 +550,6 @@ pub fn generate(
         landmark_residuals,
     };
     Ok(Generated { doc, report, views })
-}
-
-/// The model's landmark markers in ground at the pose `poses`.
-fn model_marker_set(
-    model: &Model,
-    poses: &BTreeMap<String, Isometry3<f64>>,
-) -> Result<LandmarkSet> {
-    let mut set = LandmarkSet::new();
-    for mk in &model.markers {
-        let Some((id, _)) = LandmarkId::parse_name(&mk.name) else {
-            continue;
-        };
-        let (body, x) = model.marker_frame(mk)?;
-        if let Some(pb) = poses.get(&body) {
-            set.insert(id.level, id.code, pb * x * Point3::from(mk.location));
-        }
-    }
-    Ok(set)
 }
 
 /// Step 1: register the landmarks to the base model through the sacrum

@@ -22,8 +22,8 @@
 //!   base model's PathWraps over vertebral-body spheres are replaced.
 
 use crate::base::body_level_index;
-use crate::base::kin::{muscle_path, point_segment_distance, Kinematics, Values};
-use crate::base::wrap::{assign, test_poses, MuscleGeom, SphereGeom};
+use crate::base::kin::{point_segment_distance, Kinematics};
+use crate::base::wrap::{assign, muscle_geometry, test_poses, MuscleGeom, SphereGeom};
 use crate::error::{Error, Result};
 use crate::osim::builders;
 use crate::osim::document::set_f64;
@@ -94,9 +94,6 @@ fn limit_overlaps(out: &mut [SphereOut], centres: &[Vec<Point3<f64>>]) {
         }
     }
 }
-
-/// Body poses in ground by body name.
-type Poses = BTreeMap<String, nalgebra::Isometry3<f64>>;
 
 /// Refit and constrain every WrapSphere of `doc` (already scaled, joints
 /// rewritten); `scales` gives each scaled body's factors, `base_radii` the
@@ -174,36 +171,6 @@ fn refitted_spheres(
         }
     }
     out
-}
-
-/// Each muscle's straight paths at the test poses `poses` (body poses
-/// `body_poses`), the bodies it touches and their level range.
-fn muscle_geometry(
-    model: &Model,
-    poses: &[(String, Values)],
-    body_poses: &[Poses],
-) -> Result<Vec<MuscleGeom>> {
-    let mut mgeo = Vec::new();
-    for m in model.muscles() {
-        let mut paths = Vec::new();
-        let mut bodies = BTreeSet::new();
-        for ((_, q), bp) in poses.iter().zip(body_poses) {
-            let path = muscle_path(model, m, bp, q)?;
-            for p in &path {
-                bodies.insert(p.body.clone());
-            }
-            paths.push(path.iter().map(|p| p.ground).collect::<Vec<_>>());
-        }
-        let lv: Vec<usize> = bodies.iter().filter_map(|b| body_level_index(b)).collect();
-        mgeo.push(MuscleGeom {
-            name: m.name.clone(),
-            level_lo: lv.iter().copied().min().unwrap_or(0),
-            level_hi: lv.iter().copied().max().unwrap_or(0),
-            bodies: bodies.into_iter().collect(),
-            paths,
-        });
-    }
-    Ok(mgeo)
 }
 
 /// The crossing rule and inside-point fix of every sphere (centres
