@@ -201,9 +201,9 @@ fn extract_levels(
     findings: &mut Vec<Finding>,
 ) -> Vec<LevelInput> {
     let bar = progress_bar(wanted.len(), progress);
-    let mut out = Vec::new();
+    // Levels cut by the field of view are left out, named.
+    let mut inside = Vec::new();
     for (&level, labels) in wanted {
-        bar.set_message(level.to_string());
         let b = union_box(stats, labels);
         if b.touches_edge(&map.dims) && !(level.is_sacrum() && only_inferior_cut(map, &b)) {
             findings.push(Finding::new(
@@ -215,17 +215,24 @@ fn extract_levels(
                 ),
             ));
             bar.inc(1);
-            continue;
+        } else {
+            inside.push((level, labels, b));
         }
-        let mesh = surface::extract(map, labels, b.min, b.max);
-        let mesh = mesh.scaled(&Vector3::repeat(1e-3));
-        out.push(LevelInput {
-            level,
-            mesh,
-            origin: format!("label {}", join(labels)),
-        });
-        bar.inc(1);
     }
+    // One surface per level, in parallel (in order), in metres.
+    use rayon::prelude::*;
+    let out = inside
+        .par_iter()
+        .map(|(level, labels, b)| {
+            let mesh = surface::extract(map, labels, b.min, b.max).scaled(&Vector3::repeat(1e-3));
+            bar.inc(1);
+            LevelInput {
+                level: *level,
+                mesh,
+                origin: format!("label {}", join(labels)),
+            }
+        })
+        .collect();
     bar.finish_and_clear();
     out
 }

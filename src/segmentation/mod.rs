@@ -216,7 +216,7 @@ fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
     })
 }
 
-/// Palpate every level: vertebrae cranial to caudal with
+/// Palpate every level: the vertebrae (in parallel) with
 /// [`palpation::palpate_vertebra`], the sacrum with
 /// [`palpation::palpate_sacrum`] facing the palpated L5. The one place the
 /// engine is called. A level whose palpation reports errors is palpated
@@ -227,36 +227,60 @@ pub fn palpate_levels(
     levels: &[LevelInput],
     hints: &[FrameHint],
 ) -> Vec<(Level, Result<VertebraPalpation>)> {
-    let mut out: Vec<(Level, Result<VertebraPalpation>)> = Vec::new();
-    for (input, hint) in levels.iter().zip(hints) {
-        let l5 = out
-            .iter()
-            .find(|(l, _)| *l == Level::L5)
-            .and_then(|(_, r)| r.as_ref().ok())
-            .cloned();
-        let run = |h: &FrameHint| {
-            if input.level.is_sacrum() {
-                palpation::palpate_sacrum(&input.mesh, h, l5.as_ref())
-            } else {
-                palpation::palpate_vertebra(&input.mesh, input.level, h)
-            }
-        };
-        let mut r = run(hint);
-        if let Ok(p) = &r {
-            if has_errors(p) {
-                let again = FrameHint {
-                    anterior: p.frame.rotation * nalgebra::Vector3::x(),
-                    cranial: p.frame.rotation * nalgebra::Vector3::y(),
-                };
-                let r2 = run(&again);
-                if r2.as_ref().is_ok_and(|p2| !has_errors(p2)) {
-                    r = r2;
-                }
+    use rayon::prelude::*;
+    // The vertebrae, each on its own (in parallel, in order).
+    let mut out: Vec<Option<Result<VertebraPalpation>>> = levels
+        .par_iter()
+        .zip(hints)
+        .map(|(input, hint)| (!input.level.is_sacrum()).then(|| palpate_level(input, hint, None)))
+        .collect();
+    // The sacrum last: its fallback uses L5's palpation.
+    let l5 = levels
+        .iter()
+        .zip(&out)
+        .find(|(i, _)| i.level == Level::L5)
+        .and_then(|(_, r)| r.as_ref().and_then(|r| r.as_ref().ok()))
+        .cloned();
+    for ((input, hint), r) in levels.iter().zip(hints).zip(out.iter_mut()) {
+        if r.is_none() {
+            *r = Some(palpate_level(input, hint, l5.as_ref()));
+        }
+    }
+    levels
+        .iter()
+        .zip(out)
+        .filter_map(|(input, r)| r.map(|r| (input.level, r)))
+        .collect()
+}
+
+/// One level palpated from `hint`; when the engine reports an error, once
+/// more from the frame it found, kept if that one has no error.
+fn palpate_level(
+    input: &LevelInput,
+    hint: &FrameHint,
+    l5: Option<&VertebraPalpation>,
+) -> Result<VertebraPalpation> {
+    let run = |h: &FrameHint| {
+        if input.level.is_sacrum() {
+            palpation::palpate_sacrum(&input.mesh, h, l5)
+        } else {
+            palpation::palpate_vertebra(&input.mesh, input.level, h)
+        }
+    };
+    let r = run(hint);
+    if let Ok(p) = &r {
+        if has_errors(p) {
+            let again = FrameHint {
+                anterior: p.frame.rotation * nalgebra::Vector3::x(),
+                cranial: p.frame.rotation * nalgebra::Vector3::y(),
+            };
+            let r2 = run(&again);
+            if r2.as_ref().is_ok_and(|p2| !has_errors(p2)) {
+                return r2;
             }
         }
-        out.push((input.level, r));
     }
-    out
+    r
 }
 
 /// `true` when the engine reported an error finding.
