@@ -27,27 +27,14 @@ fn smallest_noise(o: &Outcome) -> f64 {
 /// One line on an outcome.
 fn describe(o: &Outcome) -> String {
     let r = &o.remaining;
-    let best: Vec<String> = o
-        .ranked
-        .iter()
-        .take(3)
-        .map(|&j| {
-            let s = &o.stats[j];
-            format!(
-                "{}:{:.0}{}",
-                s.family.label(),
-                s.score,
-                if s.earns { "*" } else { "" }
-            )
-        })
-        .collect();
+    let best = osim_spine::diagnose::report::best_candidates(o, 3);
     format!(
         "gap p={:.1e} closed={:.2} red={:.1} misfit={:.2} best=[{}] | {} | {}",
         r.baseline_p_noise,
         r.closed,
         r.reduced_chi2,
         r.misfit(ALPHA),
-        best.join(" "),
+        best,
         osim_spine::diagnose::report::noise_line(o),
         o.reasons.join("; ")
     )

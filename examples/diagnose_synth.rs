@@ -23,20 +23,7 @@ fn describe(o: &Outcome) -> String {
         .iter()
         .map(|e| format!("{}:{:.2}", e.effect.name(), e.share))
         .collect();
-    let best: Vec<String> = o
-        .ranked
-        .iter()
-        .take(3)
-        .map(|&j| {
-            let s = &o.stats[j];
-            format!(
-                "{}:{:.0}{}",
-                s.family.label(),
-                s.score,
-                if s.earns { "*" } else { "" }
-            )
-        })
-        .collect();
+    let best = osim_spine::diagnose::report::best_candidates(o, 3);
     let pairs: Vec<String> = o
         .pairs
         .iter()
@@ -65,7 +52,7 @@ fn describe(o: &Outcome) -> String {
         r.misfit(osim_spine::diagnose::select::ALPHA),
         r.misfit_of(osim_spine::diagnose::select::ALPHA, "training"),
         r.misfit_of(osim_spine::diagnose::select::ALPHA, "held_out"),
-        best.join(" "),
+        best,
         pairs.join(" ")
     )
 }

@@ -26,6 +26,22 @@ fn r4(x: f64) -> f64 {
     }
 }
 
+/// The `n` best candidates as `family:score` (`*` when it earns its
+/// parameters), for one-line summaries.
+pub fn best_candidates(o: &Outcome, n: usize) -> String {
+    let best: Vec<String> = o
+        .ranked
+        .iter()
+        .take(n)
+        .map(|&j| {
+            let s = &o.stats[j];
+            let earns = if s.earns { "*" } else { "" };
+            format!("{}:{:.0}{earns}", s.family.label(), s.score)
+        })
+        .collect();
+    best.join(" ")
+}
+
 /// `verdict.ranked`: the best variant of each effect, by score.
 fn ranked_json(o: &Outcome) -> Vec<Value> {
     o.ranked

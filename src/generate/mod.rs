@@ -443,8 +443,21 @@ pub fn generate(
     // ---- 2. fits (lsq: palpation noise estimated over the whole set for
     // the outlier test); a code off the same way at several levels is a
     // protocol mismatch, refitted without it ([`residuals`])
-    let (fits, noise, smoothing, landmark_residuals, protocol_mismatches) =
-        fit_with_protocol_check(&model, &poses0, &vert_levels, &patient, &markers, opts)?;
+    let input = FitInput {
+        vert_levels: &vert_levels,
+        markers: &markers,
+        joint_centres: base_joint_centres(&model, &poses0)?,
+        opts,
+    };
+    let (
+        LevelFits {
+            fits,
+            noise,
+            smoothing,
+        },
+        landmark_residuals,
+        protocol_mismatches,
+    ) = fit_with_protocol_check(&input, &patient)?;
 
     // ---- 3. scaling
     let mut doc = base.clone();
@@ -605,22 +618,59 @@ fn register_sacrum(
     Ok(Registration::from_iso(&x_reg, used, reg_rms))
 }
 
-/// Step 2: fit every vertebra (lsq: with the palpation noise estimated
-/// over the whole set for the outlier test), then smooth the orientations
-/// along the chain with the base joint centres as prior.
-#[allow(clippy::type_complexity)]
-fn fit_levels(
+/// Base joint centres between consecutive vertebrae, keyed by the upper
+/// level: the centre in the upper body and in the lower body.
+type JointCentres = BTreeMap<Level, (Point3<f64>, Point3<f64>)>;
+
+/// What every fit of step 2 shares: the levels, the base's markers and
+/// joint centres, the options.
+struct FitInput<'a> {
+    vert_levels: &'a [Level],
+    markers: &'a BTreeMap<Level, (String, Points)>,
+    /// Base joint centres between consecutive vertebrae, in each body (the
+    /// chain smoothing's prior).
+    joint_centres: JointCentres,
+    opts: &'a GenerateOptions,
+}
+
+/// The fits of step 2: poses, the set's palpation noise (lsq), smoothing.
+struct LevelFits {
+    fits: BTreeMap<Level, pose::VertebraFit>,
+    noise: Option<f64>,
+    smoothing: SmoothingReport,
+}
+
+/// The base joint centres between consecutive vertebrae, each in the
+/// upper and in the lower body.
+fn base_joint_centres(
     model: &Model,
     poses0: &BTreeMap<String, Isometry3<f64>>,
-    vert_levels: &[Level],
-    patient: &BTreeMap<Level, Points>,
-    markers: &BTreeMap<Level, (String, Points)>,
-    opts: &GenerateOptions,
-) -> Result<(
-    BTreeMap<Level, pose::VertebraFit>,
-    Option<f64>,
-    SmoothingReport,
-)> {
+) -> Result<JointCentres> {
+    let mut joint_centres = BTreeMap::new();
+    for jf in model.joint_frames()? {
+        let (Some(lu), Some(ll)) = (
+            Level::from_body_name(&jf.child_body),
+            Level::from_body_name(&jf.parent_body),
+        ) else {
+            continue;
+        };
+        let (Some(xu), Some(xl)) = (poses0.get(&jf.child_body), poses0.get(&jf.parent_body)) else {
+            continue;
+        };
+        if lu.caudal() == Some(ll) {
+            let in_lower = Point3::from(jf.parent_in_body.translation.vector);
+            let in_upper = xu.inverse() * (xl * in_lower);
+            joint_centres.insert(lu, (in_upper, in_lower));
+        }
+    }
+    Ok(joint_centres)
+}
+
+/// Step 2: fit every vertebra to `patient` (lsq: with the palpation noise
+/// estimated over the whole set for the outlier test), then smooth the
+/// orientations along the chain with the base joint centres as prior.
+fn fit_levels(input: &FitInput, patient: &BTreeMap<Level, Points>) -> Result<LevelFits> {
+    let (vert_levels, markers, opts) = (input.vert_levels, input.markers, input.opts);
     let noise = match opts.method {
         Method::Lsq => {
             let loo: Vec<pose::VertebraLoo> = vert_levels
@@ -643,64 +693,42 @@ fn fit_levels(
         )?;
         fits.insert(*l, f);
     }
-    // Base joint centres between consecutive vertebrae, in each body
-    // (the chain smoothing's prior).
-    let mut joint_centres: BTreeMap<Level, (Point3<f64>, Point3<f64>)> = BTreeMap::new();
-    for jf in model.joint_frames()? {
-        let (Some(lu), Some(ll)) = (
-            Level::from_body_name(&jf.child_body),
-            Level::from_body_name(&jf.parent_body),
-        ) else {
-            continue;
-        };
-        let (Some(xu), Some(xl)) = (poses0.get(&jf.child_body), poses0.get(&jf.parent_body)) else {
-            continue;
-        };
-        if lu.caudal() == Some(ll) {
-            let in_lower = Point3::from(jf.parent_in_body.translation.vector);
-            let in_upper = xu.inverse() * (xl * in_lower);
-            joint_centres.insert(lu, (in_upper, in_lower));
-        }
-    }
     let smoothing = smooth_fits(
         &mut fits,
         vert_levels,
         patient,
         markers,
-        &joint_centres,
+        &input.joint_centres,
         opts,
         noise,
     )?;
-    Ok((fits, noise, smoothing))
+    Ok(LevelFits {
+        fits,
+        noise,
+        smoothing,
+    })
 }
 
 /// Step 2 with the protocol check: fit, list the per-landmark residuals,
 /// and when one code is off the same way at several levels (a set
 /// palpated by another protocol than the base's markers), say so and refit
 /// without that code (lsq; at least 8 landmarks stay at every level).
-#[allow(clippy::type_complexity)]
 fn fit_with_protocol_check(
-    model: &Model,
-    poses0: &BTreeMap<String, Isometry3<f64>>,
-    vert_levels: &[Level],
+    input: &FitInput,
     patient: &BTreeMap<Level, Points>,
-    markers: &BTreeMap<Level, (String, Points)>,
-    opts: &GenerateOptions,
 ) -> Result<(
-    BTreeMap<Level, pose::VertebraFit>,
-    Option<f64>,
-    SmoothingReport,
+    LevelFits,
     Vec<residuals::LandmarkResidual>,
     Vec<residuals::ProtocolMismatch>,
 )> {
-    let (fits, noise, smoothing) = fit_levels(model, poses0, vert_levels, patient, markers, opts)?;
-    let res = residuals::landmark_residuals(&fits, patient, markers);
-    let mut mismatches = residuals::protocol_mismatches(&res, noise.unwrap_or(PALPATION_SD));
+    let first = fit_levels(input, patient)?;
+    let res = residuals::landmark_residuals(&first.fits, patient, input.markers);
+    let mut mismatches = residuals::protocol_mismatches(&res, first.noise.unwrap_or(PALPATION_SD));
     let protocol = mismatches
         .iter()
         .all(|m| m.kind == residuals::MismatchKind::Protocol);
-    if mismatches.is_empty() || !protocol || opts.method != Method::Lsq {
-        return Ok((fits, noise, smoothing, res, mismatches));
+    if mismatches.is_empty() || !protocol || input.opts.method != Method::Lsq {
+        return Ok((first, res, mismatches));
     }
     // Refit every vertebra without the mismatched codes (a level keeps at
     // least 8 landmarks: at most 3 codes are dropped from 14).
@@ -709,21 +737,21 @@ fn fit_with_protocol_check(
         .filter_map(|m| m.code.parse().ok())
         .collect();
     let mut reduced = patient.clone();
-    for l in vert_levels {
+    for l in input.vert_levels {
         if let Some(pts) = reduced.get_mut(l) {
             if pts.len().saturating_sub(drop.len()) >= 8 {
                 pts.retain(|c, _| !drop.contains(c));
             }
         }
     }
-    let (fits, noise, smoothing) = fit_levels(model, poses0, vert_levels, &reduced, markers, opts)?;
+    let refit = fit_levels(input, &reduced)?;
     // The mismatched codes' residuals, now out of the fit, give their offset.
-    let res = residuals::landmark_residuals(&fits, patient, markers);
+    let res = residuals::landmark_residuals(&refit.fits, patient, input.markers);
     for m in &mut mismatches {
         m.refitted_without = true;
         residuals::refresh_offset(m, &res);
     }
-    Ok((fits, noise, smoothing, res, mismatches))
+    Ok((refit, res, mismatches))
 }
 
 /// Palpation noise assumed where the set's own cannot be estimated (m per
@@ -925,7 +953,7 @@ fn smooth_fits(
     chain: &[Level],
     patient: &BTreeMap<Level, Points>,
     markers: &BTreeMap<Level, (String, Points)>,
-    joint_centres: &BTreeMap<Level, (Point3<f64>, Point3<f64>)>,
+    joint_centres: &JointCentres,
     opts: &GenerateOptions,
     noise: Option<f64>,
 ) -> Result<SmoothingReport> {

@@ -240,12 +240,7 @@ pub fn means_set(
     let mut out = Vec::new();
     for e in labels {
         for k in 0..per_label {
-            let si = rng.random_range(0..specimens.len().max(1));
-            let bodies = specimens.get(si).map(|s| s.1.as_slice()).unwrap_or(&[]);
-            let body = bodies
-                .get(rng.random_range(0..bodies.len().max(1)))
-                .cloned()
-                .unwrap_or_default();
+            let (si, body) = super::sets::random_specimen(&mut rng, specimens);
             out.push((
                 si,
                 MeansSpec {

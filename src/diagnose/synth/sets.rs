@@ -11,6 +11,21 @@ use rand_chacha::ChaCha8Rng;
 use std::fmt::Write as _;
 use std::ops::Range;
 
+/// A specimen (its index) and one of its loaded bodies, drawn in this
+/// order from `rng`.
+pub(super) fn random_specimen(
+    rng: &mut ChaCha8Rng,
+    specimens: &[(String, Vec<String>)],
+) -> (usize, String) {
+    let si = rng.random_range(0..specimens.len().max(1));
+    let bodies = specimens.get(si).map(|s| s.1.as_slice()).unwrap_or(&[]);
+    let body = bodies
+        .get(rng.random_range(0..bodies.len().max(1)))
+        .cloned()
+        .unwrap_or_default();
+    (si, body)
+}
+
 /// A spec of `effect` on a random specimen of `specimens` (and loaded
 /// body), with random size in `size`, noise, translations, follower series
 /// and perturbation, drawn in this order from `rng`.
@@ -20,12 +35,7 @@ fn random_spec(
     effect: Effect,
     size: Range<f64>,
 ) -> (usize, SynthSpec) {
-    let si = rng.random_range(0..specimens.len().max(1));
-    let bodies = specimens.get(si).map(|s| s.1.as_slice()).unwrap_or(&[]);
-    let body = bodies
-        .get(rng.random_range(0..bodies.len().max(1)))
-        .cloned()
-        .unwrap_or_default();
+    let (si, body) = random_specimen(rng, specimens);
     let spec = SynthSpec {
         effect,
         second: None,
