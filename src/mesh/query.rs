@@ -111,6 +111,35 @@ impl MeshQuery {
         self.closest_point(p).t
     }
 
+    /// Distance from `p` to the surface, capped at `cap` (m): equal to
+    /// `distance(p).min(cap)`, but faster for a stream of nearby points.
+    /// `hint` is the parry triangle that was closest to the previous point
+    /// of the stream (any valid index to start, updated here): its
+    /// distance bounds the search, so the bounding-volume traversal visits
+    /// only the nodes that could hold a closer triangle.
+    pub fn distance_near(&self, p: &Point3<f64>, hint: &mut u32, cap: f64) -> f64 {
+        use parry3d_f64::query::PointQueryWithLocation;
+        let first = (*hint as usize) < self.tri_map.len();
+        let bound = if first {
+            let t = self.shape.triangle(*hint);
+            (t.project_local_point(p, false).point - p).norm()
+        } else {
+            f64::MAX
+        };
+        // A hair above the bound so that the hinted triangle itself passes.
+        let bound = bound.min(cap) * (1.0 + 1e-9) + 1e-15;
+        match self
+            .shape
+            .project_local_point_and_get_location_with_max_dist(p, false, bound)
+        {
+            Some((proj, (tri, _))) => {
+                *hint = tri;
+                (proj.point - p).norm().min(cap)
+            }
+            None => cap,
+        }
+    }
+
     /// Every crossing of the ray `origin + t dir`, `0 <= t <= max_t`, with
     /// the surface, sorted by `t`; crossings at the same `t` (a ray through
     /// an edge or a vertex) are reported once.
