@@ -251,13 +251,14 @@ fn dense_meshes_follow_the_protocol_in_any_pose() {
 }
 
 #[test]
-#[ignore = "issue 16 acceptance 2 not met: after vertex-clustering decimation to 250 vertices the landmarks move 2.2 mm (median), 12.8 mm at worst (L2_SR: the lateral extreme slides along a flat rim), and the L5 sphere centre 2.2 mm"]
+#[ignore = "issue 16 acceptance 2 not met: after vertex-clustering decimation to 250 vertices the landmarks move 2.16 mm (median), 11.1 mm at worst (L2_SR: on the coarse copy the extreme vertex of a flat rim), and the L5 sphere centre 2.1 mm"]
 fn decimated_dense_meshes_agree_with_the_dense_ones() {
     let dense = dense_meshes();
     let coarse: Vec<(Level, TriMesh)> = dense.iter().map(|(l, m)| (*l, decimate(m, 250))).collect();
     let ps = check_family(&dense, &dense_hint());
     let qs = check_family(&coarse, &dense_hint());
     let mut d = Vec::new();
+    let mut centres = Vec::new();
     for (p, q) in ps.iter().zip(&qs) {
         for (c, l) in &p.landmarks {
             d.push((
@@ -265,16 +266,19 @@ fn decimated_dense_meshes_agree_with_the_dense_ones() {
                 format!("{}_{c}", p.level),
             ));
         }
-        let dc = (p.centre - q.centre).norm() * 1e3;
-        assert!(dc <= 2.0, "{}: sphere centres {dc:.2} mm apart", p.level);
+        centres.push(((p.centre - q.centre).norm() * 1e3, p.level));
     }
     d.sort_by(|a, b| a.0.total_cmp(&b.0));
     let median = d[d.len() / 2].0;
     let worst = d.last().unwrap();
+    let over: Vec<&(f64, String)> = d.iter().filter(|x| x.0 > 4.0).collect();
     eprintln!(
-        "decimated vs dense: median {median:.2} mm, worst {:.2} mm ({})",
+        "decimated vs dense: median {median:.2} mm, worst {:.2} mm ({}); over 4 mm: {over:?}; sphere centres apart (mm): {centres:?}",
         worst.0, worst.1
     );
+    for (dc, level) in &centres {
+        assert!(*dc <= 2.0, "{level}: sphere centres {dc:.2} mm apart");
+    }
     assert!(
         median <= 2.0 && worst.0 <= 4.0,
         "median {median:.2} mm, worst {:.2} mm at {}",

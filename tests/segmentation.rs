@@ -339,7 +339,7 @@ fn median_worst(d: &[(String, f64)]) -> (f64, f64) {
 /// voxel axes (sform and qform headers, .nii and .nii.gz) give landmarks
 /// within 1.5 mm (median) and 3 mm (worst) of the mesh-based ones.
 #[test]
-#[ignore = "worst landmark 17 mm (S1_SA) on the 1 mm voxelised sacrum: engine (issue 16) on voxel surfaces; run with --ignored"]
+#[ignore = "medians 0.6-1.1 mm met; worst not met in the two axis-aligned 1 mm maps: S1_SL/SR 13-17 mm (the sacral plateau region leaks onto the ala) and T1_SL/SR 8 mm; run with --ignored"]
 fn label_maps_agree_with_meshes() {
     use segmentation::voxelise::HeaderTransform;
     let doc = base_doc();
@@ -387,6 +387,12 @@ fn label_maps_agree_with_meshes() {
             "{name} ({step} mm, {axes:?}, {how:?}): median {med:.2} mm, worst {worst:.2} mm ({})",
             w.0
         );
+        let far: Vec<String> = d
+            .iter()
+            .filter(|x| x.1 > 3.0)
+            .map(|x| format!("{} {:.1}", x.0, x.1))
+            .collect();
+        println!("  over 3 mm: {far:?}");
         failures.push((name, med, worst, w.0.clone()));
     }
     failures.retain(|f| f.1 > 1.5 || f.2 > 3.0);

@@ -173,11 +173,41 @@ pub(crate) fn find_endplate(lm: &LocalMesh, w: &Walls, superior: bool) -> Option
     })
 }
 
-/// The most lateral point on `side` (+1 right, -1 left).
+/// Depth of the lateral band, as a fraction of the region's half-width:
+/// the vertices within it of the most lateral one are candidates.
+const LATERAL_BAND: f64 = 0.05;
+
+/// Fewest vertices in the lateral band for the band to be averaged.
+const LATERAL_MIN_VERTICES: usize = 6;
+
+/// The most lateral point on `side` (+1 right, -1 left), made robust to
+/// where exactly a flat rim peaks: of the vertices within
+/// `LATERAL_BAND x half-width` of the extreme, the one nearest their
+/// centroid, so that on a dense or voxel surface the landmark does not
+/// slide along the rim with sub-millimetre surface noise. On a coarse
+/// mesh (fewer than `LATERAL_MIN_VERTICES` in the band) the extreme
+/// vertex itself.
 fn lateral_extreme(pts: &[Point3<f64>], side: f64) -> Option<Point3<f64>> {
-    pts.iter()
+    let (lo, hi) = pts.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+        (lo.min(side * p.z), hi.max(side * p.z))
+    });
+    let band = LATERAL_BAND * 0.5 * (hi - lo);
+    let near: Vec<Point3<f64>> = pts
+        .iter()
+        .filter(|p| side * p.z >= hi - band)
         .copied()
-        .max_by(|a, b| (side * a.z).total_cmp(&(side * b.z)))
+        .collect();
+    // Too few vertices to average: a coarse mesh, whose vertices are its
+    // shape; its extreme vertex is the landmark.
+    if near.len() < LATERAL_MIN_VERTICES {
+        return pts
+            .iter()
+            .copied()
+            .max_by(|a, b| (side * a.z).total_cmp(&(side * b.z)));
+    }
+    let c = near.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / near.len().max(1) as f64;
+    near.into_iter()
+        .min_by(|a, b| (a.coords - c).norm().total_cmp(&(b.coords - c).norm()))
 }
 
 /// Landmarks of one endplate (local): centre, anterior, posterior, right,
