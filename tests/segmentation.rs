@@ -339,7 +339,7 @@ fn median_worst(d: &[(String, f64)]) -> (f64, f64) {
 /// voxel axes (sform and qform headers, .nii and .nii.gz) give landmarks
 /// within 1.5 mm (median) and 3 mm (worst) of the mesh-based ones.
 #[test]
-#[ignore = "medians 0.6-1.1 mm met; worst not met in the two axis-aligned 1 mm maps: S1_SL/SR 13-17 mm (the sacral plateau region leaks onto the ala) and T1_SL/SR 8 mm; run with --ignored"]
+#[ignore = "medians 0.6-1.1 mm met; worst not met: T1_SL/SR 7.8-8.2 mm on the axis-aligned 1 mm maps (a flat lateral rim: the procedural mesh's extreme vertex against the voxel surface's band centre), 3.2 mm (L4_IR) on the oblique 1 mm map; run with --ignored"]
 fn label_maps_agree_with_meshes() {
     use segmentation::voxelise::HeaderTransform;
     let doc = base_doc();
@@ -397,6 +397,47 @@ fn label_maps_agree_with_meshes() {
     }
     failures.retain(|f| f.1 > 1.5 || f.2 > 3.0);
     assert!(failures.is_empty(), "{failures:?}");
+}
+
+/// The sacral plateau on voxel surfaces: L4, L5 and the sacrum voxelised
+/// at 1 mm on axis-aligned LPS and RAS grids give S1_SEC..S1_SL within
+/// 3 mm of the mesh-based ones (the staircase breaks the plateau's flat
+/// patch up; the region must still reach both lateral edges).
+#[test]
+fn sacral_plateau_on_voxel_surfaces() {
+    use segmentation::voxelise::HeaderTransform;
+    let doc = base_doc();
+    let model = doc.model().unwrap();
+    let ct = ct_transform();
+    let levels: Vec<PosedLevel> = posed_levels(&model, 2)
+        .into_iter()
+        .filter(|p| p.level.is_sacrum() || p.level == Level::L5 || p.level == Level::L4)
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    write_folder(&levels, &ct, dir.path());
+    let want = in_ct(
+        &segmentation::palpate(dir.path(), &Options::default())
+            .unwrap()
+            .set,
+    );
+    for (axes, name) in [(Axes::Lps, "lps.nii"), (Axes::Ras, "ras.nii")] {
+        let map = label_map(&levels, &ct, 1.0, axes);
+        let path = dir.path().join(name);
+        std::fs::write(&path, voxelise::nifti_bytes(&map, HeaderTransform::Sform)).unwrap();
+        let got = in_ct(
+            &segmentation::palpate(&path, &Options::default())
+                .unwrap()
+                .set,
+        );
+        for code in [Code::SEC, Code::SA, Code::SP, Code::SR, Code::SL] {
+            let k = (Level::S1, code);
+            let d = (got[&k] - want[&k]).norm() * 1e3;
+            assert!(
+                d <= 3.0,
+                "{name}: S1_{code} {d:.1} mm from the mesh-based one"
+            );
+        }
+    }
 }
 
 /// Write `bytes`, gzip-compressed when the name ends in `.gz`.

@@ -148,17 +148,16 @@ fn plateau_region(lm: &LocalMesh, patch: &[usize]) -> Option<Endplate> {
         (lo.x, lo.z, hi.x, hi.z) = (lo.x.min(c.x), lo.z.min(c.z), hi.x.max(c.x), hi.z.max(c.z));
     }
     let (m, tol, cos40) = (0.003, 0.003, 40f64.to_radians().cos());
-    let faces: Vec<usize> = (0..lm.tris.len())
-        .filter(|&f| {
-            let c = lm.centroids[f];
-            lm.normals[f].dot(&n) >= cos40
-                && (n.dot(&c.coords) - d).abs() <= tol
-                && c.x >= lo.x - m
-                && c.x <= hi.x + m
-                && c.z >= lo.z - m
-                && c.z <= hi.z + m
-        })
+    let on_plateau = |f: usize| {
+        lm.normals[f].dot(&n) >= cos40 && (n.dot(&lm.centroids[f].coords) - d).abs() <= tol
+    };
+    let in_box =
+        |c: &Point3<f64>| c.x >= lo.x - m && c.x <= hi.x + m && c.z >= lo.z - m && c.z <= hi.z + m;
+    let mut faces: Vec<usize> = (0..lm.tris.len())
+        .filter(|&f| on_plateau(f) && in_box(&lm.centroids[f]))
         .collect();
+    faces.extend(connected_beyond(lm, &faces, on_plateau));
+    faces.sort_unstable();
     let area = faces.iter().map(|&f| lm.areas[f]).sum();
     (!faces.is_empty()).then_some(Endplate {
         faces,
@@ -166,6 +165,27 @@ fn plateau_region(lm: &LocalMesh, patch: &[usize]) -> Option<Endplate> {
         offset: d,
         area,
     })
+}
+
+/// Faces reachable from `seed` over edge neighbours that satisfy `keep`,
+/// not already in `seed`: the rest of a plateau whose flat patch was cut
+/// short (the normals of a voxel surface's staircase break a patch up).
+fn connected_beyond(lm: &LocalMesh, seed: &[usize], keep: impl Fn(usize) -> bool) -> Vec<usize> {
+    let nb = neighbours(lm);
+    let mut taken = vec![false; lm.tris.len()];
+    seed.iter().for_each(|&f| taken[f] = true);
+    let mut queue: Vec<usize> = seed.to_vec();
+    let mut extra = Vec::new();
+    while let Some(f) = queue.pop() {
+        for &g in &nb[f] {
+            if !taken[g] && keep(g) {
+                taken[g] = true;
+                queue.push(g);
+                extra.push(g);
+            }
+        }
+    }
+    extra
 }
 
 /// The plateau frame (X anterior in the plateau, Y its normal, Z right), local.
