@@ -90,7 +90,7 @@ pub fn example_scoliosis(base: &Document) -> Result<Example> {
         .map_err(|e| crate::Error::numerical("example noise", e.to_string()))?;
     let mut lm = String::from(
         "# Example patient (synthetic): default base model posed into a severe lumbar scoliosis,\n\
-         # palpated T9-S1 with 1 mm noise and one outlier (L3_PTL); see src/build/generate/example.rs\n\
+         # palpated T9-S1 with 1 mm noise and one outlier (L3_PTL); see src/generate/example.rs\n\
          # units: mm\n# frame: LPS\nname,x,y,z\n",
     );
     for (id, p) in &set.points {
