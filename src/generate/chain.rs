@@ -81,6 +81,10 @@ pub struct ChainSmoothed {
     pub raw_sd: Vec<[f64; 3]>,
     /// Per-vertebra posterior SD (rad) of the orientation.
     pub posterior_sd: Vec<[f64; 3]>,
+    /// The maximised restricted log marginal likelihood `l(s)` (up to a
+    /// constant common to every joint model of the same fits): compares
+    /// joint models of one chain.
+    pub log_ml: f64,
 }
 
 /// Pose of vertebra `v` moved by the increment `x[6i..6i+6]` = `(w, v)`.
@@ -237,6 +241,7 @@ pub fn smooth_chain(
         }
     }
     let s = log_s.map(f64::exp);
+    let log_ml_at_s = log_ml(&s)?;
     // Posterior mode on the exact mismatch (Gauss-Newton from the linear
     // solution).
     let lam = DVector::from_fn(e0.len(), |k, _| 1.0 / (s[k % 3] * s[k % 3]));
@@ -275,6 +280,7 @@ pub fn smooth_chain(
         effective_dof,
         raw_sd,
         posterior_sd,
+        log_ml: log_ml_at_s,
     }))
 }
 

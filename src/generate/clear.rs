@@ -267,13 +267,32 @@ fn place_via(
             b,
         ));
     }
-    let clear = found.iter().find_map(|(best, _)| *best);
-    let graze = found.iter().filter_map(|(_, f)| *f).min_by(|p, q| {
-        (p.0, p.1)
-            .partial_cmp(&(q.0, q.1))
-            .unwrap_or(std::cmp::Ordering::Equal)
-    });
-    clear.map(|(_, p)| p).or(graze.map(|(_, _, p)| p))
+    let clear = found.iter().find_map(|d| d.clear);
+    let least = |pick: fn(&Detour) -> Option<Candidate>| {
+        found.iter().filter_map(pick).min_by(|p, q| {
+            (p.0, p.1)
+                .partial_cmp(&(q.0, q.1))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        })
+    };
+    let graze = least(|d| d.graze);
+    // Neither: the detour that runs least through other vertebrae than the
+    // path's end bodies, if that is shorter than the direct segment's run;
+    // the next round clears what its new segments still cross, and the
+    // self-check reports what is left.
+    let direct: f64 = vertebrae
+        .iter()
+        .filter(|(n, _)| !end_bodies.iter().flatten().any(|e| e == n))
+        .filter_map(|(n, mq)| {
+            let inv = poses.get(n)?.inverse();
+            Some(mq.segment_length_inside(&(inv * a), &(inv * b)))
+        })
+        .sum();
+    let progress = least(|d| d.least).filter(|(inside, _, _)| *inside < direct);
+    clear
+        .map(|(_, p)| p)
+        .or(graze.map(|(_, _, p)| p))
+        .or(progress.map(|(_, _, p)| p))
 }
 
 /// How a trial via point's two segments pass the other vertebrae.
@@ -284,14 +303,26 @@ enum Fit {
     Graze(f64),
 }
 
-/// A detour found from one start: the shortest clearing one (detour
-/// length, point) and the least-inside graze (inside, detour, point).
-type Detour = (Option<(f64, Point3<f64>)>, Option<(f64, f64, Point3<f64>)>);
+/// A non-clearing detour: (length inside other vertebrae, detour length,
+/// point), all m.
+type Candidate = (f64, f64, Point3<f64>);
+
+/// The detours found from one start.
+struct Detour {
+    /// The shortest clearing one (detour length, point).
+    clear: Option<(f64, Point3<f64>)>,
+    /// The least-inside graze under [`FALLBACK_INSIDE`] (inside, detour,
+    /// point).
+    graze: Option<Candidate>,
+    /// The least-inside one of any depth (inside, detour, point).
+    least: Option<Candidate>,
+}
 
 /// The detour point from `mid` (vertebra frame) over 36 directions in the
 /// plane of `u`, `v`: the shortest detour whose segments `score` clears
-/// (score 0), and the one running least inside other vertebrae (under
-/// [`FALLBACK_INSIDE`] of the self-check's tolerance). Ground coordinates.
+/// (score 0), the one running least inside other vertebrae under
+/// [`FALLBACK_INSIDE`] of the self-check's tolerance, and the one running
+/// least inside them at any depth. Ground coordinates.
 #[allow(clippy::too_many_arguments)]
 fn detour_from(
     mid: &Point3<f64>,
@@ -304,7 +335,8 @@ fn detour_from(
     b: &Point3<f64>,
 ) -> Detour {
     let mut best: Option<(f64, Point3<f64>)> = None;
-    let mut fallback: Option<(f64, f64, Point3<f64>)> = None;
+    let mut fallback: Option<Candidate> = None;
+    let mut least: Option<Candidate> = None;
     for i in 0..36 {
         let th = (i as f64) * std::f64::consts::TAU / 36.0;
         let d = u * th.cos() + v * th.sin();
@@ -321,21 +353,28 @@ fn detour_from(
                         }
                         break;
                     }
-                    Some(Fit::Graze(inside))
-                        if inside < FALLBACK_INSIDE * wrapped::DEPTH_TOLERANCE
-                            && fallback
-                                .map(|(fi, fd, _)| (inside, detour) < (fi, fd))
-                                .unwrap_or(true) =>
-                    {
-                        fallback = Some((inside, detour, g));
+                    Some(Fit::Graze(inside)) => {
+                        let better = |f: Option<Candidate>| {
+                            f.is_none_or(|(fi, fd, _)| (inside, detour) < (fi, fd))
+                        };
+                        if better(least) {
+                            least = Some((inside, detour, g));
+                        }
+                        if inside < FALLBACK_INSIDE * wrapped::DEPTH_TOLERANCE && better(fallback) {
+                            fallback = Some((inside, detour, g));
+                        }
                     }
-                    _ => {}
+                    None => {}
                 }
             }
             t += 0.001;
         }
     }
-    (best, fallback)
+    Detour {
+        clear: best,
+        graze: fallback,
+        least,
+    }
 }
 
 /// Total length (m) of the segment `a`-`b` (ground) inside the vertebrae

@@ -231,6 +231,9 @@ pub struct SmoothingReport {
     /// `--smooth chain`: REML estimate of the SD of the joint mismatch
     /// (mm) along the lower body's X, Y, Z axes.
     pub joint_sd_mm: Option<[f64; 3]>,
+    /// `--smooth chain`: how the joint centres follow each vertebra's
+    /// size, as the landmarks chose (`with_body` or `about_centre`).
+    pub joint_scaling: Option<JointScaling>,
     /// Per level, cranial to caudal.
     pub levels: Vec<SmoothingLevel>,
 }
@@ -447,6 +450,7 @@ pub fn generate(
         vert_levels: &vert_levels,
         markers: &markers,
         joint_centres: base_joint_centres(&model, &poses0)?,
+        body_centres: base_body_centres(&model, &markers),
         opts,
     };
     let (
@@ -630,7 +634,33 @@ struct FitInput<'a> {
     /// Base joint centres between consecutive vertebrae, in each body (the
     /// chain smoothing's prior).
     joint_centres: JointCentres,
+    /// Each vertebra's centre in its body frame (the chain's joint model).
+    body_centres: BTreeMap<Level, Point3<f64>>,
     opts: &'a GenerateOptions,
+}
+
+/// Each vertebra's centre in its (unscaled) body frame: the centre of its
+/// vertebral-body wrap sphere (the protocol's vertebral centre), else the
+/// midpoint of its SEC and IEC markers.
+fn base_body_centres(
+    model: &Model,
+    markers: &BTreeMap<Level, (String, Points)>,
+) -> BTreeMap<Level, Point3<f64>> {
+    let mut out = BTreeMap::new();
+    for (l, (body, m)) in markers {
+        let want = format!("{l}_body_sphere");
+        let sphere = model
+            .bodies
+            .iter()
+            .find(|b| &b.name == body)
+            .and_then(|b| b.wrap_objects.iter().find(|w| w.name == want))
+            .map(|w| Point3::from(w.translation));
+        let mid = || Some(nalgebra::center(m.get(&Code::SEC)?, m.get(&Code::IEC)?));
+        if let Some(c) = sphere.or_else(mid) {
+            out.insert(*l, c);
+        }
+    }
+    out
 }
 
 /// The fits of step 2: poses, the set's palpation noise (lsq), smoothing.
@@ -698,7 +728,10 @@ fn fit_levels(input: &FitInput, patient: &BTreeMap<Level, Points>) -> Result<Lev
         vert_levels,
         patient,
         markers,
-        &input.joint_centres,
+        &JointGeometry {
+            joint_centres: &input.joint_centres,
+            centres: &input.body_centres,
+        },
         opts,
         noise,
     )?;
@@ -953,7 +986,7 @@ fn smooth_fits(
     chain: &[Level],
     patient: &BTreeMap<Level, Points>,
     markers: &BTreeMap<Level, (String, Points)>,
-    joint_centres: &JointCentres,
+    geometry: &JointGeometry,
     opts: &GenerateOptions,
     noise: Option<f64>,
 ) -> Result<SmoothingReport> {
@@ -965,6 +998,7 @@ fn smooth_fits(
         effective_dof: None,
         parameters: 3 * chain.len(),
         joint_sd_mm: None,
+        joint_scaling: None,
         levels: Vec::new(),
     };
     if opts.smooth == Smooth::Off {
@@ -998,7 +1032,7 @@ fn smooth_fits(
     }
     let sigma = noise.unwrap_or(0.0);
     if opts.smooth == Smooth::Chain {
-        return chain_fits(fits, chain, patient, &used, joint_centres, sigma, rep);
+        return chain_fits(fits, chain, patient, &used, geometry, sigma, rep);
     }
     let Some(s) = smooth::smooth_orientations(&rots, &info, sigma)? else {
         rep.note = if chain.len() < smooth::MIN_LEVELS {
@@ -1076,6 +1110,98 @@ fn apply_posterior(
     }
 }
 
+/// Where the chain's joints sit in the base model: the joint centre in
+/// each of the two bodies, and each body's centre ([`base_body_centres`]),
+/// all in the unscaled body frames.
+struct JointGeometry<'a> {
+    joint_centres: &'a JointCentres,
+    centres: &'a BTreeMap<Level, Point3<f64>>,
+}
+
+/// How a vertebra's size change moves its joint centres (the chain
+/// smoothing's joint model).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JointScaling {
+    /// Scaled with the body (a larger vertebra carries its discs further
+    /// out).
+    WithBody,
+    /// Kept at their offsets from the body's centre (the body grows about
+    /// its centre; the discs take up the size change).
+    AboutCentre,
+}
+
+impl JointScaling {
+    fn describe(self) -> &'static str {
+        match self {
+            JointScaling::WithBody => "joint centres scaled with each vertebra",
+            JointScaling::AboutCentre => {
+                "joint centres kept at their offsets from each vertebral centre (the data's choice)"
+            }
+        }
+    }
+}
+
+/// The chain's joints, each body's joint centre placed by `scaling`.
+fn chain_joints(
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+    chain: &[Level],
+    geometry: &JointGeometry,
+    scaling: JointScaling,
+) -> Vec<chain::ChainJoint> {
+    let place = |p: &Point3<f64>, l: Level, f: &pose::VertebraFit| match scaling {
+        JointScaling::WithBody => pose::scale_point(p, &f.scale),
+        JointScaling::AboutCentre => {
+            let c = geometry
+                .centres
+                .get(&l)
+                .copied()
+                .unwrap_or(Point3::origin());
+            p + (pose::scale_point(&c, &f.scale) - c)
+        }
+    };
+    let mut joints = Vec::new();
+    for (k, w) in chain.windows(2).enumerate() {
+        let (Some((qu, pl)), Some(fu), Some(fl)) = (
+            geometry.joint_centres.get(&w[0]),
+            fits.get(&w[0]),
+            fits.get(&w[1]),
+        ) else {
+            continue;
+        };
+        joints.push(chain::ChainJoint {
+            upper: k,
+            lower: k + 1,
+            in_upper: place(qu, w[0], fu),
+            in_lower: place(pl, w[1], fl),
+        });
+    }
+    joints
+}
+
+/// The chain smoothed under the joint model the landmarks support best
+/// (higher restricted marginal likelihood; both models have the same
+/// hyperparameters, and a tie keeps [`JointScaling::WithBody`]).
+fn best_joint_model(
+    verts: &[chain::ChainVertebra],
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+    chain: &[Level],
+    geometry: &JointGeometry,
+    sigma: f64,
+) -> Result<Option<(chain::ChainSmoothed, JointScaling)>> {
+    let mut best: Option<(chain::ChainSmoothed, JointScaling)> = None;
+    for scaling in [JointScaling::WithBody, JointScaling::AboutCentre] {
+        let joints = chain_joints(fits, chain, geometry, scaling);
+        let Some(s) = chain::smooth_chain(verts, &joints, sigma)? else {
+            continue;
+        };
+        if best.as_ref().is_none_or(|(b, _)| s.log_ml > b.log_ml) {
+            best = Some((s, scaling));
+        }
+    }
+    Ok(best)
+}
+
 /// [`chain::smooth_chain`] on the lsq fits: neighbours meet at the base
 /// model's joint centres (scaled with each body).
 fn chain_fits(
@@ -1083,7 +1209,7 @@ fn chain_fits(
     chain: &[Level],
     patient: &BTreeMap<Level, Points>,
     used: &[Vec<(Code, Point3<f64>)>],
-    joint_centres: &BTreeMap<Level, (Point3<f64>, Point3<f64>)>,
+    geometry: &JointGeometry,
     sigma: f64,
     mut rep: SmoothingReport,
 ) -> Result<SmoothingReport> {
@@ -1103,22 +1229,8 @@ fn chain_fits(
             n,
         });
     }
-    let mut joints = Vec::new();
-    for (k, w) in chain.windows(2).enumerate() {
-        let (Some((qu, pl)), Some(fu), Some(fl)) =
-            (joint_centres.get(&w[0]), fits.get(&w[0]), fits.get(&w[1]))
-        else {
-            continue;
-        };
-        joints.push(chain::ChainJoint {
-            upper: k,
-            lower: k + 1,
-            in_upper: pose::scale_point(qu, &fu.scale),
-            in_lower: pose::scale_point(pl, &fl.scale),
-        });
-    }
-    let Some(s) = chain::smooth_chain(&verts, &joints, sigma)? else {
-        rep.note = if joints.is_empty() {
+    let Some((s, scaling)) = best_joint_model(&verts, fits, chain, geometry, sigma)? else {
+        rep.note = if chain_joints(fits, chain, geometry, JointScaling::WithBody).is_empty() {
             "not applied: no joint between two landmarked vertebrae".into()
         } else {
             "not applied: no landmark noise (the fits are exact)".into()
@@ -1144,8 +1256,10 @@ fn chain_fits(
     rep.applied = true;
     rep.effective_dof = Some(s.effective_dof);
     rep.joint_sd_mm = Some(std::array::from_fn(|a| s.s[a] * 1e3));
+    rep.joint_scaling = Some(scaling);
     rep.note = format!(
-        "posterior poses of the kinematic chain (joint mismatch SD {:.2} / {:.2} / {:.2} mm along the lower body's X / Y / Z, common offset {:.2} / {:.2} / {:.2} mm; {:.1} of {} pose parameters kept)",
+        "posterior poses of the kinematic chain, {} (joint mismatch SD {:.2} / {:.2} / {:.2} mm along the lower body's X / Y / Z, common offset {:.2} / {:.2} / {:.2} mm; {:.1} of {} pose parameters kept)",
+        scaling.describe(),
         s.s.x * 1e3,
         s.s.y * 1e3,
         s.s.z * 1e3,
