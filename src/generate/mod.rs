@@ -429,11 +429,7 @@ pub fn generate(
     let levels = set_levels(set, set_name)?;
     let vert_levels: Vec<Level> = levels.iter().copied().filter(|l| !l.is_sacrum()).collect();
 
-    // Landmarks per level.
-    let mut patient: BTreeMap<Level, Points> = BTreeMap::new();
-    for (id, p) in &set.points {
-        patient.entry(id.level).or_default().insert(id.code, *p);
-    }
+    let mut patient = landmarks_per_level(set);
     let reduced_fits = landmark_coverage(&levels, &patient, &markers, set_name, &bfile)?;
 
     // ---- 1. registration through the sacrum
@@ -485,28 +481,10 @@ pub fn generate(
     };
 
     // ---- 5. wrap spheres
-    let base_radii: BTreeMap<String, f64> = model
-        .bodies
-        .iter()
-        .flat_map(|b| b.wrap_objects.iter())
-        .filter_map(|w| match w.shape {
-            crate::osim::model::WrapShape::Sphere { radius } => Some((w.name.clone(), radius)),
-            _ => None,
-        })
-        .collect();
-    let spheres = wraps::refit_spheres(&mut doc, &scales, &base_radii, &prefixes)?;
+    let spheres = wraps::refit_spheres(&mut doc, &scales, &sphere_radii(&model), &prefixes)?;
 
     // ---- 5b. muscle paths clear of the vertebrae ([`clear`])
-    let path_edits = match meshes {
-        Some(src) => {
-            let m = doc.model()?;
-            let owned = crate::base::wrapped::vertebra_meshes(&m, src)?;
-            let refs: Vec<(String, &MeshQuery)> =
-                owned.iter().map(|(n, q)| (n.clone(), q)).collect();
-            clear::clear_paths(&mut doc, &refs)?
-        }
-        None => Vec::new(),
-    };
+    let path_edits = clear_muscle_paths(&mut doc, meshes)?;
 
     // ---- 6. report, views, self-check
     let out_model = doc.model()?;
@@ -567,6 +545,43 @@ pub fn generate(
         landmark_residuals,
     };
     Ok(Generated { doc, report, views })
+}
+
+/// The set's landmarks grouped by level.
+fn landmarks_per_level(set: &LandmarkSet) -> BTreeMap<Level, Points> {
+    let mut patient: BTreeMap<Level, Points> = BTreeMap::new();
+    for (id, p) in &set.points {
+        patient.entry(id.level).or_default().insert(id.code, *p);
+    }
+    patient
+}
+
+/// Radius of every wrap sphere of the base model, by name.
+fn sphere_radii(model: &Model) -> BTreeMap<String, f64> {
+    model
+        .bodies
+        .iter()
+        .flat_map(|b| b.wrap_objects.iter())
+        .filter_map(|w| match w.shape {
+            crate::osim::model::WrapShape::Sphere { radius } => Some((w.name.clone(), radius)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Step 5b: muscle paths cleared of the vertebra meshes ([`clear`]); no
+/// edits without meshes.
+fn clear_muscle_paths(
+    doc: &mut Document,
+    meshes: Option<&dyn MeshSource>,
+) -> Result<Vec<clear::PathEdit>> {
+    let Some(src) = meshes else {
+        return Ok(Vec::new());
+    };
+    let m = doc.model()?;
+    let owned = crate::base::wrapped::vertebra_meshes(&m, src)?;
+    let refs: Vec<(String, &MeshQuery)> = owned.iter().map(|(n, q)| (n.clone(), q)).collect();
+    clear::clear_paths(doc, &refs)
 }
 
 /// Step 1: register the landmarks to the base model through the sacrum
