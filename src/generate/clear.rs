@@ -249,13 +249,8 @@ fn place_via(
                         end_bodies.first().cloned().flatten(),
                     ) && clear_of(g, b, vertebrae, poses, end_bodies.get(1).cloned().flatten());
                 let inside = || {
-                    inside_length(
-                        a,
-                        g,
-                        vertebrae,
-                        poses,
-                        end_bodies.first().cloned().flatten(),
-                    ) + inside_length(g, b, vertebrae, poses, end_bodies.get(1).cloned().flatten())
+                    inside_length(a, g, vertebrae, poses, end_bodies.get(..1).unwrap_or(&[]))
+                        + inside_length(g, b, vertebrae, poses, end_bodies.get(1..2).unwrap_or(&[]))
                 };
                 match outside_wraps(g) {
                     false => None,
@@ -280,14 +275,7 @@ fn place_via(
     // path's end bodies, if that is shorter than the direct segment's run;
     // the next round clears what its new segments still cross, and the
     // self-check reports what is left.
-    let direct: f64 = vertebrae
-        .iter()
-        .filter(|(n, _)| !end_bodies.iter().flatten().any(|e| e == n))
-        .filter_map(|(n, mq)| {
-            let inv = poses.get(n)?.inverse();
-            Some(mq.segment_length_inside(&(inv * a), &(inv * b)))
-        })
-        .sum();
+    let direct = inside_length(a, b, vertebrae, poses, end_bodies);
     let progress = least(|d| d.least).filter(|(inside, _, _)| *inside < direct);
     clear
         .map(|(_, p)| p)
@@ -378,17 +366,17 @@ fn detour_from(
 }
 
 /// Total length (m) of the segment `a`-`b` (ground) inside the vertebrae
-/// but `skip`.
+/// but those named in `skip`.
 fn inside_length(
     a: &Point3<f64>,
     b: &Point3<f64>,
     vertebrae: &[(String, &MeshQuery)],
     poses: &BTreeMap<String, nalgebra::Isometry3<f64>>,
-    skip: Option<String>,
+    skip: &[Option<String>],
 ) -> f64 {
     vertebrae
         .iter()
-        .filter(|(n, _)| skip.as_deref() != Some(n.as_str()))
+        .filter(|(n, _)| !skip.iter().flatten().any(|s| s == n))
         .filter_map(|(n, mq)| {
             let inv = poses.get(n)?.inverse();
             Some(mq.segment_length_inside(&(inv * a), &(inv * b)))

@@ -446,7 +446,7 @@ pub fn generate(
         vert_levels: &vert_levels,
         markers: &markers,
         joint_centres: base_joint_centres(&model, &poses0)?,
-        body_centres: base_body_centres(&model, &markers),
+        body_centres: base_body_centres(&model)?,
         opts,
     };
     let (
@@ -654,28 +654,16 @@ struct FitInput<'a> {
     opts: &'a GenerateOptions,
 }
 
-/// Each vertebra's centre in its (unscaled) body frame: the centre of its
-/// vertebral-body wrap sphere (the protocol's vertebral centre), else the
-/// midpoint of its SEC and IEC markers.
-fn base_body_centres(
-    model: &Model,
-    markers: &BTreeMap<Level, (String, Points)>,
-) -> BTreeMap<Level, Point3<f64>> {
-    let mut out = BTreeMap::new();
-    for (l, (body, m)) in markers {
-        let want = format!("{l}_body_sphere");
-        let sphere = model
-            .bodies
-            .iter()
-            .find(|b| &b.name == body)
-            .and_then(|b| b.wrap_objects.iter().find(|w| w.name == want))
-            .map(|w| Point3::from(w.translation));
-        let mid = || Some(nalgebra::center(m.get(&Code::SEC)?, m.get(&Code::IEC)?));
-        if let Some(c) = sphere.or_else(mid) {
-            out.insert(*l, c);
-        }
-    }
-    out
+/// Each vertebra's centre in its (unscaled) body frame: the vertebral
+/// centre of [`model_centres`] (its vertebral-body wrap sphere, else the
+/// midpoint of its SEC and IEC markers) with every body at the identity.
+fn base_body_centres(model: &Model) -> Result<BTreeMap<Level, Point3<f64>>> {
+    let identity: BTreeMap<String, Isometry3<f64>> = model
+        .bodies
+        .iter()
+        .map(|b| (b.name.clone(), Isometry3::identity()))
+        .collect();
+    model_centres(model, &identity, CentreDef::Sphere)
 }
 
 /// The fits of step 2: poses, the set's palpation noise (lsq), smoothing.

@@ -42,10 +42,9 @@ const FLAT_DEG: f64 = 12.0;
 /// Flat cranial patches: faces facing within 50 deg of cranial, grown from
 /// the largest remaining face over edge neighbours whose normals stay
 /// within [`FLAT_DEG`] of the seed's.
-fn flat_patches(lm: &LocalMesh) -> Vec<Vec<usize>> {
+fn flat_patches(lm: &LocalMesh, nb: &[Vec<usize>]) -> Vec<Vec<usize>> {
     let cos50 = 50f64.to_radians().cos();
     let cos_flat = FLAT_DEG.to_radians().cos();
-    let nb = neighbours(lm);
     let mut cand: Vec<usize> = (0..lm.tris.len())
         .filter(|&f| lm.normals[f].y >= cos50)
         .collect();
@@ -79,7 +78,11 @@ fn flat_patches(lm: &LocalMesh) -> Vec<Vec<usize>> {
 /// The plateau patch: the largest flat cranial patch; with L5 given, the
 /// largest whose centre lies within `reach` of L5's inferior endplate
 /// centre (local coordinates).
-fn plateau_patch(lm: &LocalMesh, l5: Option<(Point3<f64>, f64)>) -> Option<Vec<usize>> {
+fn plateau_patch(
+    lm: &LocalMesh,
+    nb: &[Vec<usize>],
+    l5: Option<(Point3<f64>, f64)>,
+) -> Option<Vec<usize>> {
     let area = |g: &Vec<usize>| g.iter().map(|&f| lm.areas[f]).sum::<f64>();
     let centroid = |g: &Vec<usize>| {
         Point3::from(
@@ -88,7 +91,7 @@ fn plateau_patch(lm: &LocalMesh, l5: Option<(Point3<f64>, f64)>) -> Option<Vec<u
             }) / area(g),
         )
     };
-    let patches = flat_patches(lm);
+    let patches = flat_patches(lm, nb);
     let near: Vec<&Vec<usize>> = match l5 {
         Some((iec, reach)) => patches
             .iter()
@@ -109,7 +112,7 @@ fn plateau_patch(lm: &LocalMesh, l5: Option<(Point3<f64>, f64)>) -> Option<Vec<u
 /// The plateau plane (area-weighted least-squares plane through the
 /// patch's face centroids, normal cranial) and the region by the endplate
 /// rule around the patch.
-fn plateau_region(lm: &LocalMesh, patch: &[usize]) -> Option<Endplate> {
+fn plateau_region(lm: &LocalMesh, nb: &[Vec<usize>], patch: &[usize]) -> Option<Endplate> {
     let a: f64 = patch.iter().map(|&f| lm.areas[f]).sum();
     if a.is_nan() || a <= 0.0 {
         return None;
@@ -156,7 +159,7 @@ fn plateau_region(lm: &LocalMesh, patch: &[usize]) -> Option<Endplate> {
     let mut faces: Vec<usize> = (0..lm.tris.len())
         .filter(|&f| on_plateau(f) && in_box(&lm.centroids[f]))
         .collect();
-    faces.extend(connected_beyond(lm, &faces, on_plateau));
+    faces.extend(connected_beyond(nb, &faces, on_plateau));
     faces.sort_unstable();
     let area = faces.iter().map(|&f| lm.areas[f]).sum();
     (!faces.is_empty()).then_some(Endplate {
@@ -167,12 +170,12 @@ fn plateau_region(lm: &LocalMesh, patch: &[usize]) -> Option<Endplate> {
     })
 }
 
-/// Faces reachable from `seed` over edge neighbours that satisfy `keep`,
-/// not already in `seed`: the rest of a plateau whose flat patch was cut
-/// short (the normals of a voxel surface's staircase break a patch up).
-fn connected_beyond(lm: &LocalMesh, seed: &[usize], keep: impl Fn(usize) -> bool) -> Vec<usize> {
-    let nb = neighbours(lm);
-    let mut taken = vec![false; lm.tris.len()];
+/// Faces reachable from `seed` over edge neighbours (`nb`, [`neighbours`])
+/// that satisfy `keep`, not already in `seed`: the rest of a plateau whose
+/// flat patch was cut short (the normals of a voxel surface's staircase
+/// break a patch up).
+fn connected_beyond(nb: &[Vec<usize>], seed: &[usize], keep: impl Fn(usize) -> bool) -> Vec<usize> {
+    let mut taken = vec![false; nb.len()];
     seed.iter().for_each(|&f| taken[f] = true);
     let mut queue: Vec<usize> = seed.to_vec();
     let mut extra = Vec::new();
@@ -218,10 +221,11 @@ pub fn palpate_sacrum(
             (l5.landmarks.get(&Code::IA)?.point - l5.landmarks.get(&Code::IP)?.point).norm();
         Some((lm.to_mesh.inverse() * iec, 1.5 * depth))
     });
-    let patch = plateau_patch(&lm, l5).ok_or_else(|| {
+    let nb = neighbours(&lm);
+    let patch = plateau_patch(&lm, &nb, l5).ok_or_else(|| {
         Error::invalid(ctx, "SEC: no cranial-facing patch on the sacrum's midline")
     })?;
-    let ep = plateau_region(&lm, &patch)
+    let ep = plateau_region(&lm, &nb, &patch)
         .ok_or_else(|| Error::invalid(ctx, "SEC: the sacral plateau region is empty"))?;
     let pts = endplate_points(&lm, &ep, None)
         .ok_or_else(|| Error::invalid(ctx, "SEC: the sacral plateau region is degenerate"))?;
