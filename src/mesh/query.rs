@@ -283,6 +283,30 @@ mod tests {
     }
 
     #[test]
+    fn hinted_distance_is_the_capped_distance() {
+        // A stream of points around and inside the box, with stale and
+        // out-of-range hints: always distance(p).min(cap).
+        let q = MeshQuery::new(&unit_box()).unwrap();
+        let mut hint = u32::MAX;
+        for i in 0..400 {
+            let t = i as f64 * 0.37;
+            let p = Point3::new(
+                0.5 + 1.3 * t.sin(),
+                0.5 + 0.9 * (1.7 * t).cos(),
+                (0.3 * t).sin(),
+            );
+            for cap in [0.05, 0.4, 10.0] {
+                let want = q.distance(&p).min(cap);
+                let got = q.distance_near(&p, &mut hint, cap);
+                assert!(
+                    (got - want).abs() < 1e-12,
+                    "{p:?} cap {cap}: {got} vs {want}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn box_queries() {
         let mut m = unit_box();
         // Flip some triangles and add a degenerate one: answers must not change.
