@@ -21,58 +21,42 @@ fn shared(rel: &str) -> PathBuf {
         .join(rel)
 }
 
-/// Vertex-clustering decimation to about `target` vertices (cluster mean).
+/// Quadric-error decimation (meshoptimizer's edge collapse, a well-kept
+/// simplifier) to about `target` vertices: the dense mesh as a modeller
+/// would coarsen it for a musculoskeletal model.
 fn decimate(m: &TriMesh, target: usize) -> TriMesh {
-    let (lo, hi) = m.bounds().unwrap();
-    let (mut a, mut b) = (1e-5, (hi - lo).norm());
-    let mut best = m.clone();
-    for _ in 0..40 {
-        let cell = 0.5 * (a + b);
-        let d = cluster(m, cell, &lo);
-        if d.vertices.len() > target {
-            a = cell;
-        } else {
-            b = cell;
-        }
-        best = d;
-    }
-    best
-}
-
-fn cluster(m: &TriMesh, cell: f64, lo: &Point3<f64>) -> TriMesh {
-    let mut ids: BTreeMap<[i64; 3], u32> = BTreeMap::new();
-    let mut sums: Vec<(Vector3<f64>, f64)> = Vec::new();
-    let map: Vec<u32> = m
+    let pos: Vec<[f32; 3]> = m
         .vertices
         .iter()
-        .map(|p| {
-            let k = [0, 1, 2].map(|i| ((p[i] - lo[i]) / cell).floor() as i64);
-            let id = *ids.entry(k).or_insert_with(|| {
-                sums.push((Vector3::zeros(), 0.0));
-                (sums.len() - 1) as u32
-            });
-            sums[id as usize].0 += p.coords;
-            sums[id as usize].1 += 1.0;
-            id
+        .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+        .collect();
+    let indices: Vec<u32> = m.triangles.iter().flatten().copied().collect();
+    let bytes = meshopt::typed_to_bytes(&pos);
+    let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).unwrap();
+    // A closed surface has about twice as many triangles as vertices.
+    let kept = meshopt::simplify(
+        &indices,
+        &adapter,
+        6 * target,
+        1.0,
+        meshopt::SimplifyOptions::None,
+        None,
+    );
+    // Keep only the vertices the coarse triangles use.
+    let mut new_id: BTreeMap<u32, u32> = BTreeMap::new();
+    let mut vertices = Vec::new();
+    let triangles = kept
+        .chunks(3)
+        .map(|t| {
+            [0, 1, 2].map(|k| {
+                *new_id.entry(t[k]).or_insert_with(|| {
+                    vertices.push(m.vertices[t[k] as usize]);
+                    (vertices.len() - 1) as u32
+                })
+            })
         })
         .collect();
-    let vertices = sums.iter().map(|(s, n)| Point3::from(s / *n)).collect();
-    let mut seen = std::collections::BTreeSet::new();
-    let triangles = m
-        .triangles
-        .iter()
-        .map(|t| t.map(|k| map[k as usize]))
-        .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
-        .filter(|t| {
-            let mut s = *t;
-            s.sort();
-            seen.insert(s)
-        })
-        .collect();
-    TriMesh {
-        vertices,
-        triangles,
-    }
+    TriMesh::new(vertices, triangles).unwrap()
 }
 
 /// Protocol invariants of acceptance 1; returns the violations.
@@ -251,10 +235,16 @@ fn dense_meshes_follow_the_protocol_in_any_pose() {
 }
 
 #[test]
-#[ignore = "issue 16 acceptance 2 not met: after vertex-clustering decimation to 250 vertices the landmarks move 2.16 mm (median), 11.1 mm at worst (L2_SR: on the coarse copy the extreme vertex of a flat rim), and the L5 sphere centre 2.1 mm"]
+#[ignore = "issue 16 acceptance 2 partly met: after quadric decimation to 250 vertices the median is 1.40 mm (target 2), but the worst is 17.2 mm (L5_SR: a coarse face reaching 7 mm below the endplate into the pedicle; the other lateral extremes slide 4-8 mm along flat rims) and the sphere centres move up to 2.45 mm (L5); run with --ignored"]
 fn decimated_dense_meshes_agree_with_the_dense_ones() {
     let dense = dense_meshes();
     let coarse: Vec<(Level, TriMesh)> = dense.iter().map(|(l, m)| (*l, decimate(m, 250))).collect();
+    let sizes: Vec<(Level, usize, usize)> = dense
+        .iter()
+        .zip(&coarse)
+        .map(|((l, d), (_, c))| (*l, d.vertices.len(), c.vertices.len()))
+        .collect();
+    eprintln!("vertices (dense, decimated): {sizes:?}");
     let ps = check_family(&dense, &dense_hint());
     let qs = check_family(&coarse, &dense_hint());
     let mut d = Vec::new();
