@@ -1,6 +1,6 @@
 //! Levels above the landmarks' field of view (`--above-fov`): on the
-//! README example (T9-S1), `balance` puts T1's centre on the vertical
-//! through S1_SEC (acceptance: within 30 mm laterally) and levels it;
+//! README example (T9-S1), `balance` levels T1 and brings its centre
+//! within 20 mm of the vertical through S1_SEC (acceptance: 30 mm);
 //! `keep` leaves T1 where the base joints put it (far to the right).
 
 use osim_spine::embedded::BaseModel;
@@ -55,6 +55,15 @@ fn balance_puts_t1_over_the_sacrum_and_keep_does_not() {
     let cap = osim_spine::generate::balance::MAX_BEND_DEG;
     assert!(a.bend_deg.iter().all(|b| b.abs() <= cap + 1e-9), "{a:?}");
     assert!(a.bend_limited || a.t1_coronal_tilt_deg.abs() < 0.5, "{a:?}");
+    // The least compensation: an even bend when that leaves T1 within the
+    // coronal-balance range, otherwise T1 at the edge of that range.
+    let tol = osim_spine::generate::balance::CORONAL_BALANCE_MM;
+    let even = a.bend_deg.iter().all(|b| (b - a.bend_deg[0]).abs() < 1e-9);
+    assert!(
+        a.bend_limited || (even && bal.abs() <= tol + 0.5) || (bal.abs() - tol).abs() < 0.5,
+        "T1 {bal:.1} mm lateral, bends {:?}",
+        a.bend_deg
+    );
     let (keep, rep) = t1_lateral_mm(AboveFov::Keep);
     assert!(keep.abs() > 60.0, "kept T1 is {keep:.1} mm lateral");
     let a = rep.above_fov.unwrap();

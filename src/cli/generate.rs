@@ -54,9 +54,10 @@ pub struct Args {
     /// (independent fits).
     #[arg(long, value_enum, ignore_case = true, default_value_t = crate::generate::Smooth::Chain)]
     pub smooth: crate::generate::Smooth,
-    /// Levels above the landmarks' field of view: balance (a compensatory
-    /// frontal curve so that T1 sits over S1_SEC, level) or keep (the base
-    /// model's joint angles above the top measured vertebra).
+    /// Levels above the landmarks' field of view: balance (the least
+    /// compensatory frontal curve that levels T1 within 20 mm of the
+    /// vertical through S1_SEC) or keep (the base model's joint angles
+    /// above the top measured vertebra).
     #[arg(long, value_enum, ignore_case = true, default_value_t = crate::generate::AboveFov::Balance)]
     pub above_fov: crate::generate::AboveFov,
     /// Skip the self-check (bushings, muscles through bone, equilibrium).

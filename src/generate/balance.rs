@@ -6,9 +6,15 @@
 //! joints in the frontal plane (about the ground's anterior axis, through
 //! each joint centre) by a compensatory curve, linear along the levels
 //! (`theta_k = a + b s_k`, `s_k` from 0 at the lowest joint to 1 at T1),
-//! with `a`, `b` solved so that T1's centre lies on the vertical through
-//! S1_SEC and its cranial axis is level (no coronal tilt). With one
-//! unmeasured joint the two goals are met in the least-squares sense.
+//! with the least compensation that makes T1's cranial axis level (no
+//! coronal tilt) and brings its centre within [`CORONAL_BALANCE_MM`] of
+//! the vertical through S1_SEC (the SRS threshold of coronal balance):
+//! first an even bend (`b = 0`, the arc with the smallest bend per joint)
+//! that levels T1; only if that leaves T1 further off, `a`, `b` solved so
+//! that T1 ends at that distance on its side. Balancing T1 exactly over
+//! the sacrum would add a curve the patient need not have (scoliotic
+//! patients stand with T1 up to 20-25 mm off). With one unmeasured joint
+//! the two goals are met in the least-squares sense.
 //! No joint bends more than [`MAX_BEND_DEG`] (a severe scoliotic curve's
 //! angulation per level): with few unmeasured levels the goals are
 //! then met only as far as that allows, and the report says so.
@@ -33,6 +39,12 @@ pub const MAX_BEND_DEG: f64 = 15.0;
 /// Weight of T1's lateral offset against its tilt in the balance.
 const POSITION_WEIGHT: f64 = 10.0;
 
+/// Largest lateral offset of T1's centre from the vertical through S1_SEC
+/// that counts as balanced (mm): the Scoliosis Research Society's 2 cm
+/// threshold of coronal imbalance (C7 plumb line to the central sacral
+/// vertical line).
+pub const CORONAL_BALANCE_MM: f64 = 20.0;
+
 /// How levels above the field of view are placed.
 #[derive(
     Debug,
@@ -47,7 +59,8 @@ const POSITION_WEIGHT: f64 = 10.0;
 )]
 #[serde(rename_all = "lowercase")]
 pub enum AboveFov {
-    /// Compensatory frontal curve: T1 over S1_SEC, T1 level.
+    /// Compensatory frontal curve: T1 level and within
+    /// [`CORONAL_BALANCE_MM`] of the vertical through S1_SEC.
     #[default]
     Balance,
     /// The base model's joint angles above the top measured level.
@@ -241,10 +254,10 @@ fn curve(q: &Vector2<f64>, n: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Solve `q` by projected Gauss-Newton (finite-difference Jacobian, both
-/// ends kept within [`MAX_BEND_DEG`]) so that T1's centre is on the
-/// vertical through `s1_sec` and T1 is level; returns the bends and
-/// whether a bound was reached.
+/// The bends above the field of view: an even bend that levels T1 if it
+/// leaves T1 within [`CORONAL_BALANCE_MM`] of the vertical through
+/// `s1_sec`; otherwise the linear curve that levels T1 at that distance.
+/// Returns the bends and whether a bound was reached.
 fn solve_curve(
     links: &[Link],
     x_top: &Isometry3<f64>,
@@ -252,23 +265,51 @@ fn solve_curve(
     s1_sec: Point3<f64>,
 ) -> (Vec<f64>, bool) {
     let n = links.len();
+    // Level T1 with an even bend (position ignored).
+    let (q, limited) = fit_curve(links, x_top, t1, s1_sec, None);
+    let (c, _) = t1_state(links, x_top, &curve(&q, n), t1);
+    let off = c.z - s1_sec.z;
+    let tol = CORONAL_BALANCE_MM * 1e-3;
+    if off.abs() <= tol {
+        return (curve(&q, n), limited);
+    }
+    // Too far off: bring T1 to the edge of the balanced range.
+    let (q, limited) = fit_curve(links, x_top, t1, s1_sec, Some(tol.copysign(off)));
+    (curve(&q, n), limited)
+}
+
+/// Solve `q` by projected Gauss-Newton (finite-difference Jacobian, both
+/// ends kept within [`MAX_BEND_DEG`]) so that T1 is level and, with
+/// `target` (m), its centre lies `target` to the right of the vertical
+/// through `s1_sec`; without it the bend is even (`q.x = q.y`) and only
+/// the tilt counts. Returns `q` and whether a bound was reached.
+fn fit_curve(
+    links: &[Link],
+    x_top: &Isometry3<f64>,
+    t1: &T1Markers,
+    s1_sec: Point3<f64>,
+    target: Option<f64>,
+) -> (Vector2<f64>, bool) {
+    let n = links.len();
     let cap = MAX_BEND_DEG.to_radians();
     // Lateral offset over the chain length: both residuals in radians.
     let (c0, _) = t1_state(links, x_top, &vec![0.0; n], t1);
     let len = (c0 - x_top.translation.vector).coords.norm().max(1e-3);
-    // T1 over the sacrum first: when the bends are limited, a T1 that
-    // leans is better than one that stands off to the side.
+    // T1 at its place first: when the bends are limited, a T1 that leans
+    // is better than one that stands off to the side.
     let resid = |q: &Vector2<f64>| {
         let (c, a) = t1_state(links, x_top, &curve(q, n), t1);
-        Vector2::new(POSITION_WEIGHT * (c.z - s1_sec.z) / len, a.z.atan2(a.y))
+        let pos = target.map_or(0.0, |t| POSITION_WEIGHT * (c.z - s1_sec.z - t) / len);
+        Vector2::new(pos, a.z.atan2(a.y))
     };
+    // Both ends move together for an even bend or a single joint.
+    let even = target.is_none() || n == 1;
     let clamp = |q: Vector2<f64>| {
         let q = q.map(|v| v.clamp(-cap, cap));
-        // One joint: its single bend is the lowest end's.
-        if n > 1 {
-            q
-        } else {
+        if even {
             Vector2::new(q.x, q.x)
+        } else {
+            q
         }
     };
     let mut q = Vector2::zeros();
@@ -278,18 +319,18 @@ fn solve_curve(
             break;
         }
         let h = 1e-7;
-        let jx = if n > 1 {
-            (resid(&(q + Vector2::new(h, 0.0))) - r) / h
-        } else {
+        let jx = if even {
             (resid(&(q + Vector2::new(h, h))) - r) / h
-        };
-        let jy = if n > 1 {
-            (resid(&(q + Vector2::new(0.0, h))) - r) / h
         } else {
+            (resid(&(q + Vector2::new(h, 0.0))) - r) / h
+        };
+        let jy = if even {
             Vector2::zeros()
+        } else {
+            (resid(&(q + Vector2::new(0.0, h))) - r) / h
         };
         let j = Matrix2::from_columns(&[jx, jy]);
-        // Damped normal equations (the 1-joint case has a zero column).
+        // Damped normal equations (an even bend has a zero column).
         let jtj = j.transpose() * j + Matrix2::identity() * 1e-12;
         let Some(step) = jtj.try_inverse().map(|m| m * (j.transpose() * r)) else {
             break;
@@ -301,7 +342,7 @@ fn solve_curve(
         q = next;
     }
     let limited = q.iter().any(|v| v.abs() >= cap * (1.0 - 1e-9));
-    (curve(&q, n), limited)
+    (q, limited)
 }
 
 /// Write the bent joint frames: each parent frame turned about the joint
