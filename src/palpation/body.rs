@@ -225,8 +225,10 @@ pub(crate) struct EndplatePoints {
 /// mid-sagittal section, so on the surface and on the plane; the nearest
 /// region point where the region has no section), SA/SP (ends of the
 /// region's mid-sagittal section), SR/SL (extreme region points along Z;
-/// with `column`, only points between those X bounds: a large face of a
-/// coarse mesh may reach past the walls into a pedicle).
+/// with `column`, only points between those X bounds and not behind the
+/// section's posterior end: a large face of a coarse mesh may reach past
+/// the walls into a pedicle, and a pedicle root may be as lateral as the
+/// rim).
 pub(crate) fn endplate_points(
     lm: &LocalMesh,
     ep: &Endplate,
@@ -239,16 +241,27 @@ pub(crate) fn endplate_points(
             a + lm.centroids[f].coords * lm.areas[f]
         }) / ep.area,
     );
-    // Lateral extremes among the region's vertices (inside the column).
+    // The mid-sagittal section: the centre on it, its two ends.
+    let section = lm.cut_segments(ep.faces.iter().copied(), 2, 0.0);
+    let midline_section = !section.is_empty();
+    // Lateral extremes among the region's vertices inside the column and
+    // not behind the endplate's posterior end (there the pedicle roots
+    // join the body, on a small vertebra as far out as the rim).
+    let x_back = match midline_section {
+        true => section
+            .iter()
+            .flatten()
+            .map(|p| p.x)
+            .fold(f64::MAX, f64::min),
+        false => f64::MIN,
+    };
     let corners: Vec<Point3<f64>> = region.vertices.clone();
-    let in_column = |p: &Point3<f64>| column.is_none_or(|(lo, hi)| p.x >= lo && p.x <= hi);
+    let in_column =
+        |p: &Point3<f64>| column.is_none_or(|(lo, hi)| p.x >= lo.max(x_back) && p.x <= hi);
     let inside: Vec<Point3<f64>> = corners.iter().copied().filter(in_column).collect();
     let pool = if inside.is_empty() { &corners } else { &inside };
     let right = lateral_extreme(pool, 1.0)?;
     let left = lateral_extreme(pool, -1.0)?;
-    // The mid-sagittal section: the centre on it, its two ends.
-    let section = lm.cut_segments(ep.faces.iter().copied(), 2, 0.0);
-    let midline_section = !section.is_empty();
     let centre = match section
         .iter()
         .map(|[a, b]| closest_on_segment(&c, a, b))
