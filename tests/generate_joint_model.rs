@@ -8,8 +8,6 @@
 
 mod common;
 
-use std::process::Command;
-
 #[test]
 fn scaled_patients_choose_joints_about_the_vertebral_centre() {
     let (Some(generic), Some(geometry), Some(dev)) = (
@@ -21,28 +19,27 @@ fn scaled_patients_choose_joints_about_the_vertebral_centre() {
     };
     let tmp = tempfile::tempdir().unwrap();
     let base = tmp.path().join("cyclist");
-    let o = Command::new(common::bin())
-        .args(["base", "--generic"])
-        .arg(&generic)
-        .arg("--geometry")
-        .arg(&geometry)
-        .arg("--out")
-        .arg(&base)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    common::run_ok(&[
+        "base".as_ref(),
+        "--generic".as_ref(),
+        generic.as_os_str(),
+        "--geometry".as_ref(),
+        geometry.as_os_str(),
+        "--out".as_ref(),
+        base.as_os_str(),
+    ]);
     for patient in ["D01_thoracic45", "D02_lumbar55", "D03_double"] {
         let out = tmp.path().join(patient).join("p.osim");
-        let o = Command::new(common::bin())
-            .args(["generate", "--base"])
-            .arg(&base)
-            .arg("--landmarks")
-            .arg(dev.join(patient).join("landmarks_clean.csv"))
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let landmarks = dev.join(patient).join("landmarks_clean.csv");
+        common::run_ok(&[
+            "generate".as_ref(),
+            "--base".as_ref(),
+            base.as_os_str(),
+            "--landmarks".as_ref(),
+            landmarks.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ]);
         let report: serde_json::Value = serde_json::from_slice(
             &std::fs::read(tmp.path().join(patient).join("p_report.json")).unwrap(),
         )

@@ -205,7 +205,7 @@ fn lateral_extreme(pts: &[Point3<f64>], side: f64) -> Option<Point3<f64>> {
             .copied()
             .max_by(|a, b| (side * a.z).total_cmp(&(side * b.z)));
     }
-    let c = near.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / near.len().max(1) as f64;
+    let c = near.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / near.len() as f64;
     near.into_iter()
         .min_by(|a, b| (a.coords - c).norm().total_cmp(&(b.coords - c).norm()))
 }
@@ -247,14 +247,12 @@ pub(crate) fn endplate_points(
     // Lateral extremes among the region's vertices inside the column and
     // not behind the endplate's posterior end (there the pedicle roots
     // join the body, on a small vertebra as far out as the rim).
-    let x_back = match midline_section {
-        true => section
-            .iter()
-            .flatten()
-            .map(|p| p.x)
-            .fold(f64::MAX, f64::min),
-        false => f64::MIN,
-    };
+    let x_back = section
+        .iter()
+        .flatten()
+        .map(|p| p.x)
+        .reduce(f64::min)
+        .unwrap_or(f64::MIN);
     let corners: Vec<Point3<f64>> = region.vertices.clone();
     let in_column =
         |p: &Point3<f64>| column.is_none_or(|(lo, hi)| p.x >= lo.max(x_back) && p.x <= hi);

@@ -112,6 +112,19 @@ pub fn bin() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_osim-spine"))
 }
 
+/// Runs `osim-spine` with `args` and asserts that it succeeded (its stderr
+/// in the failure message).
+pub fn run_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> std::process::Output {
+    let o = Command::new(bin()).args(args).output().unwrap();
+    assert!(
+        o.status.success(),
+        "osim-spine {:?}: {}",
+        args.iter().map(|a| a.as_ref()).collect::<Vec<_>>(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}
+
 /// The wrap checks of the `base` issue on OpenSim's rows for a posed model
 /// (`tests/py` scripts' `scoliotic` rows): no wrapped path shorter than the
 /// straight line, no path point inside a wrap sphere, every muscle whose
