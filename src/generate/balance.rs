@@ -267,11 +267,12 @@ fn solve_curve(
     let n = links.len();
     // Level T1 with an even bend (position ignored).
     let (q, limited) = fit_curve(links, x_top, t1, s1_sec, None);
-    let (c, _) = t1_state(links, x_top, &curve(&q, n), t1);
+    let even = curve(&q, n);
+    let (c, _) = t1_state(links, x_top, &even, t1);
     let off = c.z - s1_sec.z;
     let tol = CORONAL_BALANCE_MM * 1e-3;
     if off.abs() <= tol {
-        return (curve(&q, n), limited);
+        return (even, limited);
     }
     // Too far off: bring T1 to the edge of the balanced range.
     let (q, limited) = fit_curve(links, x_top, t1, s1_sec, Some(tol.copysign(off)));
