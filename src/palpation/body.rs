@@ -228,7 +228,7 @@ pub(crate) struct EndplatePoints {
 /// with `column`, only points between those X bounds and not behind the
 /// section's posterior end: a large face of a coarse mesh may reach past
 /// the walls into a pedicle, and a pedicle root may be as lateral as the
-/// rim).
+/// rim; the sacrum, with no walls, passes an unbounded column).
 pub(crate) fn endplate_points(
     lm: &LocalMesh,
     ep: &Endplate,

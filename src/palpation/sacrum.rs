@@ -1,10 +1,16 @@
 //! The S1 superior endplate (sacral plateau): `S1_SEC`, `S1_SA`, `S1_SP`,
 //! `S1_SR`, `S1_SL` by the endplate rules, on the plateau found as the
-//! largest flat cranial patch on the midline (or the one facing L5's
-//! inferior endplate when that is given). Where the plateau is too coarse
-//! (fewer than 4 faces, no mid-sagittal section, or shallower than half
-//! the L5 inferior endplate), the points keep the layout of the L5
-//! inferior endplate about `S1_SEC` (the protocol's coarse fallback).
+//! largest flat cranial patch that crosses the midline (of those facing
+//! L5's inferior endplate when that is given). Flatness is judged on face
+//! normals averaged over 3 mm, so that a voxel surface's staircase does
+//! not break the plateau up. The lateral extremes lie in front of the
+//! plateau's posterior end (behind it, a real sacrum's plateau runs on into
+//! the bases of the superior articular processes and the alae). Where the
+//! plateau is too coarse (fewer than 4 faces, no mid-sagittal section, or
+//! shallower than half the L5 inferior endplate), the points keep the
+//! layout of the L5 inferior endplate (the protocol's coarse fallback),
+//! dropped onto the plateau plane and, for `SEC`/`SA`/`SP`, onto the
+//! sacrum's own mid-sagittal plane.
 
 use super::body::{endplate_points, Endplate, EndplatePoints};
 use super::local::{frame_rotation, prepare, LocalMesh};
@@ -36,17 +42,46 @@ fn neighbours(lm: &LocalMesh) -> Vec<Vec<usize>> {
     out
 }
 
+/// Radius (m) over which face normals are averaged before the flatness
+/// tests: a voxel surface's staircase (faces along the voxel axes, up to
+/// 45 deg off the plateau) averages out over a few voxels, while the faces
+/// of a coarse mesh are larger than this and keep their own normal.
+const NORMAL_RADIUS: f64 = 0.003;
+
+/// Area-weighted mean normal of the faces connected to each face whose
+/// centroids lie within `r` of its centroid (the face itself included).
+fn smoothed_normals(lm: &LocalMesh, nb: &[Vec<usize>], r: f64) -> Vec<Vector3<f64>> {
+    let mut mark = vec![usize::MAX; lm.tris.len()];
+    (0..lm.tris.len())
+        .map(|f| {
+            let c = lm.centroids[f];
+            let (mut stack, mut sum) = (vec![f], Vector3::zeros());
+            mark[f] = f;
+            while let Some(g) = stack.pop() {
+                sum += lm.normals[g] * lm.areas[g];
+                for &h in &nb[g] {
+                    if mark[h] != f && (lm.centroids[h] - c).norm() <= r {
+                        mark[h] = f;
+                        stack.push(h);
+                    }
+                }
+            }
+            sum.try_normalize(1e-300).unwrap_or(lm.normals[f])
+        })
+        .collect()
+}
+
 /// Largest angle between a face of a flat patch and the patch's seed.
 const FLAT_DEG: f64 = 12.0;
 
 /// Flat cranial patches: faces facing within 50 deg of cranial, grown from
 /// the largest remaining face over edge neighbours whose normals stay
 /// within [`FLAT_DEG`] of the seed's.
-fn flat_patches(lm: &LocalMesh, nb: &[Vec<usize>]) -> Vec<Vec<usize>> {
+fn flat_patches(lm: &LocalMesh, nb: &[Vec<usize>], normals: &[Vector3<f64>]) -> Vec<Vec<usize>> {
     let cos50 = 50f64.to_radians().cos();
     let cos_flat = FLAT_DEG.to_radians().cos();
     let mut cand: Vec<usize> = (0..lm.tris.len())
-        .filter(|&f| lm.normals[f].y >= cos50)
+        .filter(|&f| normals[f].y >= cos50)
         .collect();
     // Seeds by decreasing area (ties by index): deterministic.
     cand.sort_by(|&a, &b| lm.areas[b].total_cmp(&lm.areas[a]).then(a.cmp(&b)));
@@ -56,13 +91,13 @@ fn flat_patches(lm: &LocalMesh, nb: &[Vec<usize>]) -> Vec<Vec<usize>> {
         if taken[seed] {
             continue;
         }
-        let n0 = lm.normals[seed];
+        let n0 = normals[seed];
         let mut patch = vec![seed];
         taken[seed] = true;
         let mut i = 0;
         while i < patch.len() {
             for &g in &nb[patch[i]] {
-                if !taken[g] && lm.normals[g].y >= cos50 && lm.normals[g].dot(&n0) >= cos_flat {
+                if !taken[g] && normals[g].y >= cos50 && normals[g].dot(&n0) >= cos_flat {
                     taken[g] = true;
                     patch.push(g);
                 }
@@ -81,6 +116,7 @@ fn flat_patches(lm: &LocalMesh, nb: &[Vec<usize>]) -> Vec<Vec<usize>> {
 fn plateau_patch(
     lm: &LocalMesh,
     nb: &[Vec<usize>],
+    normals: &[Vector3<f64>],
     l5: Option<(Point3<f64>, f64)>,
 ) -> Option<Vec<usize>> {
     let area = |g: &Vec<usize>| g.iter().map(|&f| lm.areas[f]).sum::<f64>();
@@ -91,18 +127,26 @@ fn plateau_patch(
             }) / area(g),
         )
     };
-    let patches = flat_patches(lm, nb);
-    let near: Vec<&Vec<usize>> = match l5 {
-        Some((iec, reach)) => patches
-            .iter()
-            .filter(|g| (centroid(g) - iec).norm() <= reach)
-            .collect(),
-        None => patches.iter().collect(),
+    // The plateau is on the midline: a patch must reach across the
+    // mid-sagittal plane (on a voxel surface the staircase breaks the
+    // plateau into small patches, and a flat ala may be the largest one).
+    let crosses = |g: &Vec<usize>| {
+        let t = &lm.tris;
+        let z = g.iter().flat_map(|&f| t[f].map(|k| lm.verts[k as usize].z));
+        let (lo, hi) = z.fold((f64::MAX, f64::MIN), |(lo, hi), z| (lo.min(z), hi.max(z)));
+        lo <= 0.0 && hi >= 0.0
     };
-    let pool = if near.is_empty() {
-        patches.iter().collect()
-    } else {
+    let patches = flat_patches(lm, nb, normals);
+    let faces_l5 =
+        |g: &&Vec<usize>| l5.is_none_or(|(iec, reach)| (centroid(g) - iec).norm() <= reach);
+    let near: Vec<&Vec<usize>> = patches.iter().filter(faces_l5).collect();
+    let midline: Vec<&Vec<usize>> = near.iter().copied().filter(|g| crosses(g)).collect();
+    let pool = if !midline.is_empty() {
+        midline
+    } else if !near.is_empty() {
         near
+    } else {
+        patches.iter().collect()
     };
     pool.into_iter()
         .max_by(|a, b| area(a).total_cmp(&area(b)))
@@ -112,7 +156,12 @@ fn plateau_patch(
 /// The plateau plane (area-weighted least-squares plane through the
 /// patch's face centroids, normal cranial) and the region by the endplate
 /// rule around the patch.
-fn plateau_region(lm: &LocalMesh, nb: &[Vec<usize>], patch: &[usize]) -> Option<Endplate> {
+fn plateau_region(
+    lm: &LocalMesh,
+    nb: &[Vec<usize>],
+    normals: &[Vector3<f64>],
+    patch: &[usize],
+) -> Option<Endplate> {
     let a: f64 = patch.iter().map(|&f| lm.areas[f]).sum();
     if a.is_nan() || a <= 0.0 {
         return None;
@@ -151,9 +200,8 @@ fn plateau_region(lm: &LocalMesh, nb: &[Vec<usize>], patch: &[usize]) -> Option<
         (lo.x, lo.z, hi.x, hi.z) = (lo.x.min(c.x), lo.z.min(c.z), hi.x.max(c.x), hi.z.max(c.z));
     }
     let (m, tol, cos40) = (0.003, 0.003, 40f64.to_radians().cos());
-    let on_plateau = |f: usize| {
-        lm.normals[f].dot(&n) >= cos40 && (n.dot(&lm.centroids[f].coords) - d).abs() <= tol
-    };
+    let on_plateau =
+        |f: usize| normals[f].dot(&n) >= cos40 && (n.dot(&lm.centroids[f].coords) - d).abs() <= tol;
     let in_box =
         |c: &Point3<f64>| c.x >= lo.x - m && c.x <= hi.x + m && c.z >= lo.z - m && c.z <= hi.z + m;
     let mut faces: Vec<usize> = (0..lm.tris.len())
@@ -222,12 +270,15 @@ pub fn palpate_sacrum(
         Some((lm.to_mesh.inverse() * iec, 1.5 * depth))
     });
     let nb = neighbours(&lm);
-    let patch = plateau_patch(&lm, &nb, l5).ok_or_else(|| {
+    let normals = smoothed_normals(&lm, &nb, NORMAL_RADIUS);
+    let patch = plateau_patch(&lm, &nb, &normals, l5).ok_or_else(|| {
         Error::invalid(ctx, "SEC: no cranial-facing patch on the sacrum's midline")
     })?;
-    let ep = plateau_region(&lm, &nb, &patch)
+    let ep = plateau_region(&lm, &nb, &normals, &patch)
         .ok_or_else(|| Error::invalid(ctx, "SEC: the sacral plateau region is empty"))?;
-    let pts = endplate_points(&lm, &ep, None)
+    // No walls to bound the plateau's X, but its lateral extremes lie in
+    // front of its posterior end, as on a vertebra.
+    let pts = endplate_points(&lm, &ep, Some((f64::MIN, f64::MAX)))
         .ok_or_else(|| Error::invalid(ctx, "SEC: the sacral plateau region is degenerate"))?;
     let rot = plateau_rotation(&ep.normal);
     let mut findings = Vec::new();
@@ -298,7 +349,12 @@ fn plateau_landmarks(
         let Some(l) = l5.landmarks.get(&from) else {
             continue;
         };
-        let p = to_local * l.point;
+        let mut p = to_local * l.point;
+        // Midline codes on the sacrum's own mid-sagittal plane (z = 0): a
+        // real S1 is not exactly aligned with L5.
+        if matches!(c, SEC | SA | SP) {
+            p.z = 0.0;
+        }
         let on = p - ep.normal * (ep.normal.dot(&p.coords) - ep.offset);
         out.insert(
             c,

@@ -269,13 +269,16 @@ fn palpate_level(
     };
     let r = run(hint);
     if let Ok(p) = &r {
-        if has_errors(p) {
+        // The sacrum's warnings mean its coarse fallback was taken, which
+        // a better frame may avoid.
+        let (errors, warnings) = counts(p);
+        if errors > 0 || (input.level.is_sacrum() && warnings > 0) {
             let again = FrameHint {
                 anterior: p.frame.rotation * nalgebra::Vector3::x(),
                 cranial: p.frame.rotation * nalgebra::Vector3::y(),
             };
             let r2 = run(&again);
-            if r2.as_ref().is_ok_and(|p2| !has_errors(p2)) {
+            if r2.as_ref().is_ok_and(|p2| counts(p2) < (errors, warnings)) {
                 return r2;
             }
         }
@@ -283,11 +286,13 @@ fn palpate_level(
     r
 }
 
-/// `true` when the engine reported an error finding.
-fn has_errors(p: &VertebraPalpation) -> bool {
-    p.findings
-        .iter()
-        .any(|f| f.severity == palpation::Severity::Error)
+/// Number of error and warning findings the engine reported.
+fn counts(p: &VertebraPalpation) -> (usize, usize) {
+    let n = |s: palpation::Severity| p.findings.iter().filter(|f| f.severity == s).count();
+    (
+        n(palpation::Severity::Error),
+        n(palpation::Severity::Warning),
+    )
 }
 
 /// Read, screen, palpate and assemble (see the module documentation).
