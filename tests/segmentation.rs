@@ -772,3 +772,27 @@ fn real_vertebrae_palpate_from_meshes_and_label_maps() {
         );
     }
 }
+
+/// A folder whose axes are not patient axes (X anterior, Y left, Z up, as
+/// the Visible Human meshes are) fits LPS, RAS and OpenSim's axes about
+/// equally badly (about 0.5): refused unless `--frame` is given, instead
+/// of written under a frame it is not in.
+#[test]
+fn folder_in_permuted_axes_is_refused_unless_declared() {
+    let doc = base_doc();
+    let model = doc.model().unwrap();
+    let levels = posed_levels(&model, 1);
+    // Ground (X anterior, Y up, Z right) to (X anterior, Y left, Z up).
+    let permuted = Rotation3::from_matrix_unchecked(Matrix3::new(
+        1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0,
+    ));
+    let iso = Isometry3::from_parts(Translation3::new(0.01, 0.02, 0.9), permuted.into());
+    let dir = tempfile::tempdir().unwrap();
+    write_folder(&levels, &iso, dir.path());
+    refuses(dir.path(), &[], "fits none of the known frames");
+    // The same anatomy in LPS axes is detected and palpated.
+    let dir = tempfile::tempdir().unwrap();
+    write_folder(&levels, &ct_transform(), dir.path());
+    let got = segmentation::palpate(dir.path(), &Options::default()).unwrap();
+    assert_eq!(got.world, Frame::Lps);
+}

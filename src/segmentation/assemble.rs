@@ -76,6 +76,12 @@ pub fn screen(loaded: &mut Loaded) {
         .collect();
 }
 
+/// Least agreement of the anatomy with a frame for that frame to be taken
+/// as detected: the mean of the cosines between the anatomical anterior and
+/// cranial directions and the frame's (0.75: both within about 40 deg; a
+/// segmentation whose axes are permuted scores about 0.5 in every frame).
+const DETECT_MIN_AGREEMENT: f64 = 0.75;
+
 /// The axes of the segmentation: as known (NIfTI world, declared
 /// `--frame`), checked against the anatomy; else detected from it.
 pub fn world_frame(loaded: &mut Loaded, hints: &[FrameHint]) -> Result<Frame> {
@@ -103,6 +109,19 @@ pub fn world_frame(loaded: &mut Loaded, hints: &[FrameHint]) -> Result<Frame> {
                 )));
             }
             Ok(f)
+        }
+        None if score(best) < DETECT_MIN_AGREEMENT => {
+            let all: Vec<String> = Frame::ALL
+                .into_iter()
+                .map(|f| format!("{f} {:.2}", score(f)))
+                .collect();
+            Err(Error::invalid(
+                &loaded.source,
+                format!(
+                    "frame not declared, and the anatomy fits none of the known frames (agreement {}; 1 = axes exactly anatomical, at least {DETECT_MIN_AGREEMENT} needed): the segmentation's axes are not patient axes; give --frame if they are, else rotate it into LPS or RAS",
+                    all.join(", ")
+                ),
+            ))
         }
         None => {
             loaded.findings.push(Finding::new(None, Severity::Info, format!(

@@ -12,7 +12,8 @@
 //! axes (mesh folders: `--units`, default mm; NIfTI: the header's spatial
 //! units, world RAS+ by the NIfTI standard). A folder's axes are LPS, RAS
 //! or OpenSim as declared by `--frame`, or detected from the anatomy
-//! (anterior and cranial directions of the palpated vertebrae).
+//! (anterior and cranial directions of the palpated vertebrae); a folder
+//! whose anatomy fits none of them (permuted axes) is refused.
 
 pub mod assemble;
 pub mod checks;
