@@ -732,6 +732,18 @@ fn real_vertebrae_palpate_from_meshes_and_label_maps() {
     };
     let ratio = width(&want);
     println!("meshes: S1 width / L5 inferior width {ratio:.2}");
+    // The same meshes in plain LPS axes (no tilt): L5's hint from the
+    // chain leans towards the sacrum's centroid and the engine failed on
+    // L5 from it, which left L1-L5 out (a set is a contiguous run to S1).
+    let plain = Isometry3::from_parts(
+        Translation3::identity(),
+        Rotation3::from_matrix_unchecked(Frame::Lps.to_opensim().transpose()).into(),
+    );
+    let tmp_plain = tempfile::tempdir().unwrap();
+    write_folder(&levels, &plain, tmp_plain.path());
+    let got = segmentation::palpate(tmp_plain.path(), &Options::default()).unwrap();
+    let palpated: Vec<Level> = got.levels.iter().map(|l| l.level).collect();
+    assert_eq!(palpated, Level::ALL[12..18].to_vec(), "{:?}", got.findings);
     assert!(
         (0.8..=1.4).contains(&ratio),
         "S1_SR-S1_SL on the alae: {ratio:.2}"

@@ -223,7 +223,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         );
     }
     crate::outln!("orientation smoothing: {}", r.smoothing.note);
-    print_above_fov(r.above_fov.as_ref());
+    print_above_fov(r.above_fov.as_ref(), r.levels_from_landmarks.is_empty());
     print_shape(&r.shape);
     match &r.self_check {
         Some(sc) => print_self_check(sc),
@@ -313,9 +313,13 @@ fn patient_model_name(stem: &str) -> String {
 
 /// Levels above the field of view: which were not measured, what was
 /// done, where T1 ended.
-fn print_above_fov(a: Option<&crate::generate::AboveFovReport>) {
+fn print_above_fov(a: Option<&crate::generate::AboveFovReport>, no_vertebra: bool) {
     let Some(a) = a else {
-        crate::outln!("above the field of view: none (the landmarks reach T1)");
+        if no_vertebra {
+            crate::outln!("above the field of view: every vertebra (no vertebra was measured; all kept as in the base model)");
+        } else {
+            crate::outln!("above the field of view: none (the landmarks reach T1)");
+        }
         return;
     };
     let done = if a.balanced.is_empty() {

@@ -230,10 +230,22 @@ pub fn palpate_levels(
 ) -> Vec<(Level, Result<VertebraPalpation>)> {
     use rayon::prelude::*;
     // The vertebrae, each on its own (in parallel, in order).
+    // A vertebra's second chance: its own anterior with the cranial
+    // neighbour's cranial axis (L5's own axis leans towards the sacrum's
+    // centroid, which lies far behind the chain).
+    let neighbour = |i: usize| {
+        (i > 0).then(|| FrameHint {
+            anterior: hints[i].anterior,
+            cranial: hints[i - 1].cranial,
+        })
+    };
     let mut out: Vec<Option<Result<VertebraPalpation>>> = levels
         .par_iter()
         .zip(hints)
-        .map(|(input, hint)| (!input.level.is_sacrum()).then(|| palpate_level(input, hint, None)))
+        .enumerate()
+        .map(|(i, (input, hint))| {
+            (!input.level.is_sacrum()).then(|| palpate_level(input, hint, neighbour(i), None))
+        })
         .collect();
     // The sacrum last: its fallback uses L5's palpation.
     let l5 = levels
@@ -244,7 +256,7 @@ pub fn palpate_levels(
         .cloned();
     for ((input, hint), r) in levels.iter().zip(hints).zip(out.iter_mut()) {
         if r.is_none() {
-            *r = Some(palpate_level(input, hint, l5.as_ref()));
+            *r = Some(palpate_level(input, hint, None, l5.as_ref()));
         }
     }
     levels
@@ -255,10 +267,12 @@ pub fn palpate_levels(
 }
 
 /// One level palpated from `hint`; when the engine reports an error, once
-/// more from the frame it found, kept if that one has no error.
+/// more from the frame it found and then from `second` (when given), the
+/// first with fewer errors and warnings kept.
 fn palpate_level(
     input: &LevelInput,
     hint: &FrameHint,
+    second: Option<FrameHint>,
     l5: Option<&VertebraPalpation>,
 ) -> Result<VertebraPalpation> {
     let run = |h: &FrameHint| {
@@ -278,9 +292,11 @@ fn palpate_level(
                 anterior: p.frame.rotation * nalgebra::Vector3::x(),
                 cranial: p.frame.rotation * nalgebra::Vector3::y(),
             };
-            let r2 = run(&again);
-            if r2.as_ref().is_ok_and(|p2| counts(p2) < (errors, warnings)) {
-                return r2;
+            for h in std::iter::once(again).chain(second) {
+                let r2 = run(&h);
+                if r2.as_ref().is_ok_and(|p2| counts(p2) < (errors, warnings)) {
+                    return r2;
+                }
             }
         }
     }
