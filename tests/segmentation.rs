@@ -684,6 +684,11 @@ fn bad_mesh_folders_are_refused() {
     let d = tempfile::tempdir().unwrap();
     mesh::write(&d.path().join("liver.stl"), &cube(30.0)).unwrap();
     refuses(d.path(), &[], "no mesh named by a level");
+    // TotalSegmentator's per-structure masks: named, with what to do.
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("vertebrae_L1.nii.gz"), small_map()).unwrap();
+    std::fs::write(d.path().join("vertebrae_L2.nii.gz"), small_map()).unwrap();
+    refuses(d.path(), &[], "per-structure NIfTI masks");
     // Not a segmentation at all.
     let d = tempfile::tempdir().unwrap();
     let p = d.path().join("x.txt");

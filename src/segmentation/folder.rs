@@ -5,7 +5,9 @@
 //! one level are refused, except TotalSegmentator's `sacrum` plus
 //! `vertebrae_S1`, which together are the sacrum (merged). Other files are
 //! named in the notes and ignored. Each mesh must be non-empty and closed
-//! (after welding coincident vertices).
+//! (after welding coincident vertices). A folder of per-structure NIfTI
+//! masks named by level (TotalSegmentator's default output) is refused with
+//! what to give instead.
 
 use super::labels::{class_of_name, LabelClass};
 use crate::error::{Error, Result};
@@ -28,7 +30,14 @@ pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<Str
     paths.sort();
     let mut by_level: BTreeMap<Level, Vec<PathBuf>> = BTreeMap::new();
     let mut notes = Vec::new();
+    let mut masks = Vec::new();
     for p in paths {
+        if let Some(stem) = mask_stem(&p) {
+            if matches!(class_of_name(&stem), LabelClass::Level(_)) {
+                masks.push(p.display().to_string());
+            }
+            continue;
+        }
         let Some(stem) = mesh_stem(&p) else { continue };
         match class_of_name(&stem) {
             LabelClass::Level(l) => by_level.entry(l).or_default().push(p),
@@ -47,7 +56,35 @@ pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<Str
             ));
         }
     }
+    // Per-structure binary masks (TotalSegmentator's default output): not
+    // a folder of meshes, and not one label map.
+    if !masks.is_empty() {
+        if by_level.is_empty() {
+            return Err(Error::invalid(
+                dir.display().to_string(),
+                format!(
+                    "a folder of per-structure NIfTI masks ({} ...), not of meshes: give one label map instead (TotalSegmentator: run it with --ml, or combine the masks), or export the masks as closed surfaces",
+                    masks[0]
+                ),
+            ));
+        }
+        notes.push(format!(
+            "{} NIfTI mask(s) named by a level ignored (only the meshes are read): {}",
+            masks.len(),
+            masks.join(", ")
+        ));
+    }
     Ok((by_level, notes))
+}
+
+/// The stem of a NIfTI file (`vertebrae_L3` of `vertebrae_L3.nii.gz`),
+/// `None` for other files.
+fn mask_stem(p: &Path) -> Option<String> {
+    let name = p.file_name()?.to_str()?;
+    let lower = name.to_ascii_lowercase();
+    let cut = [".nii.gz", ".nii"].iter().find(|e| lower.ends_with(*e))?;
+    p.is_file()
+        .then(|| name[..name.len() - cut.len()].to_string())
 }
 
 /// The stem of a mesh file (`vertebrae_L3` of `vertebrae_L3.stl`), `None`
