@@ -198,7 +198,8 @@ pub struct GenerateReport {
     pub centres: BTreeMap<String, [f64; 3]>,
     pub self_check: Option<crate::base::check::SelfCheck>,
     /// Levels above the landmarks' field of view and where T1 ended
-    /// (`None` when the landmarks reach T1).
+    /// (`None` when the landmarks reach T1, or when they measure no
+    /// vertebra at all: `levels_from_landmarks` is then empty).
     pub above_fov: Option<AboveFovReport>,
     /// Levels fitted on fewer landmarks than the protocol's (missing ones
     /// named); empty for a complete set.

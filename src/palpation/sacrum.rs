@@ -141,13 +141,12 @@ fn plateau_patch(
         |g: &&Vec<usize>| l5.is_none_or(|(iec, reach)| (centroid(g) - iec).norm() <= reach);
     let near: Vec<&Vec<usize>> = patches.iter().filter(faces_l5).collect();
     let midline: Vec<&Vec<usize>> = near.iter().copied().filter(|g| crosses(g)).collect();
-    let pool = if !midline.is_empty() {
-        midline
-    } else if !near.is_empty() {
-        near
-    } else {
-        patches.iter().collect()
-    };
+    // The first non-empty of: midline patches facing L5, patches facing
+    // L5, every patch.
+    let pool = [midline, near]
+        .into_iter()
+        .find(|g| !g.is_empty())
+        .unwrap_or_else(|| patches.iter().collect());
     pool.into_iter()
         .max_by(|a, b| area(a).total_cmp(&area(b)))
         .cloned()

@@ -32,7 +32,7 @@ pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<Str
     let mut notes = Vec::new();
     let mut masks = Vec::new();
     for p in paths {
-        if let Some(stem) = mask_stem(&p) {
+        if let Some(stem) = super::nifti_stem(&p).filter(|_| p.is_file()) {
             if matches!(class_of_name(&stem), LabelClass::Level(_)) {
                 masks.push(p.display().to_string());
             }
@@ -75,16 +75,6 @@ pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<Str
         ));
     }
     Ok((by_level, notes))
-}
-
-/// The stem of a NIfTI file (`vertebrae_L3` of `vertebrae_L3.nii.gz`),
-/// `None` for other files.
-fn mask_stem(p: &Path) -> Option<String> {
-    let name = p.file_name()?.to_str()?;
-    let lower = name.to_ascii_lowercase();
-    let cut = [".nii.gz", ".nii"].iter().find(|e| lower.ends_with(*e))?;
-    p.is_file()
-        .then(|| name[..name.len() - cut.len()].to_string())
 }
 
 /// The stem of a mesh file (`vertebrae_L3` of `vertebrae_L3.stl`), `None`

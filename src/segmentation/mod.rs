@@ -156,11 +156,16 @@ pub fn load(path: &Path, opts: &Options) -> Result<Loaded> {
 
 /// `.nii` or `.nii.gz`.
 pub fn is_nifti(path: &Path) -> bool {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    name.ends_with(".nii") || name.ends_with(".nii.gz")
+    nifti_stem(path).is_some()
+}
+
+/// The name of a `.nii` or `.nii.gz` file without that suffix
+/// (`vertebrae_L3` of `vertebrae_L3.nii.gz`); `None` for other names.
+pub fn nifti_stem(path: &Path) -> Option<String> {
+    let name = path.file_name()?.to_string_lossy().to_string();
+    let lower = name.to_ascii_lowercase();
+    let cut = [".nii.gz", ".nii"].iter().find(|e| lower.ends_with(*e))?;
+    Some(name[..name.len() - cut.len()].to_string())
 }
 
 /// The name of a path for reports (its last component: the same whatever
