@@ -8,18 +8,14 @@
 //! anterior walls (SP..SA, IP..IA along X), between the endplates (IEC..SEC
 //! along Y) and within 3 mm of the mid-sagittal plane.
 
+mod common;
+
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use osim_spine::landmarks::{Code, Level};
 use osim_spine::mesh::{self, TriMesh};
 use osim_spine::palpation::{palpate_vertebra, FrameHint, Severity, VertebraPalpation};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-
-fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared")
-        .join(rel)
-}
+use std::path::Path;
 
 /// Quadric-error decimation (meshoptimizer's edge collapse, a well-kept
 /// simplifier) to about `target` vertices: the dense mesh as a modeller
@@ -134,9 +130,11 @@ fn check_family(meshes: &[(Level, TriMesh)], hint: &FrameHint) -> Vec<VertebraPa
     out
 }
 
-fn cyclist_meshes() -> Vec<(Level, TriMesh)> {
-    let dir = shared("data/geometry-bodyframe");
-    Level::ALL[..17]
+/// The cyclist's coarse meshes (`None`, with a printed reason, without
+/// `../shared/`).
+fn cyclist_meshes() -> Option<Vec<(Level, TriMesh)>> {
+    let dir = common::shared("data/geometry-bodyframe")?;
+    let meshes = Level::ALL[..17]
         .iter()
         .map(|l| {
             let s = l.to_string();
@@ -147,15 +145,19 @@ fn cyclist_meshes() -> Vec<(Level, TriMesh)> {
             };
             (*l, mesh::read(&dir.join(name)).unwrap())
         })
-        .collect()
+        .collect();
+    Some(meshes)
 }
 
-fn dense_meshes() -> Vec<(Level, TriMesh)> {
-    let dir = shared("data/vertebra-meshes");
-    Level::ALL[12..17]
+/// The Visible Human L1-L5 whole meshes (`None`, with a printed reason,
+/// without `../shared/`).
+fn dense_meshes() -> Option<Vec<(Level, TriMesh)>> {
+    let dir = common::shared("data/vertebra-meshes")?;
+    let meshes = Level::ALL[12..17]
         .iter()
         .map(|l| (*l, mesh::read(&dir.join(format!("{l}_whole.obj"))).unwrap()))
-        .collect()
+        .collect();
+    Some(meshes)
 }
 
 /// Visible Human meshes: X anterior, Z up.
@@ -168,7 +170,10 @@ fn dense_hint() -> FrameHint {
 
 #[test]
 fn cyclist_coarse_meshes_follow_the_protocol() {
-    check_family(&cyclist_meshes(), &FrameHint::body_frame());
+    let Some(meshes) = cyclist_meshes() else {
+        return;
+    };
+    check_family(&meshes, &FrameHint::body_frame());
 }
 
 #[test]
@@ -183,12 +188,18 @@ fn procedural_meshes_follow_the_protocol() {
 
 #[test]
 fn dense_meshes_follow_the_protocol() {
-    check_family(&dense_meshes(), &dense_hint());
+    let Some(meshes) = dense_meshes() else {
+        return;
+    };
+    check_family(&meshes, &dense_hint());
 }
 
 #[test]
 fn dense_meshes_follow_the_protocol_in_any_pose() {
-    let ps = check_family(&dense_meshes(), &dense_hint());
+    let Some(meshes) = dense_meshes() else {
+        return;
+    };
+    let ps = check_family(&meshes, &dense_hint());
     // A rigid motion of the mesh (and a hint 30 deg off) moves every landmark with it.
     let iso = Isometry3::from_parts(
         Translation3::new(0.2, -0.1, 0.3),
@@ -199,9 +210,9 @@ fn dense_meshes_follow_the_protocol_in_any_pose() {
         anterior: iso.rotation * off * Vector3::x(),
         cranial: iso.rotation * off * Vector3::z(),
     };
-    let moved: Vec<(Level, TriMesh)> = dense_meshes()
-        .into_iter()
-        .map(|(l, m)| (l, m.transformed(&iso)))
+    let moved: Vec<(Level, TriMesh)> = meshes
+        .iter()
+        .map(|(l, m)| (*l, m.transformed(&iso)))
         .collect();
     let qs = check_family(&moved, &hint);
     for (p, q) in ps.iter().zip(&qs) {
@@ -234,10 +245,14 @@ fn dense_meshes_follow_the_protocol_in_any_pose() {
     }
 }
 
-#[test]
-#[ignore = "issue 16 acceptance 2 partly met: after quadric decimation to 250 vertices the median is 1.40 mm (target 2), but the worst is 17.2 mm (L5_SR: a coarse face reaching 7 mm below the endplate into the pedicle; the other lateral extremes slide 4-8 mm along flat rims) and the sphere centres move up to 2.45 mm (L5); run with --ignored"]
-fn decimated_dense_meshes_agree_with_the_dense_ones() {
-    let dense = dense_meshes();
+/// Distances (mm) with the names (`LEVEL_CODE`) of the landmarks.
+type Distances = Vec<(f64, String)>;
+
+/// Per-landmark distances (mm, with `LEVEL_CODE` names) and sphere-centre
+/// distances between the dense meshes' palpation and that of the same
+/// meshes decimated to about 250 vertices; `None` without `../shared/`.
+fn decimated_vs_dense() -> Option<(Distances, Vec<(f64, Level)>)> {
+    let dense = dense_meshes()?;
     let coarse: Vec<(Level, TriMesh)> = dense.iter().map(|(l, m)| (*l, decimate(m, 250))).collect();
     let sizes: Vec<(Level, usize, usize)> = dense
         .iter()
@@ -259,20 +274,49 @@ fn decimated_dense_meshes_agree_with_the_dense_ones() {
         centres.push(((p.centre - q.centre).norm() * 1e3, p.level));
     }
     d.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let median = d[d.len() / 2].0;
-    let worst = d.last().unwrap();
     let over: Vec<&(f64, String)> = d.iter().filter(|x| x.0 > 4.0).collect();
     eprintln!(
-        "decimated vs dense: median {median:.2} mm, worst {:.2} mm ({}); over 4 mm: {over:?}; sphere centres apart (mm): {centres:?}",
-        worst.0, worst.1
+        "decimated vs dense: median {:.2} mm, worst {:.2} mm ({}); over 4 mm: {over:.2?}; sphere centres apart (mm): {centres:.2?}",
+        d[d.len() / 2].0,
+        d[d.len() - 1].0,
+        d[d.len() - 1].1
     );
+    Some((d, centres))
+}
+
+/// Is the landmark named `LEVEL_CODE` a lateral extreme (SR, SL, IR, IL)?
+fn lateral(name: &str) -> bool {
+    ["_SR", "_SL", "_IR", "_IL"]
+        .iter()
+        .any(|s| name.ends_with(s))
+}
+
+/// Acceptance 2 where it holds: after decimation the median landmark
+/// moves at most 2 mm, every landmark but the lateral extremes at most
+/// 4 mm, and the sphere centres at most 2 mm (they are fitted to points
+/// spread evenly over the surface, not to the vertices).
+#[test]
+fn decimated_dense_meshes_agree_but_for_lateral_extremes() {
+    let Some((d, centres)) = decimated_vs_dense() else {
+        return;
+    };
     for (dc, level) in &centres {
         assert!(*dc <= 2.0, "{level}: sphere centres {dc:.2} mm apart");
     }
-    assert!(
-        median <= 2.0 && worst.0 <= 4.0,
-        "median {median:.2} mm, worst {:.2} mm at {}",
-        worst.0,
-        worst.1
-    );
+    let median = d[d.len() / 2].0;
+    assert!(median <= 2.0, "median {median:.2} mm");
+    for (dist, name) in d.iter().filter(|x| !lateral(&x.1)) {
+        assert!(*dist <= 4.0, "{name}: {dist:.2} mm apart");
+    }
+}
+
+/// Acceptance 2 in full: every landmark within 4 mm.
+#[test]
+#[ignore = "issue 16 acceptance 2 not met for the lateral extremes (worst 15.4 mm, L5_SR; 12 of 70 over 4 mm): on a coarse mesh SR/SL/IR/IL are its furthest vertices, the protocol read literally and what reproduces the markers behind ../shared/scoliosis-dev, and a decimated rim keeps other vertices than the dense one's extreme; the rim-middle rule used on dense surfaces would give 3.6 mm here but moves the cyclist's markers 4-7 mm from those markers (scoliosis-dev centre RMSE 0.92 -> 1.38 mm, 6 of 30 sets fail); run with --ignored"]
+fn decimated_dense_meshes_agree_with_the_dense_ones() {
+    let Some((d, _)) = decimated_vs_dense() else {
+        return;
+    };
+    let worst = d.last().unwrap();
+    assert!(worst.0 <= 4.0, "worst {:.2} mm at {}", worst.0, worst.1);
 }

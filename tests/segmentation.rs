@@ -339,7 +339,6 @@ fn median_worst(d: &[(String, f64)]) -> (f64, f64) {
 /// voxel axes (sform and qform headers, .nii and .nii.gz) give landmarks
 /// within 1.5 mm (median) and 3 mm (worst) of the mesh-based ones.
 #[test]
-#[ignore = "medians 0.6-1.1 mm met; worst met on the axis-aligned 1 mm (2.91, 2.75 mm) and 0.5 mm (2.65 mm) maps, not on the oblique 1 mm map (3.16 mm, L4_IR: a lateral extreme sliding along a flat rim of the voxel surface); run with --ignored"]
 fn label_maps_agree_with_meshes() {
     use segmentation::voxelise::HeaderTransform;
     let doc = base_doc();
@@ -776,8 +775,10 @@ fn real_vertebrae_palpate_from_meshes_and_label_maps() {
         let (med, worst) = median_worst(&d(true));
         let (s1_med, s1_worst) = median_worst(&d(false));
         let ratio = width(&got);
+        let mut far = d(true);
+        far.retain(|x| x.1 > 2.0);
         println!(
-            "{name}: L1-L5 median {med:.2} mm, worst {worst:.2} mm; S1 median {s1_med:.2} mm, worst {s1_worst:.2} mm; S1 width / L5 inferior width {ratio:.2}"
+            "{name}: L1-L5 median {med:.2} mm, worst {worst:.2} mm (over 2 mm: {far:.2?}); S1 median {s1_med:.2} mm, worst {s1_worst:.2} mm; S1 width / L5 inferior width {ratio:.2}"
         );
         assert!(
             med <= 1.0 && worst <= 3.5,

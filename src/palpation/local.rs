@@ -100,6 +100,33 @@ impl LocalMesh {
         }
     }
 
+    /// Points spread evenly over the surface, about one per `area_each`
+    /// (m^2) whatever the mesh's resolution: each face gets its share of
+    /// points (the fractional remainder carried to the next face), spread
+    /// over it by the R2 low-discrepancy sequence. Deterministic.
+    pub fn area_samples(&self, area_each: f64) -> Vec<Point3<f64>> {
+        // R2 sequence steps (the plastic number's inverse powers).
+        const A1: f64 = 0.754_877_666_246_692_7;
+        const A2: f64 = 0.569_840_290_998_053_3;
+        let mut out = Vec::new();
+        let mut carry = 0.5;
+        for (t, area) in self.tris.iter().zip(&self.areas) {
+            let [a, b, c] = t.map(|k| self.verts[k as usize]);
+            carry += area / area_each;
+            let n = carry.floor();
+            carry -= n;
+            for i in 0..n as usize {
+                let (mut u, mut v) = ((0.5 + A1 * i as f64) % 1.0, (0.5 + A2 * i as f64) % 1.0);
+                // Fold the unit square onto the triangle.
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                out.push(a + (b - a) * u + (c - a) * v);
+            }
+        }
+        out
+    }
+
     /// Query structure on the whole local mesh.
     pub fn query(&self) -> Result<MeshQuery> {
         MeshQuery::new(&TriMesh {
@@ -130,28 +157,15 @@ impl LocalMesh {
         axis: usize,
         value: f64,
     ) -> Vec<[Point3<f64>; 2]> {
-        let mut out = Vec::new();
-        for f in faces {
-            let t = self.tris[f];
-            let mut ends = Vec::with_capacity(2);
-            for j in 0..3 {
-                let (a, b) = (
-                    self.verts[t[j] as usize],
-                    self.verts[t[(j + 1) % 3] as usize],
-                );
-                let (da, db) = (a[axis] - value, b[axis] - value);
-                if (da < 0.0) != (db < 0.0) && da != db {
-                    let s = da / (da - db);
-                    let mut p = a + (b - a) * s;
-                    p[axis] = value;
-                    ends.push(p);
+        faces
+            .filter_map(|f| {
+                let tri = self.tris[f].map(|k| self.verts[k as usize]);
+                match polygon_section(&tri, axis, value)[..] {
+                    [a, b] => Some([a, b]),
+                    _ => None,
                 }
-            }
-            if let [a, b] = ends[..] {
-                out.push([a, b]);
-            }
-        }
-        out
+            })
+            .collect()
     }
 }
 
@@ -163,4 +177,39 @@ pub(crate) fn closest_on_segment(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f6
         return *a;
     }
     a + ab * ((p - a).dot(&ab) / l2).clamp(0.0, 1.0)
+}
+
+/// The part of the convex polygon `poly` with `n . p <= d` (one step of
+/// Sutherland-Hodgman clipping); empty when none of it is.
+pub(crate) fn clip_polygon(poly: &[Point3<f64>], n: &Vector3<f64>, d: f64) -> Vec<Point3<f64>> {
+    let mut out = Vec::with_capacity(poly.len() + 1);
+    for (k, a) in poly.iter().enumerate() {
+        let b = &poly[(k + 1) % poly.len()];
+        let (da, db) = (n.dot(&a.coords) - d, n.dot(&b.coords) - d);
+        if da <= 0.0 {
+            out.push(*a);
+        }
+        // The edge crosses the plane: keep the crossing point.
+        if (da <= 0.0) != (db <= 0.0) {
+            out.push(a + (b - a) * (da / (da - db)));
+        }
+    }
+    out
+}
+
+/// Where the polygon's edges cross the plane `p[axis] = value` (points
+/// exactly on the plane; a vertex on the plane counts as on its positive
+/// side, so a convex polygon crossing it gives two points).
+pub(crate) fn polygon_section(poly: &[Point3<f64>], axis: usize, value: f64) -> Vec<Point3<f64>> {
+    let mut out = Vec::with_capacity(2);
+    for (k, a) in poly.iter().enumerate() {
+        let b = &poly[(k + 1) % poly.len()];
+        let (da, db) = (a[axis] - value, b[axis] - value);
+        if (da < 0.0) != (db < 0.0) && da != db {
+            let mut p = a + (b - a) * (da / (da - db));
+            p[axis] = value;
+            out.push(p);
+        }
+    }
+    out
 }

@@ -83,7 +83,11 @@ pub(crate) fn rim_radius(sup: &EndplatePoints, inf: &EndplatePoints) -> f64 {
     s / 8.0
 }
 
-/// The anterior-surface nodes of the body and their least-squares sphere.
+/// Surface area per sample of the anterior surface (m^2): 1 mm^2.
+const SAMPLE_AREA: f64 = 1.0e-6;
+
+/// The anterior-surface nodes of the body (points spread evenly over it)
+/// and their least-squares sphere.
 pub(crate) fn vertebral_centre(
     lm: &LocalMesh,
     sup: &EndplatePoints,
@@ -92,8 +96,11 @@ pub(crate) fn vertebral_centre(
     let (ns, ni) = (rim_normal(sup)?, rim_normal(inf)?);
     let mid = Point3::from((sup.centre.coords + inf.centre.coords) * 0.5);
     let rim = rim_radius(sup, inf);
+    // Surface points at an even density, so that the fit does not depend
+    // on where a coarse or decimated mesh happens to keep its vertices.
+    let samples = lm.area_samples(SAMPLE_AREA);
     let nodes = |frac: f64| -> Vec<Point3<f64>> {
-        lm.verts
+        samples
             .iter()
             .copied()
             .filter(|p| {

@@ -214,6 +214,7 @@ fn plateau_region(
         normal: n,
         offset: d,
         area,
+        tol,
     })
 }
 
