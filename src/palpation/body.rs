@@ -225,9 +225,9 @@ const LATERAL_SLAB: f64 = 1.5;
 
 /// The region as polygons (one per face, local coordinates), cut to the
 /// slab `|normal . p - offset| <= slab` about the endplate plane and to
-/// the X range `x_range`: a large face of a coarse mesh whose centroid is
-/// near the plane may reach far below it into a pedicle root, or past the
-/// walls. Faces wholly outside are dropped.
+/// the X range `x_range`: a face whose centroid is near the plane may
+/// reach below it into a pedicle root, or past the walls. Faces wholly
+/// outside are dropped.
 fn region_polygons(
     lm: &LocalMesh,
     ep: &Endplate,
@@ -354,12 +354,11 @@ pub(crate) struct EndplatePoints {
 /// SEC/IEC (area centroid moved to the nearest point of the region's
 /// mid-sagittal section, so on the surface and on the plane; the nearest
 /// region point where the region has no section), SA/SP (ends of the
-/// region's mid-sagittal section), SR/SL ([`lateral_extreme`] of the
-/// region cut to the slab it was selected in; with `column`, also cut to
-/// those X bounds and to not behind the section's posterior end: a large
-/// face of a coarse mesh may reach past the walls or below the plane into
-/// a pedicle, and a pedicle root may be as lateral as the rim; the
-/// sacrum, with no walls, passes an unbounded column).
+/// region's mid-sagittal section), SR/SL ([`lateral_extreme`]; with
+/// `column`, only the region between those X bounds and not behind the
+/// section's posterior end: a large face of a coarse mesh may reach past
+/// the walls into a pedicle, and a pedicle root may be as lateral as the
+/// rim; the sacrum, with no walls, passes an unbounded column).
 pub(crate) fn endplate_points(
     lm: &LocalMesh,
     ep: &Endplate,
