@@ -14,7 +14,8 @@
 //! 5. [`pedicle::pedicle_section`]: the frontal cut a fifth of the body
 //!    depth behind the posterior wall, PT/PB its highest/lowest points;
 //! 6. [`pedicle::vertebral_centre`]: the least-squares sphere through the
-//!    body's anterior-surface nodes;
+//!    body's anterior-surface nodes (points spread evenly over that
+//!    surface, so the centre does not depend on the mesh's resolution);
 //! 7. [`checks`]: protocol invariants and anatomy (upside-down, not a
 //!    vertebra) as findings; confidence per landmark.
 //!
@@ -122,7 +123,8 @@ pub struct VertebraPalpation {
 /// The least-squares sphere fit behind the vertebral centre.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct CentreFit {
-    /// Anterior-surface nodes used.
+    /// Anterior-surface nodes used: points spread evenly over the body's
+    /// anterior surface, about one per mm^2 (not the mesh's vertices).
     pub nodes: usize,
     /// RMS of the nodes' distances to the sphere (m).
     pub rms: f64,
