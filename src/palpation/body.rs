@@ -8,7 +8,6 @@ use crate::mesh::{MeshQuery, TriMesh};
 use nalgebra::{Point3, Vector3};
 use parry3d_f64::query::PointQuery;
 use parry3d_f64::shape::Triangle;
-use std::collections::BTreeSet;
 
 /// Walls of the vertebral body (local coordinates, m).
 #[derive(Debug, Clone, Copy)]
@@ -193,8 +192,9 @@ const LATERAL_BAND: f64 = 0.15;
 /// is under 0.25.
 const COARSE_EDGE: f64 = 0.3;
 
-/// Is the endplate region a coarse mesh ([`COARSE_EDGE`])?
-fn coarse(lm: &LocalMesh, ep: &Endplate) -> bool {
+/// Is the endplate region (faces of `ep`, unique vertices `corners`) a
+/// coarse mesh ([`COARSE_EDGE`])?
+fn coarse(lm: &LocalMesh, ep: &Endplate, corners: &[Point3<f64>]) -> bool {
     let mut edges: Vec<f64> = ep
         .faces
         .iter()
@@ -203,14 +203,9 @@ fn coarse(lm: &LocalMesh, ep: &Endplate) -> bool {
             [(b - a).norm(), (c - b).norm(), (a - c).norm()]
         })
         .collect();
-    let (lo, hi) =
-        ep.faces
-            .iter()
-            .flat_map(|&f| lm.tris[f])
-            .fold((f64::MAX, f64::MIN), |(lo, hi), k| {
-                let z = lm.verts[k as usize].z;
-                (lo.min(z), hi.max(z))
-            });
+    let (lo, hi) = corners.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+        (lo.min(p.z), hi.max(p.z))
+    });
     edges.sort_by(f64::total_cmp);
     edges
         .get(edges.len() / 2)
@@ -300,44 +295,39 @@ fn rim_middle(polys: &[Vec<Point3<f64>>], side: f64) -> Option<Point3<f64>> {
         })
 }
 
-/// The most lateral point of the endplate region on `side` (+1 right, -1
-/// left), inside `x_range` (the whole region if nothing is). On a coarse
-/// mesh ([`coarse`]), whose vertices are its shape, the furthest vertex:
-/// the protocol read literally, and what a modeller palpating that mesh
-/// marks (it reproduces the markers behind `../shared/scoliosis-dev/`).
-/// On a dense or voxel surface, the middle of its lateral rim
-/// ([`rim_middle`]), within `LATERAL_SLAB` tolerances of the plane.
-fn lateral_extreme(
+/// The most lateral points of the endplate region (right, left), inside
+/// `x_range` (the whole region if nothing is). On a coarse mesh
+/// ([`coarse`]), whose vertices (`corners`) are its shape, the furthest
+/// vertices: the protocol read literally, and what a modeller palpating
+/// that mesh marks (it reproduces the markers behind
+/// `../shared/scoliosis-dev/`). On a dense or voxel surface, the middles of
+/// its lateral rims ([`rim_middle`]), within `LATERAL_SLAB` tolerances of
+/// the plane.
+fn lateral_extremes(
     lm: &LocalMesh,
     ep: &Endplate,
+    corners: &[Point3<f64>],
     x_range: (f64, f64),
-    side: f64,
-) -> Option<Point3<f64>> {
-    if coarse(lm, ep) {
-        // The region's own vertices within the X range.
-        let ids: BTreeSet<u32> = ep.faces.iter().flat_map(|&f| lm.tris[f]).collect();
-        let all = || ids.iter().map(|&k| lm.verts[k as usize]);
-        let inside: Vec<Point3<f64>> = all()
+) -> Option<(Point3<f64>, Point3<f64>)> {
+    if coarse(lm, ep, corners) {
+        let inside: Vec<Point3<f64>> = corners
+            .iter()
+            .copied()
             .filter(|p| p.x >= x_range.0 && p.x <= x_range.1)
             .collect();
-        let pool = if inside.is_empty() {
-            all().collect()
-        } else {
-            inside
+        let pool = if inside.is_empty() { corners } else { &inside };
+        let furthest = |side: f64| {
+            pool.iter()
+                .copied()
+                .max_by(|a, b| (side * a.z).total_cmp(&(side * b.z)))
         };
-        return pool
-            .into_iter()
-            .max_by(|a, b| (side * a.z).total_cmp(&(side * b.z)));
+        return Some((furthest(1.0)?, furthest(-1.0)?));
     }
-    let slab = LATERAL_SLAB * ep.tol;
-    let polys = region_polygons(lm, ep, slab, x_range);
+    let mut polys = region_polygons(lm, ep, LATERAL_SLAB * ep.tol, x_range);
     if polys.is_empty() {
-        return rim_middle(
-            &region_polygons(lm, ep, f64::MAX, (f64::MIN, f64::MAX)),
-            side,
-        );
+        polys = region_polygons(lm, ep, f64::MAX, (f64::MIN, f64::MAX));
     }
-    rim_middle(&polys, side)
+    Some((rim_middle(&polys, 1.0)?, rim_middle(&polys, -1.0)?))
 }
 
 /// Landmarks of one endplate (local): centre, anterior, posterior, right,
@@ -354,7 +344,7 @@ pub(crate) struct EndplatePoints {
 /// SEC/IEC (area centroid moved to the nearest point of the region's
 /// mid-sagittal section, so on the surface and on the plane; the nearest
 /// region point where the region has no section), SA/SP (ends of the
-/// region's mid-sagittal section), SR/SL ([`lateral_extreme`]; with
+/// region's mid-sagittal section), SR/SL ([`lateral_extremes`]; with
 /// `column`, only the region between those X bounds and not behind the
 /// section's posterior end: a large face of a coarse mesh may reach past
 /// the walls into a pedicle, and a pedicle root may be as lateral as the
@@ -385,8 +375,7 @@ pub(crate) fn endplate_points(
         .unwrap_or(f64::MIN);
     let corners: Vec<Point3<f64>> = region.vertices.clone();
     let x_range = column.map_or((f64::MIN, f64::MAX), |(lo, hi)| (lo.max(x_back), hi));
-    let right = lateral_extreme(lm, ep, x_range, 1.0)?;
-    let left = lateral_extreme(lm, ep, x_range, -1.0)?;
+    let (right, left) = lateral_extremes(lm, ep, &corners, x_range)?;
     let centre = match section
         .iter()
         .map(|[a, b]| closest_on_segment(&c, a, b))

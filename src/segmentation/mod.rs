@@ -234,7 +234,6 @@ pub fn palpate_levels(
     hints: &[FrameHint],
 ) -> Vec<(Level, Result<VertebraPalpation>)> {
     use rayon::prelude::*;
-    // The vertebrae, each on its own (in parallel, in order).
     // A vertebra's second chance: its own anterior with the cranial
     // neighbour's cranial axis (L5's own axis leans towards the sacrum's
     // centroid, which lies far behind the chain).
@@ -244,6 +243,7 @@ pub fn palpate_levels(
             cranial: hints[i - 1].cranial,
         })
     };
+    // The vertebrae, each on its own (in parallel, in order).
     let mut out: Vec<Option<Result<VertebraPalpation>>> = levels
         .par_iter()
         .zip(hints)
