@@ -215,8 +215,11 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     for m in &r.protocol_mismatches {
         crate::errln!(
             "warning: protocol mismatch: {m}{}",
-            if m.refitted_without {
-                format!("; the vertebrae were fitted without {}", m.code)
+            if m.compensated {
+                format!(
+                    "; compensated: the vertebrae were refitted with every {} marker moved by that offset",
+                    m.code
+                )
             } else {
                 String::new()
             }

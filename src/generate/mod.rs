@@ -16,7 +16,10 @@
 //!    factors from the 8 scaling landmarks; pose by the thesis rule (ISB
 //!    frames from the 6 joint landmarks, realigned on the scaling
 //!    landmarks) or by a least-squares fit of all 14 with one-outlier
-//!    rejection ([`Method`]).
+//!    rejection ([`Method`]). A code whose residuals point the same way at
+//!    several levels (a set palpated by another protocol than the base's
+//!    markers) is reported and, for lsq, compensated: its marker is moved
+//!    by that offset and every vertebra refitted ([`residuals`]).
 //! 3. **Scaling** of each landmarked vertebra ([`scale`]): meshes, mass and
 //!    inertia, markers, muscle points, wrap objects, joint frames.
 //! 4. **Joint frames**: for each intervertebral joint between two placed
@@ -442,7 +445,7 @@ pub fn generate(
 
     // ---- 2. fits (lsq: palpation noise estimated over the whole set for
     // the outlier test); a code off the same way at several levels is a
-    // protocol mismatch, refitted without it ([`residuals`])
+    // protocol mismatch, compensated ([`fit_with_protocol_check`])
     let input = FitInput {
         vert_levels: &vert_levels,
         markers: &markers,
@@ -703,8 +706,12 @@ fn base_joint_centres(
 /// Step 2: fit every vertebra to `patient` (lsq: with the palpation noise
 /// estimated over the whole set for the outlier test), then smooth the
 /// orientations along the chain with the base joint centres as prior.
-fn fit_levels(input: &FitInput, patient: &BTreeMap<Level, Points>) -> Result<LevelFits> {
-    let (vert_levels, markers, opts) = (input.vert_levels, input.markers, input.opts);
+fn fit_levels(
+    input: &FitInput,
+    markers: &BTreeMap<Level, (String, Points)>,
+    patient: &BTreeMap<Level, Points>,
+) -> Result<LevelFits> {
+    let (vert_levels, opts) = (input.vert_levels, input.opts);
     let noise = match opts.method {
         Method::Lsq => {
             let loo: Vec<pose::VertebraLoo> = vert_levels
@@ -748,8 +755,10 @@ fn fit_levels(input: &FitInput, patient: &BTreeMap<Level, Points>) -> Result<Lev
 
 /// Step 2 with the protocol check: fit, list the per-landmark residuals,
 /// and when one code is off the same way at several levels (a set
-/// palpated by another protocol than the base's markers), say so and refit
-/// without that code (lsq; at least 8 landmarks stay at every level).
+/// palpated by another protocol than the base's markers), say so and
+/// compensate it: that code's base marker is moved by its offset at every
+/// level and the vertebrae are refitted with every landmark (lsq; at most
+/// [`MAX_COMPENSATED_CODES`] codes, so that the others anchor the poses).
 fn fit_with_protocol_check(
     input: &FitInput,
     patient: &BTreeMap<Level, Points>,
@@ -758,37 +767,87 @@ fn fit_with_protocol_check(
     Vec<residuals::LandmarkResidual>,
     Vec<residuals::ProtocolMismatch>,
 )> {
-    let first = fit_levels(input, patient)?;
+    let first = fit_levels(input, input.markers, patient)?;
     let res = residuals::landmark_residuals(&first.fits, patient, input.markers);
     let mut mismatches = residuals::protocol_mismatches(&res, first.noise.unwrap_or(PALPATION_SD));
-    let protocol = mismatches
-        .iter()
-        .all(|m| m.kind == residuals::MismatchKind::Protocol);
-    if mismatches.is_empty() || !protocol || input.opts.method != Method::Lsq {
+    if mismatches.is_empty()
+        || mismatches.len() > MAX_COMPENSATED_CODES
+        || input.opts.method != Method::Lsq
+    {
         return Ok((first, res, mismatches));
     }
-    // Refit every vertebra without the mismatched codes (a level keeps at
-    // least 8 landmarks: at most 3 codes are dropped from 14).
-    let drop: Vec<Code> = mismatches
-        .iter()
-        .filter_map(|m| m.code.parse().ok())
-        .collect();
-    let mut reduced = patient.clone();
-    for l in input.vert_levels {
-        if let Some(pts) = reduced.get_mut(l) {
-            if pts.len().saturating_sub(drop.len()) >= 8 {
-                pts.retain(|c, _| !drop.contains(c));
+    let codes: Vec<Code> = mismatches.iter().map(|m| m.code).collect();
+    let (fit, res, offsets) = compensate(input, patient, first, res, &codes)?;
+    for m in &mut mismatches {
+        m.compensated = true;
+        let d = offsets[&m.code] * 1e3;
+        m.mean_offset_mm = [d.x, d.y, d.z];
+    }
+    Ok((fit, res, mismatches))
+}
+
+/// Most codes compensated in one set: the other landmarks (at least 8 of
+/// 14) anchor the poses, so an offset is not mistaken for a translation or
+/// rotation of every vertebra.
+pub const MAX_COMPENSATED_CODES: usize = 6;
+
+/// Refits of [`compensate`]: each one removes most of what is left of the
+/// offsets (the part the fit absorbed, about the code's leverage, 1/5).
+const COMPENSATION_ROUNDS: usize = 8;
+
+/// Offsets of the mismatched `codes` (vertebra frame, m) found by
+/// refitting with their markers moved by the offsets so far, until the
+/// median residual of each code is under 0.01 mm; the last fit, its
+/// residuals (against the moved markers) and the offsets.
+#[allow(clippy::type_complexity)]
+fn compensate(
+    input: &FitInput,
+    patient: &BTreeMap<Level, Points>,
+    mut fit: LevelFits,
+    mut res: Vec<residuals::LandmarkResidual>,
+    codes: &[Code],
+) -> Result<(
+    LevelFits,
+    Vec<residuals::LandmarkResidual>,
+    BTreeMap<Code, Vector3<f64>>,
+)> {
+    let mut offsets: BTreeMap<Code, Vector3<f64>> =
+        codes.iter().map(|c| (*c, Vector3::zeros())).collect();
+    for _ in 0..COMPENSATION_ROUNDS {
+        // What is left of each code's offset: its median residual.
+        let step = residuals::median_offsets(&res, codes);
+        for (c, d) in &step {
+            *offsets.entry(*c).or_default() += d;
+        }
+        // Refit with the moved markers.
+        let moved = moved_markers(input.markers, &fit.fits, &offsets);
+        fit = fit_levels(input, &moved, patient)?;
+        res = residuals::landmark_residuals(&fit.fits, patient, &moved);
+        if step.values().all(|d| d.norm() < 1e-5) {
+            break;
+        }
+    }
+    Ok((fit, res, offsets))
+}
+
+/// The base markers with each code of `offsets` moved by its offset (given
+/// in the fitted, scaled vertebra's frame, so divided by that level's
+/// scale factors); levels without a fit keep theirs.
+fn moved_markers(
+    markers: &BTreeMap<Level, (String, Points)>,
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+    offsets: &BTreeMap<Code, Vector3<f64>>,
+) -> BTreeMap<Level, (String, Points)> {
+    let mut out = markers.clone();
+    for (l, (_, pts)) in out.iter_mut() {
+        let Some(f) = fits.get(l) else { continue };
+        for (c, d) in offsets {
+            if let Some(p) = pts.get_mut(c) {
+                *p += d.component_div(&f.scale);
             }
         }
     }
-    let refit = fit_levels(input, &reduced)?;
-    // The mismatched codes' residuals, now out of the fit, give their offset.
-    let res = residuals::landmark_residuals(&refit.fits, patient, input.markers);
-    for m in &mut mismatches {
-        m.refitted_without = true;
-        residuals::refresh_offset(m, &res);
-    }
-    Ok((refit, res, mismatches))
+    out
 }
 
 /// Palpation noise assumed where the set's own cannot be estimated (m per

@@ -7,6 +7,7 @@
 
 use super::pose::{scale_point, Points, VertebraFit};
 use crate::landmarks::{Code, Level};
+use crate::util::quantiles::median;
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
 
@@ -54,15 +55,17 @@ pub struct LandmarkResidual {
 /// A code palpated by another protocol than the base's markers.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ProtocolMismatch {
-    pub code: String,
+    pub code: Code,
     pub kind: MismatchKind,
     /// Levels where its residual points along the mean offset.
     pub levels: Vec<String>,
-    /// Mean residual over the levels, vertebra frame (x anterior, y
-    /// cranial, z right), mm.
+    /// The code's offset from the base's marker, vertebra frame (x
+    /// anterior, y cranial, z right), mm: its mean residual over the
+    /// levels, or, when compensated, the offset the refit settled on.
     pub mean_offset_mm: [f64; 3],
-    /// Whether the vertebrae were refitted without this code.
-    pub refitted_without: bool,
+    /// Whether the vertebrae were refitted with this code's marker moved
+    /// by the offset at every level.
+    pub compensated: bool,
 }
 
 impl std::fmt::Display for ProtocolMismatch {
@@ -143,11 +146,11 @@ pub fn protocol_mismatches(res: &[LandmarkResidual], noise_sd: f64) -> Vec<Proto
             continue;
         }
         out.push(ProtocolMismatch {
-            code: code.to_string(),
+            code,
             kind: MismatchKind::Protocol,
             levels: agree,
             mean_offset_mm: [mean.x * 1e3, mean.y * 1e3, mean.z * 1e3],
-            refitted_without: false,
+            compensated: false,
         });
     }
     if out.len() > MAX_PROTOCOL_CODES {
@@ -156,16 +159,22 @@ pub fn protocol_mismatches(res: &[LandmarkResidual], noise_sd: f64) -> Vec<Proto
     out
 }
 
-/// Recompute a mismatch's mean offset over its levels from `res` (after a
-/// refit without the code, its residuals are no longer pulled in by the fit).
-pub fn refresh_offset(m: &mut ProtocolMismatch, res: &[LandmarkResidual]) {
-    let rs: Vec<&LandmarkResidual> = res
+/// Per-axis median residual (vertebra frame, m) of each of `codes` over
+/// the vertebrae (the sacrum has its own layout): a robust mean, so that
+/// one outlier does not move a code's offset.
+pub fn median_offsets(res: &[LandmarkResidual], codes: &[Code]) -> BTreeMap<Code, Vector3<f64>> {
+    codes
         .iter()
-        .filter(|r| r.code.to_string() == m.code && m.levels.contains(&r.level.to_string()))
-        .collect();
-    if rs.is_empty() {
-        return;
-    }
-    let n = rs.len() as f64;
-    m.mean_offset_mm = [0, 1, 2].map(|k| rs.iter().map(|r| r.residual_mm[k]).sum::<f64>() / n);
+        .filter_map(|c| {
+            let rs: Vec<&LandmarkResidual> = res
+                .iter()
+                .filter(|r| r.code == *c && !r.level.is_sacrum())
+                .collect();
+            let axis = |k: usize| {
+                let v: Vec<f64> = rs.iter().map(|r| r.residual_mm[k] * 1e-3).collect();
+                median(&v)
+            };
+            Some((*c, Vector3::new(axis(0)?, axis(1)?, axis(2)?)))
+        })
+        .collect()
 }
