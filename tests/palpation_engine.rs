@@ -284,19 +284,13 @@ fn decimated_vs_dense() -> Option<(Distances, Vec<(f64, Level)>)> {
     Some((d, centres))
 }
 
-/// Is the landmark named `LEVEL_CODE` a lateral extreme (SR, SL, IR, IL)?
-fn lateral(name: &str) -> bool {
-    ["_SR", "_SL", "_IR", "_IL"]
-        .iter()
-        .any(|s| name.ends_with(s))
-}
-
-/// Acceptance 2 where it holds: after decimation the median landmark
-/// moves at most 2 mm, every landmark but the lateral extremes at most
-/// 4 mm, and the sphere centres at most 2 mm (they are fitted to points
-/// spread evenly over the surface, not to the vertices).
+/// Acceptance 2: after decimation every landmark moves at most 4 mm, the
+/// median at most 2 mm, and the sphere centres at most 2 mm (they are
+/// fitted to points spread evenly over the surface, not to the vertices;
+/// the lateral extremes are the rims' middles, not the furthest vertex
+/// that decimation happened to keep).
 #[test]
-fn decimated_dense_meshes_agree_but_for_lateral_extremes() {
+fn decimated_dense_meshes_agree_with_the_dense_ones() {
     let Some((d, centres)) = decimated_vs_dense() else {
         return;
     };
@@ -305,18 +299,6 @@ fn decimated_dense_meshes_agree_but_for_lateral_extremes() {
     }
     let median = d[d.len() / 2].0;
     assert!(median <= 2.0, "median {median:.2} mm");
-    for (dist, name) in d.iter().filter(|x| !lateral(&x.1)) {
-        assert!(*dist <= 4.0, "{name}: {dist:.2} mm apart");
-    }
-}
-
-/// Acceptance 2 in full: every landmark within 4 mm.
-#[test]
-#[ignore = "issue 16 acceptance 2 not met for the lateral extremes (worst 15.4 mm, L5_SR; 12 of 70 over 4 mm): on a coarse mesh SR/SL/IR/IL are its furthest vertices, the protocol read literally and what reproduces the markers behind ../shared/scoliosis-dev, and a decimated rim keeps other vertices than the dense one's extreme; the rim-middle rule used on dense surfaces would give 3.6 mm here but moves the cyclist's markers 4-7 mm from those markers (scoliosis-dev centre RMSE 0.92 -> 1.38 mm, 6 of 30 sets fail); run with --ignored"]
-fn decimated_dense_meshes_agree_with_the_dense_ones() {
-    let Some((d, _)) = decimated_vs_dense() else {
-        return;
-    };
     let worst = d.last().unwrap();
     assert!(worst.0 <= 4.0, "worst {:.2} mm at {}", worst.0, worst.1);
 }

@@ -186,37 +186,11 @@ pub(crate) fn find_endplate(lm: &LocalMesh, w: &Walls, superior: bool) -> Option
 /// 2.3-2.6 mm; 0.05 lets T1's landmark slide 7 mm along a flat voxel rim.
 const LATERAL_BAND: f64 = 0.15;
 
-/// A region whose median edge is longer than this fraction of its
-/// half-width is a coarse mesh (the cyclist's and procedural meshes, a
-/// vertebra decimated to 250 vertices: 0.36-0.9); a dense or voxel surface
-/// is under 0.25.
-const COARSE_EDGE: f64 = 0.3;
-
-/// Is the endplate region (faces of `ep`, unique vertices `corners`) a
-/// coarse mesh ([`COARSE_EDGE`])?
-fn coarse(lm: &LocalMesh, ep: &Endplate, corners: &[Point3<f64>]) -> bool {
-    let mut edges: Vec<f64> = ep
-        .faces
-        .iter()
-        .flat_map(|&f| {
-            let [a, b, c] = lm.tris[f].map(|k| lm.verts[k as usize]);
-            [(b - a).norm(), (c - b).norm(), (a - c).norm()]
-        })
-        .collect();
-    let (lo, hi) = corners.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
-        (lo.min(p.z), hi.max(p.z))
-    });
-    edges.sort_by(f64::total_cmp);
-    edges
-        .get(edges.len() / 2)
-        .is_some_and(|e| *e > COARSE_EDGE * 0.5 * (hi - lo))
-}
-
 /// Half-thickness of the slab about the endplate plane that bounds the
-/// lateral rim of a dense surface, as a multiple of the region's selection
+/// lateral rim, as a multiple of the region's selection
 /// tolerance: a face whose centroid is near the plane may reach below it
 /// into a pedicle root.
-const LATERAL_SLAB: f64 = 1.5;
+const LATERAL_SLAB: f64 = 1.0;
 
 /// The region as polygons (one per face, local coordinates), cut to the
 /// slab `|normal . p - offset| <= slab` about the endplate plane and to
@@ -249,7 +223,7 @@ fn fan(polys: &[Vec<Point3<f64>>]) -> impl Iterator<Item = Triangle> + '_ {
         .flat_map(|p| (1..p.len() - 1).map(move |k| Triangle::new(p[0], p[k], p[k + 1])))
 }
 
-/// The lateral landmark of a dense or voxel surface on `side` (+1 right,
+/// The lateral landmark on `side` (+1 right,
 /// -1 left): the part of the region within `LATERAL_BAND x half-width` of
 /// its extreme is the lateral rim; the landmark is the region's outermost
 /// point at the X of that rim's area centroid, so that it does not slide
@@ -296,33 +270,17 @@ fn rim_middle(polys: &[Vec<Point3<f64>>], side: f64) -> Option<Point3<f64>> {
 }
 
 /// The most lateral points of the endplate region (right, left), inside
-/// `x_range` (the whole region if nothing is). On a coarse mesh
-/// ([`coarse`]), whose vertices (`corners`) are its shape, the furthest
-/// vertices: the protocol read literally, and what a modeller palpating
-/// that mesh marks (it reproduces the markers behind
-/// `../shared/scoliosis-dev/`). On a dense or voxel surface, the middles of
-/// its lateral rims ([`rim_middle`]), within `LATERAL_SLAB` tolerances of
-/// the plane.
+/// `x_range` (the whole region if nothing is): the middles of its lateral
+/// rims ([`rim_middle`]), within `LATERAL_SLAB` tolerances of the plane.
+/// The literal "furthest point" is ill-posed on a flat lateral rim: a
+/// coarse mesh's furthest vertex may sit at either end of a rim edge that
+/// is level to 0.1 mm, and a voxel surface's at any step; the rim's middle
+/// is the same point on a mesh, its decimation and its label map.
 fn lateral_extremes(
     lm: &LocalMesh,
     ep: &Endplate,
-    corners: &[Point3<f64>],
     x_range: (f64, f64),
 ) -> Option<(Point3<f64>, Point3<f64>)> {
-    if coarse(lm, ep, corners) {
-        let inside: Vec<Point3<f64>> = corners
-            .iter()
-            .copied()
-            .filter(|p| p.x >= x_range.0 && p.x <= x_range.1)
-            .collect();
-        let pool = if inside.is_empty() { corners } else { &inside };
-        let furthest = |side: f64| {
-            pool.iter()
-                .copied()
-                .max_by(|a, b| (side * a.z).total_cmp(&(side * b.z)))
-        };
-        return Some((furthest(1.0)?, furthest(-1.0)?));
-    }
     let mut polys = region_polygons(lm, ep, LATERAL_SLAB * ep.tol, x_range);
     if polys.is_empty() {
         polys = region_polygons(lm, ep, f64::MAX, (f64::MIN, f64::MAX));
@@ -364,18 +322,17 @@ pub(crate) fn endplate_points(
     // The mid-sagittal section: the centre on it, its two ends.
     let section = lm.cut_segments(ep.faces.iter().copied(), 2, 0.0);
     let midline_section = !section.is_empty();
-    // Lateral extremes among the region's vertices inside the column and
-    // not behind the endplate's posterior end (there the pedicle roots
-    // join the body, on a small vertebra as far out as the rim).
+    // Lateral extremes inside the column and not behind the endplate's
+    // posterior end (there the pedicle roots join the body, on a small
+    // vertebra as far out as the rim).
     let x_back = section
         .iter()
         .flatten()
         .map(|p| p.x)
         .reduce(f64::min)
         .unwrap_or(f64::MIN);
-    let corners: Vec<Point3<f64>> = region.vertices.clone();
     let x_range = column.map_or((f64::MIN, f64::MAX), |(lo, hi)| (lo.max(x_back), hi));
-    let (right, left) = lateral_extremes(lm, ep, &corners, x_range)?;
+    let (right, left) = lateral_extremes(lm, ep, x_range)?;
     let centre = match section
         .iter()
         .map(|[a, b]| closest_on_segment(&c, a, b))
@@ -387,7 +344,7 @@ pub(crate) fn endplate_points(
     let pts: Vec<Point3<f64>> = if midline_section {
         section.into_iter().flatten().collect()
     } else {
-        corners.clone()
+        region.vertices.clone()
     };
     let front = pts
         .iter()

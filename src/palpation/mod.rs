@@ -10,7 +10,9 @@
 //!    (faces within 40 deg of the endplate normal, within a few mm of its
 //!    plane, between the walls), Y = IEC -> SEC in the mid-sagittal plane;
 //! 4. [`body::endplate_points`]: SEC/IEC area centroids on the surface,
-//!    SA/SP/IA/IP ends of the mid-sagittal section, SR/SL/IR/IL extremes;
+//!    SA/SP/IA/IP ends of the mid-sagittal section, SR/SL/IR/IL the
+//!    middles of the lateral rims (the furthest points, made well-posed on
+//!    flat rims, so that a mesh, its decimation and its label map agree);
 //! 5. [`pedicle::pedicle_section`]: the frontal cut a fifth of the body
 //!    depth behind the posterior wall, PT/PB its highest/lowest points;
 //! 6. [`pedicle::vertebral_centre`]: the least-squares sphere through the
