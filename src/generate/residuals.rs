@@ -21,7 +21,8 @@ pub const MISMATCH_MIN_T: f64 = 5.0;
 /// Share of the levels whose residual points along the mean offset.
 pub const MISMATCH_MIN_AGREEMENT: f64 = 0.75;
 /// More codes off than this is not a palpation protocol but vertebrae of
-/// another shape than the base's (no refit).
+/// another shape than the base's (reported as such; still compensated up
+/// to `generate::MAX_COMPENSATED_CODES`).
 pub const MAX_PROTOCOL_CODES: usize = 3;
 
 /// What a consistent offset of a code means.
