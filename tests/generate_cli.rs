@@ -710,3 +710,70 @@ fn a_missing_landmark_gives_a_reduced_fit() {
     println!("L2 centre moved {:.2} mm by the reduced fit", d * 1e3);
     assert!(d < 2e-3, "L2 centre moved {:.2} mm", d * 1e3);
 }
+
+/// A level without either lateral pair (SR, SL, IR, IL) cannot measure
+/// its width: it borrows the mean width factor of the levels on either
+/// side, says so on the console and in the report, and lands where the
+/// complete set puts it (before, `generate` refused the set).
+#[test]
+fn a_level_without_lateral_landmarks_borrows_its_width_scale() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lines = example_lines();
+    let lateral = |l: &str| {
+        ["L2_SR,", "L2_SL,", "L2_IR,", "L2_IL,"]
+            .iter()
+            .any(|p| l.starts_with(p))
+    };
+    let mut reports = Vec::new();
+    for (name, text) in [
+        ("full.csv", lines.join("\n") + "\n"),
+        ("nolateral.csv", without(&lines, &lateral)),
+    ] {
+        let lm = tmp.path().join(name);
+        std::fs::write(&lm, text).unwrap();
+        let out = tmp.path().join(name.replace(".csv", "")).join("p.osim");
+        let o = run(&[
+            "generate",
+            "--landmarks",
+            lm.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(o.status.success(), "{name}: {err}");
+        if name == "nolateral.csv" {
+            assert!(err.contains("L2 fitted on 10 of 14 landmarks"), "{err}");
+            assert!(err.contains("width"), "{err}");
+        }
+        let rep: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.with_file_name("p_report.json")).unwrap())
+                .unwrap();
+        reports.push(rep);
+    }
+    let (full, part) = (&reports[0], &reports[1]);
+    let borrowed = part["reduced_fits"][0]["borrowed_scale"]
+        .as_array()
+        .unwrap();
+    assert_eq!(borrowed.len(), 1, "{borrowed:?}");
+    assert!(
+        borrowed[0].as_str().unwrap().contains("from L1, L3"),
+        "{borrowed:?}"
+    );
+    // The width factor is the mean of L1's and L3's in the complete set's fit.
+    let scale = |r: &serde_json::Value, level: &str| -> f64 {
+        let v = r["vertebrae"].as_array().unwrap();
+        let e = v.iter().find(|e| e["level"] == level).unwrap();
+        e["scale"][2].as_f64().unwrap()
+    };
+    let want = 0.5 * (scale(part, "L1") + scale(part, "L3"));
+    assert!(
+        (scale(part, "L2") - want).abs() < 1e-9,
+        "{} vs {want}",
+        scale(part, "L2")
+    );
+    let c = |r: &serde_json::Value| [0, 1, 2].map(|k| r["centres"]["L2"][k].as_f64().unwrap());
+    let (a, b) = (c(full), c(part));
+    let d = (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+    println!("L2 centre moved {:.2} mm by the borrowed width", d * 1e3);
+    assert!(d < 1e-3, "L2 centre moved {:.2} mm", d * 1e3);
+}

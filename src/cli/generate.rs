@@ -205,11 +205,19 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     }
     for f in &r.reduced_fits {
         crate::errln!(
-            "warning: {} fitted on {} of {} landmarks (missing {}): a reduced fit, its pose is less certain",
+            "warning: {} fitted on {} of {} landmarks (missing {}): a reduced fit, its pose is less certain{}",
             f.level,
             f.used,
             f.used + f.missing.len(),
-            f.missing.join(", ")
+            f.missing.join(", "),
+            if f.borrowed_scale.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; scaled by its neighbours' factors where it cannot be measured: {}",
+                    f.borrowed_scale.join("; ")
+                )
+            }
         );
     }
     for m in &r.protocol_mismatches {

@@ -348,6 +348,9 @@ pub struct ReducedFit {
     pub missing: Vec<String>,
     /// Landmarks the fit used (before outlier rejection).
     pub used: usize,
+    /// Dimensions its landmarks cannot measure, scaled by the neighbours'
+    /// factors instead (`width 1.03 from T4, T6`); empty when none.
+    pub borrowed_scale: Vec<String>,
 }
 
 /// Check that the base model has every marker of each landmarked level,
@@ -410,6 +413,7 @@ fn landmark_coverage(
             level: l.to_string(),
             missing,
             used,
+            borrowed_scale: Vec::new(),
         });
     }
     Ok(reduced)
@@ -434,7 +438,8 @@ pub fn generate(
     let vert_levels: Vec<Level> = levels.iter().copied().filter(|l| !l.is_sacrum()).collect();
 
     let mut patient = landmarks_per_level(set);
-    let reduced_fits = landmark_coverage(&levels, &patient, &markers, set_name, &bfile)?;
+    let mut reduced_fits = landmark_coverage(&levels, &patient, &markers, set_name, &bfile)?;
+    let borrowed = borrowed_scales(&vert_levels, &patient, &markers, &mut reduced_fits);
 
     // ---- 1. registration through the sacrum
     let x_sacrum = poses0
@@ -451,6 +456,7 @@ pub fn generate(
         markers: &markers,
         joint_centres: base_joint_centres(&model, &poses0)?,
         body_centres: base_body_centres(&model)?,
+        borrowed,
         opts,
     };
     let (
@@ -655,7 +661,44 @@ struct FitInput<'a> {
     joint_centres: JointCentres,
     /// Each vertebra's centre in its body frame (the chain's joint model).
     body_centres: BTreeMap<Level, Point3<f64>>,
+    /// Scale factors borrowed from the neighbours where a vertebra's
+    /// landmarks cannot measure a dimension.
+    borrowed: BTreeMap<Level, pose::Borrowed>,
     opts: &'a GenerateOptions,
+}
+
+/// The scale factors each vertebra borrows from its neighbours
+/// ([`pose::borrowed_scales`]), noted on its reduced fit.
+fn borrowed_scales(
+    vert_levels: &[Level],
+    patient: &BTreeMap<Level, Points>,
+    markers: &BTreeMap<Level, (String, Points)>,
+    reduced: &mut [ReducedFit],
+) -> BTreeMap<Level, pose::Borrowed> {
+    let model: BTreeMap<Level, Points> =
+        markers.iter().map(|(l, (_, p))| (*l, p.clone())).collect();
+    let all = pose::borrowed_scales(vert_levels, patient, &model);
+    for r in reduced.iter_mut() {
+        let Some((b, from)) = all
+            .iter()
+            .find(|(l, _)| l.to_string() == r.level)
+            .map(|x| x.1)
+        else {
+            continue;
+        };
+        let from: Vec<String> = from.iter().map(Level::to_string).collect();
+        r.borrowed_scale = (0..3)
+            .filter_map(|k| {
+                Some(format!(
+                    "{} {:.3} from {}",
+                    pose::DIMENSIONS[k],
+                    b[k]?,
+                    from.join(", ")
+                ))
+            })
+            .collect();
+    }
+    all.into_iter().map(|(l, (b, _))| (l, b)).collect()
 }
 
 /// Each vertebra's centre in its (unscaled) body frame: the vertebral
@@ -724,13 +767,14 @@ fn fit_levels(
     };
     let mut fits: BTreeMap<Level, pose::VertebraFit> = BTreeMap::new();
     for l in vert_levels {
-        let f = pose::fit_vertebra_with(
+        let f = pose::fit_vertebra_borrowing(
             *l,
             &patient[l],
             &markers[l].1,
             opts.method,
             opts.outlier_sigmas,
             noise,
+            input.borrowed.get(l).unwrap_or(&[None; 3]),
         )?;
         fits.insert(*l, f);
     }

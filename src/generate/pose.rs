@@ -114,6 +114,13 @@ pub fn dimensions(p: &Points, exclude: Option<Code>) -> [Option<f64>; 3] {
     ]
 }
 
+/// Names of the three dimensions of [`dimensions`].
+pub const DIMENSIONS: [&str; 3] = ["depth", "height", "width"];
+
+/// Scale factors (depth, height, width) a vertebra takes from its
+/// neighbours for the dimensions its own landmarks cannot measure.
+pub type Borrowed = [Option<f64>; 3];
+
 /// Scale factors (X depth, Y height, Z width) patient / model.
 pub fn scale_factors(
     level: Level,
@@ -121,11 +128,27 @@ pub fn scale_factors(
     model: &Points,
     exclude: Option<Code>,
 ) -> Result<Vector3<f64>> {
+    scale_factors_borrowing(level, patient, model, exclude, &[None; 3])
+}
+
+/// [`scale_factors`], a dimension the landmarks cannot measure taking the
+/// factor `borrowed` gives it.
+pub fn scale_factors_borrowing(
+    level: Level,
+    patient: &Points,
+    model: &Points,
+    exclude: Option<Code>,
+    borrowed: &Borrowed,
+) -> Result<Vector3<f64>> {
     let dp = dimensions(patient, exclude);
     let dm = dimensions(model, exclude);
-    let names = ["depth", "height", "width"];
+    let names = DIMENSIONS;
     let mut s = Vector3::zeros();
     for k in 0..3 {
+        if let (None, Some(f)) = (dp[k], borrowed[k]) {
+            s[k] = f;
+            continue;
+        }
         let (Some(a), Some(b)) = (dp[k], dm[k]) else {
             return Err(Error::invalid(
                 format!("vertebra {level}"),
@@ -159,6 +182,52 @@ pub fn scale_factors(
         s[k] = f;
     }
     Ok(s)
+}
+
+/// Scale factors a vertebra borrows ([`Borrowed`]) for what its landmarks
+/// cannot measure (both lateral pairs missing: no width), with the levels
+/// they come from: per dimension, the mean of the factors of the nearest
+/// level above and the nearest below that measure it (one side at the
+/// ends of the run). `levels` in order; `model` the base's markers.
+pub fn borrowed_scales(
+    levels: &[Level],
+    patient: &BTreeMap<Level, Points>,
+    model: &BTreeMap<Level, Points>,
+) -> BTreeMap<Level, (Borrowed, Vec<Level>)> {
+    // Each level's measured factors.
+    let factors: Vec<[Option<f64>; 3]> = levels
+        .iter()
+        .map(|l| {
+            let (Some(p), Some(m)) = (patient.get(l), model.get(l)) else {
+                return [None; 3];
+            };
+            let (dp, dm) = (dimensions(p, None), dimensions(m, None));
+            [0, 1, 2].map(|k| Some(dp[k]? / dm[k].filter(|b| *b > 1e-6)?))
+        })
+        .collect();
+    let mut out = BTreeMap::new();
+    for (i, l) in levels.iter().enumerate() {
+        let mut b: Borrowed = [None; 3];
+        let mut from = Vec::new();
+        for k in (0..3).filter(|&k| factors[i][k].is_none()) {
+            // The nearest measuring levels on either side in the run.
+            let below = (0..i).rev().find(|&j| factors[j][k].is_some());
+            let above = (i + 1..levels.len()).find(|&j| factors[j][k].is_some());
+            let near: Vec<usize> = below.into_iter().chain(above).collect();
+            if near.is_empty() {
+                continue;
+            }
+            b[k] =
+                Some(near.iter().filter_map(|&j| factors[j][k]).sum::<f64>() / near.len() as f64);
+            from.extend(near.iter().map(|&j| levels[j]));
+        }
+        if b.iter().any(Option::is_some) {
+            from.sort();
+            from.dedup();
+            out.insert(*l, (b, from));
+        }
+    }
+    out
 }
 
 /// Scale a body-frame point about the body origin.
@@ -308,11 +377,33 @@ pub fn fit_vertebra_with(
     outlier_sigmas: f64,
     noise: Option<f64>,
 ) -> Result<VertebraFit> {
+    fit_vertebra_borrowing(
+        level,
+        patient,
+        model,
+        method,
+        outlier_sigmas,
+        noise,
+        &[None; 3],
+    )
+}
+
+/// [`fit_vertebra_with`], the dimensions the landmarks cannot measure
+/// scaled by the factors `borrowed` gives ([`borrowed_scales`]).
+pub fn fit_vertebra_borrowing(
+    level: Level,
+    patient: &Points,
+    model: &Points,
+    method: Method,
+    outlier_sigmas: f64,
+    noise: Option<f64>,
+    borrowed: &Borrowed,
+) -> Result<VertebraFit> {
     let pts: Vec<Point3<f64>> = patient.values().copied().collect();
     require_spread(level, &pts)?;
     match method {
         Method::Thesis => {
-            let scale = scale_factors(level, patient, model, None)?;
+            let scale = scale_factors_borrowing(level, patient, model, None, borrowed)?;
             let scaled = scaled_points(model, &scale);
             let rp = isb_rotation(level, patient, "landmarks")?;
             let rm = isb_rotation(level, &scaled, "base model markers")?;
@@ -364,7 +455,7 @@ pub fn fit_vertebra_with(
                 });
             let outlier = worst.filter(|(_, e, t)| e > t).map(|(c, e, _)| (c, e));
             let skip = outlier.map(|o| o.0);
-            let scale = scale_factors(level, patient, model, skip)?;
+            let scale = scale_factors_borrowing(level, patient, model, skip, borrowed)?;
             let scaled = scaled_points(model, &scale);
             let pose = kabsch(level, patient, &scaled, skip)?;
             Ok(VertebraFit {
