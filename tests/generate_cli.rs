@@ -660,6 +660,26 @@ fn smoothing_is_reported_and_deterministic() {
     assert!(!tmp.path().join("bad").exists());
 }
 
+/// `generate` on the landmark file `name` (written from `text` into
+/// `dir`); its stderr and report. Panics if it fails.
+fn generate_report(dir: &Path, name: &str, text: &str) -> (String, serde_json::Value) {
+    let lm = dir.join(name);
+    std::fs::write(&lm, text).unwrap();
+    let out = dir.join(name.replace(".csv", "")).join("p.osim");
+    let o = run(&[
+        "generate",
+        "--landmarks",
+        lm.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{name}: {err}");
+    let rep = serde_json::from_slice(&std::fs::read(out.with_file_name("p_report.json")).unwrap())
+        .unwrap();
+    (err, rep)
+}
+
 /// Issue 17, item 10: one missing landmark does not refuse the set; the
 /// level is fitted on the 13 others, flagged on the console and in the
 /// report, and lands where the complete set puts it.
@@ -675,21 +695,7 @@ fn a_missing_landmark_gives_a_reduced_fit() {
             without(&lines, &|l| l.starts_with("L2_IEC,")),
         ),
     ] {
-        let lm = tmp.path().join(name);
-        std::fs::write(&lm, text).unwrap();
-        let out = tmp.path().join(name.replace(".csv", "")).join("p.osim");
-        let o = run(&[
-            "generate",
-            "--landmarks",
-            lm.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        let err = String::from_utf8_lossy(&o.stderr).to_string();
-        assert!(o.status.success(), "{name}: {err}");
-        let rep: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.with_file_name("p_report.json")).unwrap())
-                .unwrap();
+        let (err, rep) = generate_report(tmp.path(), name, &text);
         let reduced = rep["reduced_fits"].as_array().unwrap();
         if name == "missing.csv" {
             assert_eq!(reduced.len(), 1, "{reduced:?}");
@@ -729,25 +735,11 @@ fn a_level_without_lateral_landmarks_borrows_its_width_scale() {
         ("full.csv", lines.join("\n") + "\n"),
         ("nolateral.csv", without(&lines, &lateral)),
     ] {
-        let lm = tmp.path().join(name);
-        std::fs::write(&lm, text).unwrap();
-        let out = tmp.path().join(name.replace(".csv", "")).join("p.osim");
-        let o = run(&[
-            "generate",
-            "--landmarks",
-            lm.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        let err = String::from_utf8_lossy(&o.stderr).to_string();
-        assert!(o.status.success(), "{name}: {err}");
+        let (err, rep) = generate_report(tmp.path(), name, &text);
         if name == "nolateral.csv" {
             assert!(err.contains("L2 fitted on 10 of 14 landmarks"), "{err}");
             assert!(err.contains("width"), "{err}");
         }
-        let rep: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.with_file_name("p_report.json")).unwrap())
-                .unwrap();
         reports.push(rep);
     }
     let (full, part) = (&reports[0], &reports[1]);

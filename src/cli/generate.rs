@@ -10,8 +10,9 @@
 pub use crate::embedded::base_file;
 use crate::embedded::BaseModel;
 use crate::error::Error;
-use crate::generate::{generate, GenerateOptions, Method};
+use crate::generate::{generate, GenerateOptions, GenerateReport, Generated, Method};
 use crate::landmarks::check::{check_raw, Severity};
+use crate::landmarks::LandmarkSet;
 use crate::osim::geometry::check_relative;
 use crate::osim::model::Geometry;
 use crate::osim::Document;
@@ -89,13 +90,50 @@ fn refuse_overwriting_inputs(args: &Args) -> crate::Result<()> {
 
 /// Run `generate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
-    let (method, smooth, above_fov) = (args.method, args.smooth, args.above_fov);
     if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
     refuse_overwriting_inputs(&args)?;
-    // Landmarks (read, or palpated on the segmentation): check, then load strictly.
-    let (raw, landmarks_name, mut palpated) = landmark_source(&args)?;
+    // Landmarks (read, or palpated on the segmentation), checked.
+    let (set, landmarks_name, palpated) = checked_landmarks(&args)?;
+    // The model, generated in memory.
+    let base_model = BaseModel::locate(args.base.as_deref())?;
+    let base = base_model.read()?;
+    let opts = GenerateOptions {
+        method: args.method,
+        smooth: args.smooth,
+        self_check: !args.no_self_check,
+        views: true,
+        above_fov: args.above_fov,
+        ..GenerateOptions::default()
+    };
+    let mut g = generate(&base, &set, &landmarks_name, &opts, Some(&base_model))?;
+    // The model is named after the patient's landmark file (or segmentation).
+    let patient = args
+        .landmarks
+        .as_ref()
+        .or(args.segmentation.as_ref())
+        .and_then(|p| p.file_stem())
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "patient".into());
+    g.doc
+        .model_element_mut()
+        .set_attr("name", patient_model_name(&patient));
+    // Everything computed: gather the bytes, then write.
+    let (written, dir) = write_outputs(&args, &base_model, &g, palpated)?;
+    print_summary(&g.report, &args.out);
+    crate::outln!("wrote {written} files to {}", dir.display());
+    Ok(0)
+}
+
+/// The landmark set (read, or palpated on the segmentation, with the
+/// palpation's files to write), refused on a blocking check finding;
+/// the other findings are printed as warnings.
+#[allow(clippy::type_complexity)]
+fn checked_landmarks(
+    args: &Args,
+) -> anyhow::Result<(LandmarkSet, String, Vec<(PathBuf, Vec<u8>)>)> {
+    let (raw, landmarks_name, palpated) = landmark_source(args)?;
     let rep = check_raw(&raw);
     // Missing landmarks (LM020) are not blocking here: the level is fitted
     // on those present (a reduced fit, reported) when enough remain.
@@ -135,30 +173,17 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if let Some(d) = &set.detection {
         crate::outln!("landmarks: {}", d.summary());
     }
-    let base_model = BaseModel::locate(args.base.as_deref())?;
-    let base = base_model.read()?;
-    let opts = GenerateOptions {
-        method,
-        smooth,
-        self_check: !args.no_self_check,
-        views: true,
-        above_fov,
-        ..GenerateOptions::default()
-    };
-    let g = generate(&base, &set, &landmarks_name, &opts, Some(&base_model))?;
-    // The model is named after the patient's landmark file (or segmentation).
-    let mut g = g;
-    let patient = args
-        .landmarks
-        .as_ref()
-        .or(args.segmentation.as_ref())
-        .and_then(|p| p.file_stem())
-        .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_else(|| "patient".into());
-    g.doc
-        .model_element_mut()
-        .set_attr("name", patient_model_name(&patient));
-    // Everything computed: gather the bytes, then write.
+    Ok((set, landmarks_name, palpated))
+}
+
+/// Write the model (with its meshes), the palpation's files, the report
+/// and the views, each atomically; returns how many files and their folder.
+fn write_outputs(
+    args: &Args,
+    base_model: &BaseModel,
+    g: &Generated,
+    mut palpated: Vec<(PathBuf, Vec<u8>)>,
+) -> anyhow::Result<(usize, PathBuf)> {
     let dir = match args.out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
@@ -168,7 +193,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "model".into());
-    let mut files = model_files(&base_model, &g.doc, &args.out)?;
+    let mut files = model_files(base_model, &g.doc, &args.out)?;
     files.append(&mut palpated);
     files.push((
         dir.join(format!("{stem}_report.json")),
@@ -183,10 +208,16 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     for (p, bytes) in &files {
         crate::util::write_atomic(p, bytes)?;
     }
-    let r = &g.report;
+    Ok((files.len(), dir))
+}
+
+/// The console summary of a generated model: what was fitted, outliers,
+/// reduced fits, protocol mismatches, smoothing, levels above the field of
+/// view, shape and self-check.
+fn print_summary(r: &GenerateReport, out: &Path) {
     crate::outln!(
         "generated {} ({} method): {} vertebrae from landmarks ({}), {} kept from the base model",
-        args.out.display(),
+        out.display(),
         r.method,
         r.levels_from_landmarks.len(),
         r.levels_from_landmarks.join(" "),
@@ -203,36 +234,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     } else {
         crate::outln!("outlier landmarks (rejected): {}", r.outliers.join(", "));
     }
-    for f in &r.reduced_fits {
-        crate::errln!(
-            "warning: {} fitted on {} of {} landmarks (missing {}): a reduced fit, its pose is less certain{}",
-            f.level,
-            f.used,
-            f.used + f.missing.len(),
-            f.missing.join(", "),
-            if f.borrowed_scale.is_empty() {
-                String::new()
-            } else {
-                format!(
-                    "; scaled by its neighbours' factors where it cannot be measured: {}",
-                    f.borrowed_scale.join("; ")
-                )
-            }
-        );
-    }
-    for m in &r.protocol_mismatches {
-        crate::errln!(
-            "warning: protocol mismatch: {m}{}",
-            if m.compensated {
-                format!(
-                    "; compensated: the vertebrae were refitted with every {} marker moved by that offset",
-                    m.code
-                )
-            } else {
-                String::new()
-            }
-        );
-    }
+    print_fit_warnings(r);
     crate::outln!("orientation smoothing: {}", r.smoothing.note);
     print_above_fov(r.above_fov.as_ref(), r.levels_from_landmarks.is_empty());
     print_shape(&r.shape);
@@ -240,8 +242,39 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         Some(sc) => print_self_check(sc),
         None => crate::outln!("self-check: skipped (--no-self-check)"),
     }
-    crate::outln!("wrote {} files to {}", files.len(), dir.display());
-    Ok(0)
+}
+
+/// Warnings of the fits: reduced fits (and borrowed scale factors) and
+/// protocol mismatches (and their compensation).
+fn print_fit_warnings(r: &GenerateReport) {
+    for f in &r.reduced_fits {
+        let borrowed = if f.borrowed_scale.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; scaled by its neighbours' factors where it cannot be measured: {}",
+                f.borrowed_scale.join("; ")
+            )
+        };
+        crate::errln!(
+            "warning: {} fitted on {} of {} landmarks (missing {}): a reduced fit, its pose is less certain{borrowed}",
+            f.level,
+            f.used,
+            f.used + f.missing.len(),
+            f.missing.join(", "),
+        );
+    }
+    for m in &r.protocol_mismatches {
+        let compensated = if m.compensated {
+            format!(
+                "; compensated: the vertebrae were refitted with every {} marker moved by that offset",
+                m.code
+            )
+        } else {
+            String::new()
+        };
+        crate::errln!("warning: protocol mismatch: {m}{compensated}");
+    }
 }
 
 /// The generated spine's shape (Cobb angle, apex, lordosis, kyphosis).

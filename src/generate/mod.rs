@@ -679,11 +679,7 @@ fn borrowed_scales(
         markers.iter().map(|(l, (_, p))| (*l, p.clone())).collect();
     let all = pose::borrowed_scales(vert_levels, patient, &model);
     for r in reduced.iter_mut() {
-        let Some((b, from)) = all
-            .iter()
-            .find(|(l, _)| l.to_string() == r.level)
-            .map(|x| x.1)
-        else {
+        let Some((b, from)) = r.level.parse::<Level>().ok().and_then(|l| all.get(&l)) else {
             continue;
         };
         let from: Vec<String> = from.iter().map(Level::to_string).collect();
@@ -767,7 +763,7 @@ fn fit_levels(
     };
     let mut fits: BTreeMap<Level, pose::VertebraFit> = BTreeMap::new();
     for l in vert_levels {
-        let f = pose::fit_vertebra_borrowing(
+        let f = pose::fit_vertebra_with(
             *l,
             &patient[l],
             &markers[l].1,

@@ -363,34 +363,23 @@ pub fn fit_vertebra(
     model: &Points,
     method: Method,
 ) -> Result<VertebraFit> {
-    fit_vertebra_with(level, patient, model, method, OUTLIER_SIGMAS, None)
-}
-
-/// [`fit_vertebra`] with an explicit outlier threshold in noise SDs and the
-/// per-axis noise SD (m) of the landmark set ([`noise_sd`] over all
-/// vertebrae); `None`: estimated from this vertebra's landmarks alone.
-pub fn fit_vertebra_with(
-    level: Level,
-    patient: &Points,
-    model: &Points,
-    method: Method,
-    outlier_sigmas: f64,
-    noise: Option<f64>,
-) -> Result<VertebraFit> {
-    fit_vertebra_borrowing(
+    fit_vertebra_with(
         level,
         patient,
         model,
         method,
-        outlier_sigmas,
-        noise,
+        OUTLIER_SIGMAS,
+        None,
         &[None; 3],
     )
 }
 
-/// [`fit_vertebra_with`], the dimensions the landmarks cannot measure
-/// scaled by the factors `borrowed` gives ([`borrowed_scales`]).
-pub fn fit_vertebra_borrowing(
+/// [`fit_vertebra`] with an explicit outlier threshold in noise SDs, the
+/// per-axis noise SD (m) of the landmark set ([`noise_sd`] over all
+/// vertebrae; `None`: estimated from this vertebra's landmarks alone) and
+/// the scale factors `borrowed` gives for the dimensions the landmarks
+/// cannot measure ([`borrowed_scales`]; `[None; 3]`: none).
+pub fn fit_vertebra_with(
     level: Level,
     patient: &Points,
     model: &Points,
@@ -784,12 +773,27 @@ mod tests {
             assert!((s_clean.unwrap() / sd - 1.0).abs() < 0.1, "{s_clean:?}");
             assert!((s_bad.unwrap() / sd - 1.0).abs() < 0.1, "{s_bad:?}");
             for ((p, _), (q, code)) in group.iter().zip(&bad) {
-                let f =
-                    fit_vertebra_with(Level::L2, p, &model, Method::Lsq, OUTLIER_SIGMAS, s_clean)
-                        .unwrap();
+                let f = fit_vertebra_with(
+                    Level::L2,
+                    p,
+                    &model,
+                    Method::Lsq,
+                    OUTLIER_SIGMAS,
+                    s_clean,
+                    &[None; 3],
+                )
+                .unwrap();
                 false_flags += usize::from(f.outlier.is_some());
-                let f = fit_vertebra_with(Level::L2, q, &model, Method::Lsq, OUTLIER_SIGMAS, s_bad)
-                    .unwrap();
+                let f = fit_vertebra_with(
+                    Level::L2,
+                    q,
+                    &model,
+                    Method::Lsq,
+                    OUTLIER_SIGMAS,
+                    s_bad,
+                    &[None; 3],
+                )
+                .unwrap();
                 found += usize::from(f.outlier.map(|o| o.0) == Some(*code));
             }
         }

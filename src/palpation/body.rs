@@ -344,7 +344,7 @@ pub(crate) fn endplate_points(
     let pts: Vec<Point3<f64>> = if midline_section {
         section.into_iter().flatten().collect()
     } else {
-        region.vertices.clone()
+        region.vertices
     };
     let front = pts
         .iter()
