@@ -170,19 +170,24 @@ fn example_lines() -> Vec<String> {
         .collect()
 }
 
-fn refused(name: &str, text: &str, needles: &[&str]) {
-    let tmp = tempfile::tempdir().unwrap();
-    let lm = tmp.path().join(name);
+/// `generate` on the landmark file `name`, written from `text` into
+/// `dir`, to `out`.
+fn generate_file(dir: &Path, name: &str, text: &str, out: &Path) -> std::process::Output {
+    let lm = dir.join(name);
     std::fs::write(&lm, text).unwrap();
-    let out_dir = tmp.path().join("out");
-    let out = out_dir.join("p.osim");
-    let o = run(&[
+    run(&[
         "generate",
         "--landmarks",
         lm.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
-    ]);
+    ])
+}
+
+fn refused(name: &str, text: &str, needles: &[&str]) {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("out");
+    let o = generate_file(tmp.path(), name, text, &out_dir.join("p.osim"));
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(!o.status.success(), "{name}: accepted");
     assert_eq!(o.status.code(), Some(1), "{name}: exit code");
@@ -663,16 +668,8 @@ fn smoothing_is_reported_and_deterministic() {
 /// `generate` on the landmark file `name` (written from `text` into
 /// `dir`); its stderr and report. Panics if it fails.
 fn generate_report(dir: &Path, name: &str, text: &str) -> (String, serde_json::Value) {
-    let lm = dir.join(name);
-    std::fs::write(&lm, text).unwrap();
     let out = dir.join(name.replace(".csv", "")).join("p.osim");
-    let o = run(&[
-        "generate",
-        "--landmarks",
-        lm.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = generate_file(dir, name, text, &out);
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(o.status.success(), "{name}: {err}");
     let rep = serde_json::from_slice(&std::fs::read(out.with_file_name("p_report.json")).unwrap())
