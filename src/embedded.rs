@@ -1,5 +1,5 @@
 //! The default base model and the templates compiled into the binary
-//! (`build.rs` embeds every file of `base_model/` and `templates/`), and
+//! (`build.rs` embeds `base_model/base.osim` and the meshes it names), and
 //! [`BaseModel`]: where a command's base model comes from, the embedded
 //! default or a `--base` folder/file. Commands run from any directory and
 //! after `cargo install` without the repository.
@@ -11,7 +11,7 @@ use crate::osim::Document;
 use crate::{Error, Result};
 use std::path::{Path, PathBuf};
 
-/// The generated file tables (`BASE_MODEL`, `TEMPLATES`).
+/// The generated file table (`BASE_MODEL`).
 pub mod files {
     include!(concat!(env!("OUT_DIR"), "/embedded_files.rs"));
 }
@@ -145,28 +145,23 @@ mod tests {
     use super::*;
 
     #[test]
-    fn embedded_tables_follow_the_folders() {
-        // Every file of base_model/ and templates/ is embedded, byte for byte.
-        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        for (dir, table) in [
-            ("base_model", files::BASE_MODEL),
-            ("templates", files::TEMPLATES),
-        ] {
-            let mut on_disk: Vec<String> = std::fs::read_dir(root.join(dir))
-                .unwrap()
-                .filter_map(|e| e.ok())
-                .filter(|e| e.path().is_file())
-                .map(|e| e.file_name().into_string().unwrap())
-                .collect();
-            on_disk.sort();
-            let names: Vec<String> = table.iter().map(|(n, _)| n.to_string()).collect();
-            assert_eq!(names, on_disk, "{dir}");
-            for (n, b) in table {
-                assert_eq!(
-                    *b,
-                    std::fs::read(root.join(dir).join(n)).unwrap().as_slice()
-                );
-            }
+    fn the_embedded_base_is_the_model_and_its_meshes_byte_for_byte() {
+        // Exactly base.osim and the meshes it names; a stray file of the
+        // folder (not named by the model) is not embedded.
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("base_model");
+        let doc = crate::osim::Document::read(&dir.join("base.osim")).unwrap();
+        let model = doc.model().unwrap();
+        let mut want: Vec<String> = model.mesh_files().into_iter().map(|(_, f)| f).collect();
+        want.push("base.osim".to_string());
+        want.sort();
+        want.dedup();
+        let names: Vec<String> = files::BASE_MODEL
+            .iter()
+            .map(|(n, _)| n.to_string())
+            .collect();
+        assert_eq!(names, want);
+        for (n, b) in files::BASE_MODEL {
+            assert_eq!(*b, std::fs::read(dir.join(n)).unwrap().as_slice(), "{n}");
         }
     }
 
