@@ -16,7 +16,7 @@ use super::measure::{pair_increment, pair_increment_loaded, pair_increment_unloa
 use crate::error::{Error, Result};
 use crate::solver::kinematics;
 use crate::solver::scalar::{d6_eps, D6};
-use crate::solver::system::KinBuf;
+use crate::solver::workspace::KinBuf;
 use crate::solver::{BodyIndex, LoadSet, Pose, StaticOptions, System, Workspace};
 use nalgebra::{DMatrix, DVector};
 use std::sync::Arc;

@@ -8,7 +8,7 @@ use crate::calibrate::family::{find_levels, Level};
 use crate::calibrate::measure::{pair_increment, Convention};
 use crate::error::{Error, Result};
 use crate::solver::kinematics;
-use crate::solver::system::KinBuf;
+use crate::solver::workspace::KinBuf;
 use crate::solver::{BushingModel, Load, LoadSet, StaticOptions, System, Workspace};
 use nalgebra::{DVector, Isometry3};
 

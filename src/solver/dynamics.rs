@@ -13,29 +13,15 @@
 
 use super::forces::{self, LoadSet};
 use super::kinematics;
+use super::linalg::{cholesky_in_place, cholesky_solve, DenseLu};
 use super::scalar::Scalar;
-use super::system::{BodyIndex, DenseLu, System, Workspace};
+use super::system::{BodyIndex, System};
+use super::workspace::{SpatialInertia, Workspace};
 use crate::error::{Error, Result};
 use nalgebra::{DVector, Matrix3, Vector3};
 use num_dual::Dual64;
 
-/// A rigid body's spatial inertia about the ground origin in ground axes:
-/// mass, first moment `h = m c`, rotational inertia about the origin.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SpatialInertia {
-    pub m: f64,
-    pub h: Vector3<f64>,
-    pub i: Matrix3<f64>,
-}
-
 impl SpatialInertia {
-    pub fn zero() -> Self {
-        SpatialInertia {
-            m: 0.0,
-            h: Vector3::zeros(),
-            i: Matrix3::zeros(),
-        }
-    }
     /// From mass, centre of mass in ground and inertia about it (ground axes).
     pub fn new(m: f64, c: &Vector3<f64>, i_c: &Matrix3<f64>) -> Self {
         let i = i_c + (Matrix3::identity() * c.dot(c) - c * c.transpose()) * m;
@@ -299,49 +285,6 @@ impl System {
             gravity: pg,
             bushing: pb,
         })
-    }
-}
-
-/// In-place Cholesky (lower triangle); false when not positive definite.
-pub(crate) fn cholesky_in_place(a: &mut nalgebra::DMatrix<f64>) -> bool {
-    let n = a.nrows();
-    for j in 0..n {
-        let mut d = a[(j, j)];
-        for k in 0..j {
-            d -= a[(j, k)] * a[(j, k)];
-        }
-        if !d.is_finite() || d <= 0.0 {
-            return false;
-        }
-        let d = d.sqrt();
-        a[(j, j)] = d;
-        for i in j + 1..n {
-            let mut s = a[(i, j)];
-            for k in 0..j {
-                s -= a[(i, k)] * a[(j, k)];
-            }
-            a[(i, j)] = s / d;
-        }
-    }
-    true
-}
-
-/// Solve with the factor from [`cholesky_in_place`].
-pub(crate) fn cholesky_solve(l: &nalgebra::DMatrix<f64>, b: &mut [f64]) {
-    let n = l.nrows();
-    for i in 0..n {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= l[(i, k)] * b[k];
-        }
-        b[i] = s / l[(i, i)];
-    }
-    for i in (0..n).rev() {
-        let mut s = b[i];
-        for k in i + 1..n {
-            s -= l[(k, i)] * b[k];
-        }
-        b[i] = s / l[(i, i)];
     }
 }
 

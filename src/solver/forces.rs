@@ -6,7 +6,8 @@
 use super::kinematics;
 use super::scalar::{body_xyz, v3, Scalar};
 use super::spec::{Load, LoadFrame};
-use super::system::{BodyIndex, Bushing, KinBuf, Pose, System};
+use super::system::{BodyIndex, Bushing, Pose, System};
+use super::workspace::KinBuf;
 use crate::error::{Error, Result};
 use nalgebra::{Matrix3, Vector3};
 

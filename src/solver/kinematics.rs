@@ -18,7 +18,8 @@
 //! between the two.
 
 use super::scalar::{rot_axis, v3, Scalar};
-use super::system::{AxisSource, Joint, KinBuf, Pose, System};
+use super::system::{AxisSource, Joint, Pose, System};
+use super::workspace::KinBuf;
 use crate::error::{Error, Result};
 use nalgebra::{Isometry3, Matrix3, Matrix6, Rotation3, Translation3, UnitQuaternion, Vector3};
 use num_dual::Dual64;

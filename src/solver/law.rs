@@ -24,26 +24,8 @@
 
 use super::expr::Expr;
 use super::scalar::Scalar;
-use super::spec::{BushingModel, Function};
+use super::spec::{BushingModel, Curve};
 use nalgebra::Matrix6;
-
-/// Force-deflection curve of one degree of freedom: `g(x)` (N m or N) for a
-/// deflection `x` (rad or m); the generalised force is `-g(x)`.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Curve {
-    /// `k x`
-    Linear { k: f64 },
-    /// `k x + c x^3` (OpenSim PolynomialFunction `[c, 0, k, 0]`).
-    Cubic { k: f64, c: f64 },
-    /// Neutral-zone curve `k a sinh(x / a)`: slope `k` at zero, stiffening
-    /// with the deflection on the scale `a` (rad or m).
-    Sinh { k: f64, a: f64 },
-    /// Slope `k_neg` for `x < 0` and `k_pos` for `x >= 0` (asymmetric).
-    Bilinear { k_neg: f64, k_pos: f64 },
-    /// Any function of the deflection (points, splines, polynomials), as
-    /// OpenSim evaluates it.
-    Function(Function),
-}
 
 impl Curve {
     /// `g(x)`, generic over the scalar.

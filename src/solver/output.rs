@@ -5,7 +5,8 @@
 use super::forces;
 use super::kinematics;
 use super::scalar::body_xyz;
-use super::system::{System, Workspace};
+use super::system::System;
+use super::workspace::Workspace;
 use crate::error::Result;
 use crate::util::fmt_f64;
 use nalgebra::{Matrix3, Vector3};

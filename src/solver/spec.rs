@@ -17,7 +17,6 @@
 //! rotational speeds are OpenSim's: the angular velocity `w_FM` in F axes.
 
 pub use super::expr::Expr;
-pub use super::law::Curve;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3};
 
 /// A whole multibody system: bodies, tree joints, coordinates, bushings, gravity.
@@ -184,6 +183,24 @@ pub struct BushingSpec {
 
 /// Names of the six deflection components, in order.
 pub const DOF_NAMES: [&str; 6] = ["rx", "ry", "rz", "tx", "ty", "tz"];
+
+/// Force-deflection curve of one degree of freedom: `g(x)` (N m or N) for a
+/// deflection `x` (rad or m); the generalised force is `-g(x)`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Curve {
+    /// `k x`
+    Linear { k: f64 },
+    /// `k x + c x^3` (OpenSim PolynomialFunction `[c, 0, k, 0]`).
+    Cubic { k: f64, c: f64 },
+    /// Neutral-zone curve `k a sinh(x / a)`: slope `k` at zero, stiffening
+    /// with the deflection on the scale `a` (rad or m).
+    Sinh { k: f64, a: f64 },
+    /// Slope `k_neg` for `x < 0` and `k_pos` for `x >= 0` (asymmetric).
+    Bilinear { k_neg: f64, k_pos: f64 },
+    /// Any function of the deflection (points, splines, polynomials), as
+    /// OpenSim evaluates it.
+    Function(Function),
+}
 
 /// Bushing force laws acting on the deflection vector
 /// `q = (rx, ry, rz, tx, ty, tz)`: body-fixed X-Y-Z angles of frame 2 in frame 1

@@ -1,19 +1,17 @@
 //! The immutable, validated [`System`] compiled from a [`SystemSpec`]
 //! (bodies in parent-before-child order, joints lowered to six function-based
-//! axes, free degrees of freedom numbered joint by joint) and the reusable
-//! [`Workspace`] that holds every scratch buffer, so repeated solves allocate
-//! nothing.
+//! axes, free degrees of freedom numbered joint by joint), its typed indices,
+//! and its parameter variants (`with_*`: new systems, never a mutation). Its
+//! scratch data is the `Workspace` (`workspace.rs`).
 
 use super::law::Law;
-use super::scalar::{Scalar, D6};
+use super::scalar::Scalar;
 use super::spec::{
     BushingModel, CoordinateSpec, FrameSpec, Function, JointKind, JointSpec, SystemSpec,
     TransformAxis,
 };
 use crate::error::{Error, Result};
-use nalgebra::storage::{Storage, StorageMut};
-use nalgebra::{DMatrix, DVector, Dim, Isometry3, Matrix, Matrix3, Vector3};
-use num_dual::Dual64;
+use nalgebra::{DVector, Isometry3, Matrix3, Vector3};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// A rigid transform as rotation matrix + translation, generic scalar.
@@ -717,17 +715,6 @@ impl System {
         self.id
     }
 
-    /// Refuse a workspace made for a system of another structure.
-    pub(crate) fn check_workspace(&self, ws: &Workspace) -> Result<()> {
-        if ws.structure != self.id.structure {
-            return Err(Error::invalid(
-                "solver",
-                "the workspace was made for another system (make one with Workspace::new for this system)",
-            ));
-        }
-        Ok(())
-    }
-
     /// Number of free degrees of freedom (generalised coordinates solved for).
     pub fn n_dofs(&self) -> usize {
         self.dof_coord.len()
@@ -866,213 +853,6 @@ impl System {
             cur = j.parent;
         }
         Ok(spec)
-    }
-}
-
-/// Kinematic buffers for one scalar type.
-#[derive(Debug, Clone)]
-pub struct KinBuf<T: Scalar> {
-    /// Free dofs as scalars.
-    pub q: Vec<T>,
-    /// X_GB per body.
-    pub x_gb: Vec<Pose<T>>,
-    /// Motion subspace per dof: (angular, linear about the ground origin), ground axes.
-    pub h: Vec<[Vector3<T>; 2]>,
-    /// Wrench per body: (moment about the ground origin, force), ground axes.
-    pub w: Vec<[Vector3<T>; 2]>,
-    /// Generalised force per dof.
-    pub tau: Vec<T>,
-}
-
-impl<T: Scalar> KinBuf<T> {
-    pub fn new(sys: &System) -> Self {
-        let n = sys.n_dofs();
-        let nb = sys.n_bodies();
-        KinBuf {
-            q: vec![T::zero(); n],
-            x_gb: vec![Pose::identity(); nb],
-            h: vec![[Vector3::zeros(), Vector3::zeros()]; n],
-            w: vec![[Vector3::zeros(), Vector3::zeros()]; nb],
-            tau: vec![T::zero(); n],
-        }
-    }
-}
-
-/// Simple dense LU with partial pivoting on a preallocated matrix.
-#[derive(Debug, Clone)]
-pub struct DenseLu {
-    pub(crate) a: DMatrix<f64>,
-    pub(crate) piv: Vec<usize>,
-    pub(crate) ok: bool,
-}
-
-impl DenseLu {
-    pub fn new(n: usize) -> Self {
-        DenseLu {
-            a: DMatrix::zeros(n, n),
-            piv: vec![0; n],
-            ok: false,
-        }
-    }
-    /// Factorise `self.a` in place. Returns false when singular.
-    pub fn factor(&mut self) -> bool {
-        let n = self.a.nrows();
-        let scale = self.a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let tiny = scale * 1e-15 * (n.max(1) as f64);
-        self.ok = lu_factor(&mut self.a, &mut self.piv, n, tiny);
-        self.ok
-    }
-    /// Solve A x = b in place (after a successful `factor`).
-    pub fn solve_in_place(&self, b: &mut [f64]) {
-        lu_solve(&self.a, &self.piv, self.a.nrows(), b);
-    }
-}
-
-/// Partial-pivoting LU of the leading `n x n` block of `a`, in place (unit
-/// lower factor below the diagonal, upper factor on and above it; row
-/// swaps in `piv`). False when a pivot is not finite or at most `tiny`.
-/// Shared by the dense tangent ([`DenseLu`]) and the 6x6 joint blocks of
-/// the structured factorisation.
-pub(crate) fn lu_factor<R: Dim, C: Dim, S: StorageMut<f64, R, C>>(
-    a: &mut Matrix<f64, R, C, S>,
-    piv: &mut [usize],
-    n: usize,
-    tiny: f64,
-) -> bool {
-    for k in 0..n {
-        let mut p = k;
-        let mut best = a[(k, k)].abs();
-        for i in k + 1..n {
-            let v = a[(i, k)].abs();
-            if v > best {
-                best = v;
-                p = i;
-            }
-        }
-        piv[k] = p;
-        if !best.is_finite() || best <= tiny {
-            return false;
-        }
-        if p != k {
-            a.swap_rows(p, k);
-        }
-        let d = a[(k, k)];
-        for i in k + 1..n {
-            a[(i, k)] /= d;
-        }
-        for j in k + 1..n {
-            let akj = a[(k, j)];
-            if akj != 0.0 {
-                for i in k + 1..n {
-                    let l = a[(i, k)];
-                    a[(i, j)] -= l * akj;
-                }
-            }
-        }
-    }
-    true
-}
-
-/// Solve `A x = b` for the leading `n` entries of `b` in place, with the
-/// factors of [`lu_factor`] (entries past `n` are left as given).
-pub(crate) fn lu_solve<R: Dim, C: Dim, S: Storage<f64, R, C>>(
-    a: &Matrix<f64, R, C, S>,
-    piv: &[usize],
-    n: usize,
-    b: &mut [f64],
-) {
-    for k in 0..n {
-        let p = piv[k];
-        if p != k {
-            b.swap(p, k);
-        }
-    }
-    for j in 0..n {
-        let bj = b[j];
-        if bj != 0.0 {
-            for i in j + 1..n {
-                b[i] -= a[(i, j)] * bj;
-            }
-        }
-    }
-    for j in (0..n).rev() {
-        b[j] /= a[(j, j)];
-        let bj = b[j];
-        for i in 0..j {
-            b[i] -= a[(i, j)] * bj;
-        }
-    }
-}
-
-/// Which factorisation of the statics tangent is valid.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Factored {
-    None,
-    Dense,
-    Tree,
-}
-
-/// All scratch buffers for a system. Make one per thread and reuse it.
-#[derive(Debug, Clone)]
-pub struct Workspace {
-    pub(crate) k64: KinBuf<f64>,
-    pub(crate) kd6: KinBuf<D6>,
-    pub(crate) kd1: KinBuf<Dual64>,
-    /// Jacobian of the generalised force w.r.t. q (statics tangent), and its LU.
-    pub(crate) lu: DenseLu,
-    /// Structured (tree) statics tangent and its factors.
-    pub(crate) tree: super::tree::TreeTangent,
-    /// Structure id of the system this workspace was made for.
-    pub(crate) structure: u64,
-    /// Which factorisation (if any) holds the tangent of the last Newton step.
-    pub(crate) factored: Factored,
-    /// Identity of the system whose tangent `factored` holds (stale when
-    /// the system solved with differs).
-    pub(crate) factored_for: Option<SystemId>,
-    pub(crate) r: Vec<f64>,
-    pub(crate) dq: Vec<f64>,
-    pub(crate) q_trial: Vec<f64>,
-    /// Dynamics: mass matrix (Cholesky in place), velocities and bias.
-    pub(crate) mass: DMatrix<f64>,
-    pub(crate) vel: Vec<[Vector3<f64>; 2]>,
-    pub(crate) acc: Vec<[Vector3<f64>; 2]>,
-    pub(crate) hdot: Vec<[Vector3<f64>; 2]>,
-    pub(crate) comp: Vec<super::dynamics::SpatialInertia>,
-    pub(crate) rhs: Vec<f64>,
-    /// Coordinate rates of the current speeds (`qdot = N(q) u`).
-    pub(crate) qdot: Vec<f64>,
-}
-
-impl Workspace {
-    pub fn new(sys: &System) -> Self {
-        let n = sys.n_dofs();
-        let nb = sys.n_bodies();
-        Workspace {
-            k64: KinBuf::new(sys),
-            kd6: KinBuf::new(sys),
-            kd1: KinBuf::new(sys),
-            lu: DenseLu::new(n),
-            tree: super::tree::TreeTangent::new(sys),
-            structure: sys.id.structure,
-            factored: Factored::None,
-            factored_for: None,
-            r: vec![0.0; n],
-            dq: vec![0.0; n],
-            q_trial: vec![0.0; n],
-            mass: DMatrix::zeros(n, n),
-            vel: vec![[Vector3::zeros(), Vector3::zeros()]; nb],
-            acc: vec![[Vector3::zeros(), Vector3::zeros()]; nb],
-            hdot: vec![[Vector3::zeros(), Vector3::zeros()]; n],
-            comp: vec![super::dynamics::SpatialInertia::zero(); nb],
-            rhs: vec![0.0; n],
-            qdot: vec![0.0; n],
-        }
-    }
-
-    /// The factorisation used by the last Newton step of
-    /// [`System::solve_static`]: true when it was the structured (tree) one.
-    pub fn used_structured_tangent(&self) -> bool {
-        self.factored == Factored::Tree
     }
 }
 

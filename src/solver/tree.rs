@@ -53,8 +53,10 @@
 
 use super::forces::{self, GimbalLock, LoadSet, Resolved};
 use super::kinematics;
+use super::linalg::Lu6;
 use super::scalar::{d6_eps, d6_var, D6};
-use super::system::{lu_factor, lu_solve, BodyIndex, KinBuf, Pose, System};
+use super::system::{BodyIndex, Pose, System};
+use super::workspace::{KinBuf, TreeTangent};
 use nalgebra::{Matrix3, Matrix6, SVector, Vector3, Vector6};
 use num_dual::Derivative;
 
@@ -69,46 +71,6 @@ pub enum TangentMethod {
     /// Always assemble the dense tangent (one dual pass per joint) and
     /// factorise it with a dense LU: O(n^2) assembly, O(n^3) factorisation.
     Dense,
-}
-
-/// Partial-pivoting LU of a joint block (n <= 6, padded to 6 x 6 with the
-/// identity).
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Lu6 {
-    a: Matrix6<f64>,
-    piv: [usize; 6],
-    n: usize,
-}
-
-impl Lu6 {
-    fn identity() -> Self {
-        Lu6 {
-            a: Matrix6::identity(),
-            piv: [0, 1, 2, 3, 4, 5],
-            n: 0,
-        }
-    }
-
-    /// Factorise the leading `n x n` block of `a`. None when a pivot is
-    /// negligible against the block's scale (or not finite).
-    fn factor(mut a: Matrix6<f64>, n: usize) -> Option<Lu6> {
-        let n = n.min(6);
-        let mut scale = 0.0f64;
-        for j in 0..n {
-            for i in 0..n {
-                scale = scale.max(a[(i, j)].abs());
-            }
-        }
-        let mut piv = [0, 1, 2, 3, 4, 5];
-        lu_factor(&mut a, &mut piv, n, scale * 1e-13).then_some(Lu6 { a, piv, n })
-    }
-
-    /// Solve `D x = b` for the leading `n` entries (the rest stay as given:
-    /// zero in, zero out).
-    #[inline]
-    fn solve(&self, b: &mut Vector6<f64>) {
-        lu_solve(&self.a, &self.piv, self.n, b.as_mut_slice());
-    }
 }
 
 /// `[v]x`, the cross-product matrix.
@@ -212,24 +174,6 @@ fn wrench_jacobian(w: &[Vector3<D6>; 2]) -> Matrix6<f64> {
     m
 }
 
-/// True when every force element of `sys` couples at most a body and its
-/// parent (or ground): the condition for the structured tangent. Loads
-/// always are (follower pairs sit on a joint's parent and child).
-fn tree_coupled(sys: &System) -> bool {
-    let adjacent = |a: BodyIndex, b: BodyIndex| {
-        a == b
-            || sys.bodies.get(a.0).and_then(|x| x.parent) == Some(b)
-            || sys.bodies.get(b.0).and_then(|x| x.parent) == Some(a)
-    };
-    sys.bushings.iter().all(|b| {
-        b.fast.is_some()
-            || match (b.body1, b.body2) {
-                (Some(x), Some(y)) => adjacent(x, y),
-                _ => true,
-            }
-    })
-}
-
 /// Mark the bodies whose poses [`forces::static_wrenches`] reads (and the
 /// only ones it applies wrenches to): bodies with mass under gravity, the
 /// bodies of general-path bushings, loaded bodies. Keep in step with
@@ -266,99 +210,7 @@ fn mark_touched(sys: &System, loads: &LoadSet, touched: &mut [bool]) {
     }
 }
 
-/// Greedy distance-2 colouring of the body tree (parents before children):
-/// a body's colour differs from its parent's, its grandparent's and its
-/// earlier siblings'. Returns (colours, number of colours).
-fn distance2_colouring(sys: &System) -> (Vec<usize>, usize) {
-    let nb = sys.bodies.len();
-    let mut colour = vec![0usize; nb];
-    // colours already used by the children of each body (+ one for ground)
-    let mut used_by_children: Vec<Vec<usize>> = vec![Vec::new(); nb + 1];
-    let mut n_colours = 0;
-    for bi in 0..nb {
-        let parent = sys.bodies[bi].parent.map(|p| p.0);
-        let mut forbidden: Vec<usize> = Vec::new();
-        if let Some(p) = parent {
-            forbidden.push(colour[p]);
-            if let Some(gp) = sys.bodies[p].parent {
-                forbidden.push(colour[gp.0]);
-            }
-            forbidden.extend_from_slice(&used_by_children[p]);
-        }
-        let c = (0..).find(|c| !forbidden.contains(c)).unwrap_or(0);
-        colour[bi] = c;
-        n_colours = n_colours.max(c + 1);
-        if let Some(p) = parent {
-            used_by_children[p].push(c);
-        } else {
-            used_by_children[nb].push(c);
-        }
-    }
-    (colour, n_colours)
-}
-
-/// Blocks and factors of the structured tangent, one entry per body, plus
-/// the scratch of its solves.
-#[derive(Debug, Clone)]
-pub(crate) struct TreeTangent {
-    /// Every force element couples adjacent bodies (structured path usable).
-    pub(crate) usable: bool,
-    colour: Vec<usize>,
-    n_colours: usize,
-    /// Bodies read by some force element (per assembly).
-    touched: Vec<bool>,
-    /// Motion subspace of the body's joint (columns beyond n_b are zero).
-    h: Vec<Matrix6<f64>>,
-    /// Wrench of the body w.r.t. its own twist, its parent's twist; wrench
-    /// of the parent w.r.t. this body's twist.
-    g_self: Vec<Matrix6<f64>>,
-    g_par: Vec<Matrix6<f64>>,
-    g_child: Vec<Matrix6<f64>>,
-    /// Joint-local terms and `-Fbar(W_b)`.
-    local: Vec<Matrix6<f64>>,
-    neg_fbar: Vec<Matrix6<f64>>,
-    /// Factors: block LU, `V_b` (dq_b = u_b + V_b dx_p), `P_b H_b`.
-    lu: Vec<Lu6>,
-    v: Vec<Matrix6<f64>>,
-    ph: Vec<Matrix6<f64>>,
-    /// Articulated stiffness accumulated from the children.
-    acc: Vec<Matrix6<f64>>,
-    /// The pivot blocks `D_b` of the last factorisation (padded with the
-    /// identity beyond the joint's dofs), for the stability test.
-    pivots: Vec<Matrix6<f64>>,
-    /// Solve scratch.
-    z: Vec<Vector6<f64>>,
-    u: Vec<Vector6<f64>>,
-    dx: Vec<Vector6<f64>>,
-}
-
 impl TreeTangent {
-    pub(crate) fn new(sys: &System) -> Self {
-        let nb = sys.bodies.len();
-        let (colour, n_colours) = distance2_colouring(sys);
-        let z6 = vec![Matrix6::zeros(); nb];
-        TreeTangent {
-            usable: tree_coupled(sys),
-            colour,
-            n_colours,
-            touched: vec![false; nb],
-            h: z6.clone(),
-            g_self: z6.clone(),
-            g_par: z6.clone(),
-            g_child: z6.clone(),
-            local: z6.clone(),
-            neg_fbar: z6.clone(),
-            lu: vec![Lu6::identity(); nb],
-            v: z6.clone(),
-            ph: z6.clone(),
-            acc: z6.clone(),
-            pivots: z6,
-            z: vec![Vector6::zeros(); nb],
-            u: vec![Vector6::zeros(); nb],
-            dx: vec![Vector6::zeros(); nb],
-        }
-    }
-
     /// Assemble the blocks at the state of `k64` (which must hold a full
     /// residual evaluation: poses, motion subspaces, subtree wrenches after
     /// projection), using `kd6` as dual scratch.
@@ -632,7 +484,7 @@ mod tests {
     use super::super::scalar::v3;
     use super::super::spec::{BodySpec, Load, LoadFrame, SystemSpec};
     use super::super::statics::eval_tau;
-    use super::super::system::Workspace;
+    use super::super::workspace::{distance2_colouring, tree_coupled, Workspace};
     use super::*;
     use nalgebra::{DMatrix, DVector};
 
