@@ -78,7 +78,7 @@ impl Pose<f64> {
 }
 
 /// Index of a body in system order (every parent before its children):
-/// the index of the bodies of a [`System`] and of [`KinBuf::x_gb`]. The
+/// the index of the bodies of a [`System`] and of [`KinBuf::x_gb`](super::workspace::KinBuf::x_gb). The
 /// bodies of a [`SystemSpec`] are numbered in spec order with plain
 /// `usize`; [`System::new`] maps one order to the other.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
