@@ -166,7 +166,7 @@ pub(crate) struct Bushing {
 }
 
 /// Identity of a built [`System`]: its structure (bodies, joints, degrees
-/// of freedom: what a [`Workspace`] is sized for and a
+/// of freedom: what a [`Workspace`](super::Workspace) is sized for and a
 /// [`LoadSet`](super::LoadSet) is resolved against), its joint and bushing
 /// frames, and its force laws. A factorised tangent is valid only for the
 /// identity it was computed with. Frame and law ids are process-unique and
