@@ -74,8 +74,8 @@ fn cyclist_round_trip_matches_opensim() {
     let mut doc = Document::read(&out).unwrap();
     let mk = doc.component_mut("MarkerSet", "racr").unwrap();
     let loc =
-        osim_spine::osim::document::vec3_prop(mk, "location", std::path::Path::new("x")).unwrap();
-    osim_spine::osim::document::set_vec3(
+        osim_spine::osim::props::vec3_prop(mk, "location", std::path::Path::new("x")).unwrap();
+    osim_spine::osim::props::set_vec3(
         mk,
         "location",
         &(loc + nalgebra::Vector3::new(1e-6, 0.0, 0.0)),
@@ -87,9 +87,9 @@ fn cyclist_round_trip_matches_opensim() {
         .elements_mut()
         .next()
         .unwrap();
-    let t = osim_spine::osim::document::vec3_prop(frame, "translation", std::path::Path::new("x"))
+    let t = osim_spine::osim::props::vec3_prop(frame, "translation", std::path::Path::new("x"))
         .unwrap();
-    osim_spine::osim::document::set_vec3(
+    osim_spine::osim::props::set_vec3(
         frame,
         "translation",
         &(t + nalgebra::Vector3::new(0.0, 1e-6, 0.0)),

@@ -243,7 +243,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     let model = super::convert::typed_model(&doc)?;
     let s = summarize(&doc, &model, &args.geometry)?;
     refuse_escaping_meshes(&s)?;
-    for w in crate::osim::physics::warnings(&model) {
+    for w in crate::osim::lint::warnings(&model) {
         crate::errln!("warning: {}: {w}", args.model.display());
     }
     if args.json {

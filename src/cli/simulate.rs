@@ -185,7 +185,7 @@ struct Setup {
 fn setup(a: &Args, specimen: Option<&Specimen>) -> anyhow::Result<Setup> {
     let doc = Document::read(&a.model)?;
     let model = doc.model()?;
-    for w in crate::osim::physics::warnings(&model) {
+    for w in crate::osim::lint::warnings(&model) {
         crate::errln!("warning: {}: {w}", a.model.display());
     }
     if a.dynamic.is_some() {

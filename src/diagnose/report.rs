@@ -373,8 +373,8 @@ fn move_socket_frame(doc: &mut Document, socket: &str, t: &Isometry3<f64>) -> Re
     );
     let y = x * t;
     let ang = xyz_body_fixed(&y.rotation.to_rotation_matrix());
-    crate::osim::document::set_vec3(f, "translation", &y.translation.vector);
-    crate::osim::document::set_vec3(f, "orientation", &ang);
+    crate::osim::props::set_vec3(f, "translation", &y.translation.vector);
+    crate::osim::props::set_vec3(f, "orientation", &ang);
     Ok(())
 }
 

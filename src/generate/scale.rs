@@ -9,7 +9,7 @@
 //! Wrap-sphere radii are refitted by the caller ([`super::wraps`]).
 
 use crate::error::{Error, Result};
-use crate::osim::document::{parse_numbers, set_numbers, set_vec3};
+use crate::osim::props::{parse_numbers, set_numbers, set_vec3};
 use crate::osim::xml::Element;
 use crate::osim::Document;
 use nalgebra::{Matrix3, Vector3};
@@ -37,7 +37,7 @@ fn scale_prop(e: &mut Element, prop: &str, s: &Vector3<f64>, file: &std::path::P
             format!(
                 "<{}> of {}: expected 3 numbers",
                 prop,
-                crate::osim::document::loc(e)
+                crate::osim::props::loc(e)
             ),
         ));
     }
@@ -84,8 +84,8 @@ pub fn scale_body(doc: &mut Document, body: &str, s: &Vector3<f64>) -> Result<Sc
         let el = doc.component_mut("BodySet", body).ok_or_else(|| {
             Error::invalid(file.display().to_string(), format!("no body '{body}'"))
         })?;
-        let mass = crate::osim::document::f64_or(el, "mass", 0.0, &file)?;
-        crate::osim::document::set_f64(el, "mass", mass * s.x * s.y * s.z);
+        let mass = crate::osim::props::f64_or(el, "mass", 0.0, &file)?;
+        crate::osim::props::set_f64(el, "mass", mass * s.x * s.y * s.z);
         scale_prop(el, "mass_center", s, &file)?;
         if let Some(c) = el.child("inertia") {
             let v = parse_numbers(&c.text(), c, &file)?;

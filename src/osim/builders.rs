@@ -4,7 +4,7 @@
 //! WrapSphere, PathWrap. Numbers are written with the shortest text that
 //! reads back to the same f64.
 
-use super::document::fmt_numbers;
+use super::props::fmt_numbers;
 use super::xml::Element;
 use crate::util::fmt_f64;
 use nalgebra::Vector3;

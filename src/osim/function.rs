@@ -15,7 +15,7 @@
 //! Other classes are kept as [`Function::Unsupported`] (evaluating gives NaN;
 //! check [`Function::is_supported`]).
 
-use super::document::{fixed_prop, loc, opt_numbers};
+use super::props::{fixed_prop, loc, opt_numbers};
 use super::xml::Element;
 use crate::error::{Error, Result};
 use std::path::Path;
@@ -269,7 +269,7 @@ impl Function {
                 Function::Polynomial(c)
             }
             "MultiplierFunction" => {
-                let scale = super::document::f64_or(e, "scale", 1.0, file)?;
+                let scale = super::props::f64_or(e, "scale", 1.0, file)?;
                 let inner = Function::from_parent(e, file)?;
                 Function::Multiplier {
                     scale,

@@ -48,11 +48,16 @@
 //! The document then says Version="40600". 4.x files before 4.6 get
 //! [`upgrade_4x`] (the path actuators' `geometrypath` becomes `path`).
 
-use super::document::{fmt_numbers, loc, parse_numbers, CURRENT_VERSION};
+use super::props::{fmt_numbers, loc, parse_numbers};
 use super::xml::{Element, Node, XmlTree};
 use crate::error::{Error, Result};
 use std::collections::BTreeMap;
 use std::path::Path;
+
+/// The document version OpenSim 4.6 writes (and that upgraded documents get).
+pub const CURRENT_VERSION: u32 = 40600;
+/// Oldest document version accepted (OpenSim 1.9 era files still load in 4.6).
+pub const OLDEST_VERSION: u32 = 10500;
 
 /// State of one upgrade: the file, its own version, and what later rules
 /// need from earlier ones.

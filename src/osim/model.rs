@@ -10,10 +10,11 @@
 //! PhysicalOffsetFrame), with OpenSim's fallback of a unique component name
 //! for bare names. Offset frames on offset frames are followed to the body.
 
-use super::document::{
-    bool_or, f64_or, f64_prop, fixed_prop, loc, opt_numbers, str_prop, vec3_or, vec3_prop, Document,
-};
+use super::document::Document;
 use super::function::Function;
+use super::props::{
+    bool_or, f64_or, f64_prop, fixed_prop, loc, opt_numbers, str_prop, vec3_or, vec3_prop,
+};
 use super::xml::Element;
 use crate::error::{Error, Result};
 use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -1529,6 +1530,13 @@ fn parse_constraint(c: &Element, cx: &Ctx) -> Result<Constraint> {
             name: c.name_attr().to_string(),
         },
     })
+}
+
+impl Document {
+    /// Typed model snapshot (SI, validated). See [`Model`].
+    pub fn model(&self) -> Result<Model> {
+        Model::from_document(self)
+    }
 }
 
 #[cfg(test)]

@@ -33,9 +33,9 @@ pub mod table;
 pub use table::{read_table, CurveSpec, Form, Interp, LevelLaw, Row, Table};
 
 use crate::error::{Error, Result};
-use crate::osim::document::fmt_numbers;
 use crate::osim::function::{CubicSpline, Function as OFunction};
 use crate::osim::model::{Force, Model};
+use crate::osim::props::fmt_numbers;
 use crate::osim::xml::{Element, Node};
 use crate::osim::Document;
 use crate::solver::expr::{Expr, Fn1, Fn2, Op, VARIABLES};
@@ -159,14 +159,14 @@ fn numbers(e: &Element, prop: &str, n: usize, file: &Path, default: f64) -> Resu
                 .map_err(|_| {
                     Error::parse(
                         file,
-                        crate::osim::document::loc(e),
+                        crate::osim::props::loc(e),
                         format!("<{prop}> is not a list of numbers"),
                     )
                 })?;
             if v.len() != n || !v.iter().all(|x| x.is_finite()) {
                 return Err(Error::parse(
                     file,
-                    crate::osim::document::loc(e),
+                    crate::osim::props::loc(e),
                     format!("<{prop}> must hold {n} finite numbers"),
                 ));
             }
@@ -299,7 +299,7 @@ fn curve_of_expr(e: &Expr, dof: usize) -> Option<CurveSpec> {
 /// The law of a bushing element (BushingForce, FunctionBasedBushingForce,
 /// ExpressionBasedBushingForce) as a table would state it.
 pub fn read_law(e: &Element, file: &Path) -> Result<LevelLaw> {
-    let here = || format!("{}: {}", file.display(), crate::osim::document::loc(e));
+    let here = || format!("{}: {}", file.display(), crate::osim::props::loc(e));
     match e.name.as_str() {
         "BushingForce" => {
             let r = numbers(e, "rotational_stiffness", 3, file, 0.0)?;

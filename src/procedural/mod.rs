@@ -134,7 +134,7 @@ fn muscle_element(m: &MuscleSpec, class: &str) -> Element {
             Element::new("PathPoint")
                 .with_attr("name", format!("{}-P{}", m.name, i + 1))
                 .with_prop("socket_parent_frame", format!("/bodyset/{}", p.body))
-                .with_prop("location", crate::osim::document::fmt_numbers(&p.location)),
+                .with_prop("location", crate::osim::props::fmt_numbers(&p.location)),
         );
     }
     let path = Element::new("GeometryPath")
