@@ -36,26 +36,9 @@ fn ext(p: &Path) -> String {
         .to_ascii_lowercase()
 }
 
-/// The typed model of `doc`. An error in a legacy file (upgraded on
-/// reading) says which version the file was written in, since the names it
-/// gives are those of the 4.x upgrade (`docs/legacy-upgrade.md`).
-pub fn typed_model(doc: &Document) -> anyhow::Result<crate::osim::Model> {
-    let v = doc.original_version();
-    doc.model().map_err(|e| {
-        let e = anyhow::Error::from(e);
-        if v < 40000 {
-            e.context(format!(
-                "a Version {v} document, checked after its upgrade to 4.x (the names below are those of the upgrade, see docs/legacy-upgrade.md)"
-            ))
-        } else {
-            e
-        }
-    })
-}
-
 fn convert_checked(args: &Args) -> anyhow::Result<(Document, super::info::Summary)> {
     let doc = Document::read(&args.input)?;
-    let model = typed_model(&doc)?;
+    let model = super::info::typed_model(&doc)?;
     let s = super::info::summarize(&doc, &model, &args.geometry)?;
     super::info::refuse_escaping_meshes(&s)?;
     let keep = !args.drop_missing_meshes;

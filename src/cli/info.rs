@@ -240,7 +240,7 @@ pub fn render(s: &Summary) -> String {
 /// Run `info`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     let doc = Document::read(&args.model)?;
-    let model = super::convert::typed_model(&doc)?;
+    let model = typed_model(&doc)?;
     let s = summarize(&doc, &model, &args.geometry)?;
     refuse_escaping_meshes(&s)?;
     for w in crate::osim::lint::warnings(&model) {
@@ -264,4 +264,21 @@ pub fn refuse_escaping_meshes(s: &Summary) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The typed model of `doc`. An error in a legacy file (upgraded on
+/// reading) says which version the file was written in, since the names it
+/// gives are those of the 4.x upgrade (`docs/legacy-upgrade.md`).
+pub fn typed_model(doc: &Document) -> anyhow::Result<crate::osim::Model> {
+    let v = doc.original_version();
+    doc.model().map_err(|e| {
+        let e = anyhow::Error::from(e);
+        if v < 40000 {
+            e.context(format!(
+                "a Version {v} document, checked after its upgrade to 4.x (the names below are those of the upgrade, see docs/legacy-upgrade.md)"
+            ))
+        } else {
+            e
+        }
+    })
 }
