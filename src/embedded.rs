@@ -149,7 +149,7 @@ mod tests {
         // Exactly base.osim and the meshes it names; a stray file of the
         // folder (not named by the model) is not embedded.
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("base_model");
-        let doc = crate::osim::Document::read(&dir.join("base.osim")).unwrap();
+        let doc = crate::osim::Document::read(dir.join("base.osim")).unwrap();
         let model = doc.model().unwrap();
         let mut want: Vec<String> = model.mesh_files().into_iter().map(|(_, f)| f).collect();
         want.push("base.osim".to_string());
