@@ -42,7 +42,10 @@ fn parameterisations() -> Vec<(&'static str, Parameterisation)> {
         ("nonlinear:sinh", nonlinear(CurveForm::Sinh, false)),
         ("nonlinear:cubic", nonlinear(CurveForm::Cubic, false)),
         ("nonlinear:sinh:per-level", nonlinear(CurveForm::Sinh, true)),
-        ("nonlinear:cubic:per-level", nonlinear(CurveForm::Cubic, true)),
+        (
+            "nonlinear:cubic:per-level",
+            nonlinear(CurveForm::Cubic, true),
+        ),
         ("coupled", Parameterisation::Coupled),
     ]
 }

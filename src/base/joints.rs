@@ -26,21 +26,12 @@ use super::template::IvdParams;
 use crate::error::{Error, Result};
 use crate::landmarks::Level;
 use crate::osim::builders;
-use crate::osim::model::{Joint, JointFrames, JointKind};
+use crate::osim::model::{xyz_angles, Joint, JointFrames, JointKind};
 use crate::osim::xml::Element;
-use nalgebra::{Isometry3, Rotation3, Vector3};
+use nalgebra::{Isometry3, Vector3};
 
 /// Suffixes of the six coordinates, in SpatialTransform order.
 pub const COORD_SUFFIXES: [&str; 6] = ["LB", "AR", "FE", "AP", "SI", "ML"];
-
-/// Body-fixed X-Y-Z angles of a rotation (`R = Rx(a) Ry(b) Rz(c)`).
-pub fn xyz_angles(r: &Rotation3<f64>) -> Vector3<f64> {
-    let m = r.matrix();
-    let b = m[(0, 2)].clamp(-1.0, 1.0).asin();
-    let a = (-m[(1, 2)]).atan2(m[(2, 2)]);
-    let c = (-m[(0, 1)]).atan2(m[(0, 0)]);
-    Vector3::new(a, b, c)
-}
 
 /// Joint prefix `<UPPER>_<LOWER>` (e.g. `L5_S1`).
 pub fn joint_prefix(upper: Level, lower: Level) -> String {
@@ -247,22 +238,4 @@ pub fn weld_joint(name: &str, parent: &str, child: &str, x: &Isometry3<f64>) -> 
         &Vector3::zeros(),
     );
     builders::weld_joint(name, pf, cf)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::osim::model::body_fixed_xyz;
-
-    #[test]
-    fn xyz_angles_invert_body_fixed_xyz() {
-        for v in [
-            Vector3::new(0.1, -0.4, 0.7),
-            Vector3::new(-1.2, 0.3, -2.9),
-            Vector3::new(0.0, 0.0, 0.0),
-        ] {
-            let back = xyz_angles(&body_fixed_xyz(&v));
-            assert!((back - v).norm() < 1e-12, "{v:?} -> {back:?}");
-        }
-    }
 }

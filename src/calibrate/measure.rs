@@ -114,7 +114,7 @@ pub fn pair_increment_unloaded<T: Scalar>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solver::scalar::from_body_xyz;
+    use crate::osim::model::body_fixed_xyz;
     use nalgebra::{Rotation3, Unit};
 
     fn rot(axis: [f64; 3], angle: f64) -> Matrix3<f64> {
@@ -139,11 +139,11 @@ mod tests {
     #[test]
     fn rigid_motion_of_the_pair_gives_zero() {
         let u0 = Pose {
-            r: from_body_xyz(&Vector3::new(0.1, 0.2, -0.1)),
+            r: body_fixed_xyz(&Vector3::new(0.1, 0.2, -0.1)).into_inner(),
             p: Vector3::new(0.01, 0.05, 0.0),
         };
         let l0 = Pose {
-            r: from_body_xyz(&Vector3::new(0.0, 0.1, 0.05)),
+            r: body_fixed_xyz(&Vector3::new(0.0, 0.1, 0.05)).into_inner(),
             p: Vector3::new(0.0, 0.0, 0.01),
         };
         let g = Pose {
@@ -166,7 +166,7 @@ mod tests {
         // format's statement: relative rotation carried by the lower body's
         // loaded orientation.
         let u0 = Pose {
-            r: from_body_xyz(&Vector3::new(0.1, 0.0, 0.0)),
+            r: body_fixed_xyz(&Vector3::new(0.1, 0.0, 0.0)).into_inner(),
             p: Vector3::zeros(),
         };
         let l0 = Pose::<f64>::identity();

@@ -305,7 +305,7 @@ fn isb_rotation(p: &Points) -> Option<Rotation3<f64>> {
 }
 
 fn xyz_deg(r: &UnitQuaternion<f64>) -> [f64; 3] {
-    let a = crate::base::joints::xyz_angles(&r.to_rotation_matrix());
+    let a = crate::osim::model::xyz_angles(&r.to_rotation_matrix());
     [a.x.to_degrees(), a.y.to_degrees(), a.z.to_degrees()]
 }
 
@@ -1440,7 +1440,7 @@ fn write_joint(
         set_vec3(
             e,
             "orientation",
-            &crate::base::joints::xyz_angles(&x.rotation.to_rotation_matrix()),
+            &crate::osim::model::xyz_angles(&x.rotation.to_rotation_matrix()),
         );
     };
     let el = doc

@@ -28,6 +28,18 @@ pub fn body_fixed_xyz(angles: &Vector3<f64>) -> Rotation3<f64> {
         * Rotation3::from_axis_angle(&Vector3::z_axis(), angles[2])
 }
 
+/// Body-fixed X-Y-Z angles of a rotation (`R = Rx(a) Ry(b) Rz(c)`, OpenSim's
+/// `orientation`): the inverse of [`body_fixed_xyz`] away from gimbal lock.
+/// (The solver's generic form, for dual numbers, is
+/// `solver::scalar::body_xyz`, Simbody's formula; they agree to rounding.)
+pub fn xyz_angles(r: &Rotation3<f64>) -> Vector3<f64> {
+    let m = r.matrix();
+    let b = m[(0, 2)].clamp(-1.0, 1.0).asin();
+    let a = (-m[(1, 2)]).atan2(m[(2, 2)]);
+    let c = (-m[(0, 1)]).atan2(m[(0, 0)]);
+    Vector3::new(a, b, c)
+}
+
 /// Transform with translation `t` and body-fixed XYZ orientation `angles`.
 pub fn frame_transform(t: &Vector3<f64>, angles: &Vector3<f64>) -> Isometry3<f64> {
     Isometry3::from_parts(
@@ -1556,6 +1568,18 @@ mod tests {
         assert_eq!(join_path("/jointset/j", "/ground").unwrap(), "/ground");
         assert_eq!(join_path("/bodyset/b/g", "..").unwrap(), "/bodyset/b");
         assert!(join_path("/a", "../../x").is_none());
+    }
+
+    #[test]
+    fn xyz_angles_invert_body_fixed_xyz() {
+        for v in [
+            Vector3::new(0.1, -0.4, 0.7),
+            Vector3::new(-1.2, 0.3, -2.9),
+            Vector3::new(0.0, 0.0, 0.0),
+        ] {
+            let back = xyz_angles(&body_fixed_xyz(&v));
+            assert!((back - v).norm() < 1e-12, "{v:?} -> {back:?}");
+        }
     }
 
     #[test]

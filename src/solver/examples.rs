@@ -27,9 +27,7 @@ pub fn ellipsoid_inertia(m: f64, a: f64, b: f64, c: f64) -> Matrix3<f64> {
 
 /// Body-fixed X-Y-Z orientation + location as an isometry.
 pub fn iso(loc: [f64; 3], xyz: [f64; 3]) -> Isometry3<f64> {
-    let r = nalgebra::Rotation3::from_matrix_unchecked(super::scalar::from_body_xyz(
-        &Vector3::new(xyz[0], xyz[1], xyz[2]),
-    ));
+    let r = crate::osim::model::body_fixed_xyz(&Vector3::new(xyz[0], xyz[1], xyz[2]));
     Isometry3::from_parts(
         Translation3::new(loc[0], loc[1], loc[2]),
         UnitQuaternion::from_rotation_matrix(&r),

@@ -101,7 +101,9 @@ pub fn rot_axis<T: Scalar>(axis: &Vector3<f64>, angle: T) -> Matrix3<T> {
 }
 
 /// Body-fixed X-Y-Z angles of `r` (r = Rx(a) Ry(b) Rz(c)), as Simbody's
-/// `convertRotationToBodyFixedXYZ` computes them away from gimbal lock.
+/// `convertRotationToBodyFixedXYZ` computes them away from gimbal lock,
+/// generic over the scalar so that dual numbers differentiate through it
+/// (the f64 form of the model files is `osim::model::xyz_angles`).
 #[inline]
 pub fn body_xyz<T: Scalar>(r: &Matrix3<T>) -> Vector3<T> {
     let half = T::c(0.5);
@@ -117,11 +119,6 @@ pub fn body_xyz<T: Scalar>(r: &Matrix3<T>) -> Vector3<T> {
     Vector3::new(t1, t2, t3)
 }
 
-/// Rotation from body-fixed X-Y-Z angles.
-pub fn from_body_xyz(a: &Vector3<f64>) -> Matrix3<f64> {
-    rot_axis(&Vector3::x(), a.x) * rot_axis(&Vector3::y(), a.y) * rot_axis(&Vector3::z(), a.z)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -129,7 +126,7 @@ mod tests {
     #[test]
     fn body_xyz_round_trip() {
         let a = Vector3::new(0.3, -0.7, 1.2);
-        let r = from_body_xyz(&a);
+        let r = crate::osim::model::body_fixed_xyz(&a).into_inner();
         let b = body_xyz(&r);
         assert!((a - b).norm() < 1e-14);
     }

@@ -66,7 +66,7 @@ fn body_fixed_moment_about_x_after_z_rotation() {
     let q = &sol.q;
     let qr = Vector3::new(q[0], q[1], q[2]);
     let f = Vector3::new(-68.8 * q[0], -291.0 * q[1], -51.0 * q[2]);
-    let r = scalar::from_body_xyz(&qr);
+    let r = crate::osim::model::body_fixed_xyz(&qr).into_inner();
     let m_bushing = r * crate::solver::forces::n_transpose_mul(&qr, &f);
     let m_load = r * Vector3::new(3.0, 0.0, 4.0);
     assert!(
