@@ -17,6 +17,7 @@
 use super::geom::{point_principal_axes, PrincipalAxes};
 use super::{MeshQuery, TriMesh};
 use crate::error::{Error, Result};
+use crate::util::quantiles::quantile;
 use nalgebra::{Matrix3, Matrix4, Point3, Rotation3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 /// A similarity transform `p -> scale * R p + translation`.
@@ -181,24 +182,26 @@ pub struct Residuals {
 }
 
 impl Residuals {
-    /// Statistics of `d` (nearest-rank percentiles); all zero if empty.
+    /// Statistics of `d` (percentiles by the crate's one convention, R's
+    /// type 7: [`crate::util::quantiles::quantile`]); all zero if empty or
+    /// holding a NaN.
     pub fn from_distances(d: &[f64]) -> Residuals {
-        if d.is_empty() {
+        let pct = |p: f64| quantile(d, p);
+        let (Some(p50), Some(p90), Some(p95), Some(p99), Some(max)) =
+            (pct(0.5), pct(0.9), pct(0.95), pct(0.99), pct(1.0))
+        else {
             return Residuals::default();
-        }
-        let mut s = d.to_vec();
-        s.sort_by(f64::total_cmp);
-        let n = s.len();
-        let pct = |p: f64| s[(((n as f64) * p).ceil() as usize).clamp(1, n) - 1];
+        };
+        let n = d.len();
         Residuals {
             n,
-            rms: (s.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt(),
-            mean: s.iter().sum::<f64>() / n as f64,
-            max: s[n - 1],
-            p50: pct(0.5),
-            p90: pct(0.9),
-            p95: pct(0.95),
-            p99: pct(0.99),
+            rms: (d.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt(),
+            mean: d.iter().sum::<f64>() / n as f64,
+            max,
+            p50,
+            p90,
+            p95,
+            p99,
         }
     }
 
@@ -636,10 +639,11 @@ mod tests {
     fn residual_percentiles() {
         let d: Vec<f64> = (1..=100).map(|i| i as f64).collect();
         let r = Residuals::from_distances(&d);
-        assert_eq!(
-            (r.p50, r.p90, r.p95, r.p99, r.max),
-            (50.0, 90.0, 95.0, 99.0, 100.0)
-        );
+        // R: quantile(1:100, c(.5, .9, .95, .99)) -> 50.5 90.1 95.05 99.01
+        let want = [50.5, 90.1, 95.05, 99.01, 100.0];
+        for (got, want) in [r.p50, r.p90, r.p95, r.p99, r.max].iter().zip(want) {
+            assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+        }
         assert!((r.rms - (338350.0f64 / 100.0).sqrt()).abs() < 1e-9);
     }
 }
