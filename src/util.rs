@@ -1,11 +1,13 @@
 //! Small shared helpers: the input gate every reader goes through
 //! ([`input`]), atomic output, deterministic number formatting,
 //! reports at a stated precision ([`report`]), the one quantile helper
-//! ([`quantiles`]) and the shared SVG figures ([`svg`]).
+//! ([`quantiles`]), the one progress bar ([`progress`]) and the shared SVG
+//! figures ([`svg`]).
 
 pub mod guard;
 pub mod input;
 pub mod output;
+pub mod progress;
 pub mod quantiles;
 pub mod report;
 pub mod svg;

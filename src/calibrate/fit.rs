@@ -243,19 +243,11 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
         return Err(Error::invalid("calibration", "--starts must be at least 1"));
     }
     precheck(pb, &starts[0])?;
-    let bar = if opts.progress {
-        let b = indicatif::ProgressBar::new(starts.len() as u64);
-        b.set_message("starts");
-        Some(b)
-    } else {
-        None
-    };
+    let bar = crate::util::progress::bar("calibrate", starts.len() as u64, "starts", opts.progress);
     let run = |s: &Vec<f64>| -> StartResult {
         let mut ev = pb.evaluator();
         let res = fit_from(pb, &mut ev, s, &opts.lm);
-        if let Some(b) = &bar {
-            b.inc(1);
-        }
+        bar.inc(1);
         match res {
             Ok(r) => StartResult {
                 start: s.clone(),
@@ -288,9 +280,7 @@ pub fn calibrate(pb: &Problem, opts: &FitOptions) -> Result<Calibration> {
     } else {
         starts.iter().map(run).collect()
     };
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
+    bar.finish_and_clear();
     // cluster, best first
     // local minima: converged starts; if none converged, the best ends
     let mut order: Vec<usize> = (0..results.len())

@@ -572,23 +572,18 @@ pub fn run(
     let lv = vertebra_levels(&study.joints)?;
     let perts = frame_perturbations(&lv, opts.samples, opts.landmark_sd, opts.seed)?;
     // Every sample re-calibrated (in parallel).
-    let bar = opts
-        .progress
-        .then(|| indicatif::ProgressBar::new(opts.samples as u64));
+    let bar =
+        crate::util::progress::bar("sensitivity", opts.samples as u64, "samples", opts.progress);
     let samples: Vec<Sample> = perts
         .par_iter()
         .enumerate()
         .map(|(i, p)| {
             let s = study.sample(i, p);
-            if let Some(b) = &bar {
-                b.inc(1);
-            }
+            bar.inc(1);
             s
         })
         .collect();
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
+    bar.finish_and_clear();
     // Spread of each parameter and of the RMSE over the reduced dataset.
     let ok: Vec<&Sample> = samples.iter().filter(|s| s.ok).collect();
     let off: Vec<f64> = ok.iter().map(|s| s.mean_offset).collect();

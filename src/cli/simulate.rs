@@ -135,13 +135,7 @@ fn refuse_impossible_inertia(model: &crate::osim::model::Model) -> anyhow::Resul
 /// when stderr is not a terminal).
 fn step_bar(case: &str, t: f64, dt: f64) -> indicatif::ProgressBar {
     let steps = crate::solver::dynamics::step_count(t, dt).unwrap_or(0) as u64;
-    let bar = indicatif::ProgressBar::new(steps);
-    if let Ok(st) =
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps ({eta} left)")
-    {
-        bar.set_style(st);
-    }
-    bar.set_message(format!("case {case}"));
+    let bar = crate::util::progress::bar(&format!("case {case}"), steps, "steps", true);
     bar
 }
 

@@ -455,17 +455,8 @@ fn palpation_models(
     ends: Option<(Level, Level)>,
     opts: &PropagationOptions,
 ) -> Vec<Result<(Generated, ModelMetrics)>> {
-    let bar = if opts.progress && pals.len() >= 4 {
-        let b = indicatif::ProgressBar::new(pals.len() as u64);
-        if let Ok(st) = indicatif::ProgressStyle::with_template(
-            "variability models {bar:30} {pos}/{len} {elapsed}",
-        ) {
-            b.set_style(st);
-        }
-        b
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
+    let show = opts.progress && pals.len() >= 4;
+    let bar = crate::util::progress::bar("variability", pals.len() as u64, "models", show);
     let results = pals
         .par_iter()
         .map(|p| {
