@@ -10,12 +10,13 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 /// has to fix the input: where (file, element/line) and what was expected.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// Reading or writing a file failed at the OS level.
-    #[error("{path}: {source}")]
+    /// Reading or writing a file failed at the OS level. The OS error is
+    /// part of the message (not a separate source, which a console
+    /// printing the whole chain would repeat).
+    #[error("{path}: {cause}")]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The content of a file is malformed or not what was expected.
     /// `location` is an element path, a line number or a row, as fits the format.
@@ -39,7 +40,7 @@ impl Error {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io {
             path: path.into(),
-            source,
+            cause: source,
         }
     }
     /// Parse error in `path` at `location` (element path, `line N`, `row N`).

@@ -1,10 +1,15 @@
-//! Issue 19: the 38 hostile inputs of the second attack round, by category.
-//! Each asserts a clean refusal (non-zero exit, the file named, no panic
-//! text, nothing written) or the correct result. Inputs are generated in a
-//! temporary folder: devices through symlinks, FIFOs through `mkfifo`,
-//! large models by string building.
+//! Hostile and everyday inputs, by category. Each asserts a clean refusal
+//! (non-zero exit, the file named, no panic text, nothing written) or the
+//! correct result. Inputs are generated in a temporary folder: devices
+//! through symlinks, FIFOs through `mkfifo`, large models by string
+//! building. The later rounds live in `hostile_input/`, one file per topic.
 
 mod common;
+
+#[path = "hostile_input/model_files.rs"]
+mod model_files;
+#[path = "hostile_input/outputs.rs"]
+mod outputs;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -231,9 +231,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     for (name, svg) in &built.views {
         files.push((args.out.join(name), svg.clone().into_bytes()));
     }
-    for (p, bytes) in &files {
-        crate::util::write_atomic(p, bytes)?;
-    }
+    crate::util::write_all_or_nothing(&files)?;
     let r = &built.report;
     crate::outln!(
         "base model: {} bodies, {} joints ({} rebuilt 6-DoF), {} muscles kept ({} dropped), {} bushings",

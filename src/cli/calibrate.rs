@@ -14,7 +14,7 @@ use crate::calibrate::report::{self, FitSummary};
 use crate::calibrate::setup::{self, Setup};
 use crate::calibrate::validate;
 use crate::solver::{BushingModel, Curve};
-use crate::util::write_atomic;
+use crate::util::write_all_or_nothing;
 use anyhow::Context;
 use clap::Args as ClapArgs;
 use serde::Serialize;
@@ -290,12 +290,14 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         &format!("{}: calibrated ({})", exp.name, a.params),
     );
     let params_svg = report::params_svg(&cal, &format!("{}: parameters ({})", exp.name, a.params));
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    write_atomic(&a.out.join("report.json"), json.as_bytes())?;
-    write_atomic(&a.out.join("fit.svg"), fit_svg.as_bytes())?;
-    write_atomic(&a.out.join("params.svg"), params_svg.as_bytes())?;
     let model_out = a.out.join("calibrated.osim");
-    let missing = doc.write_with_meshes(&model_out, &[], false)?;
+    let (mut files, missing) = doc.files_for(&model_out, &[], false)?;
+    files.extend([
+        (a.out.join("report.json"), json.into_bytes()),
+        (a.out.join("fit.svg"), fit_svg.into_bytes()),
+        (a.out.join("params.svg"), params_svg.into_bytes()),
+    ]);
+    write_all_or_nothing(&files)?;
     super::warn_missing_meshes(&model_out, &missing, false);
     print_summary(&rep, &cal, a.starts, exp.units.angle);
     crate::errln!("calibrate: written to {}", a.out.display());

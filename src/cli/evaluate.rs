@@ -97,9 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     for (name, svg) in figures {
         files.push((args.out.join(name), svg.into_bytes()));
     }
-    for (p, b) in &files {
-        crate::util::write_atomic(p, b)?;
-    }
+    crate::util::write_all_or_nothing(&files)?;
     for m in &report.models {
         let cobb = m
             .cobb

@@ -205,9 +205,7 @@ fn write_outputs(
             svg.clone().into_bytes(),
         ));
     }
-    for (p, bytes) in &files {
-        crate::util::write_atomic(p, bytes)?;
-    }
+    crate::util::write_all_or_nothing(&files)?;
     Ok((files.len(), dir))
 }
 

@@ -166,9 +166,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         return Err(Error::invalid("--out", "would overwrite the segmentation").into());
     }
     print_summary(&p);
-    for (f, bytes) in &files {
-        crate::util::write_atomic(f, bytes)?;
-    }
+    crate::util::write_all_or_nothing(&files)?;
     crate::outln!("wrote {} files: {}", files.len(), args.out.display());
     Ok(0)
 }

@@ -9,8 +9,7 @@ use crate::calibrate::experiment::Experiment;
 use crate::calibrate::measure::Convention;
 use crate::calibrate::sensitivity::{self, SensitivityOptions, SensitivityReport};
 use crate::calibrate::setup::{self, Setup};
-use crate::util::write_atomic;
-use anyhow::Context;
+use crate::util::write_all_or_nothing;
 use clap::Args as ClapArgs;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -107,9 +106,10 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
             exp.name, a.landmark_sd
         ),
     );
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    write_atomic(&a.out.join("sensitivity.json"), json.as_bytes())?;
-    write_atomic(&a.out.join("spread.svg"), svg.as_bytes())?;
+    write_all_or_nothing(&[
+        (a.out.join("sensitivity.json"), json.into_bytes()),
+        (a.out.join("spread.svg"), svg.into_bytes()),
+    ])?;
     crate::errln!(
         "sensitivity: {} of {} samples in the reduced dataset; rotation RMSE median {:.4} (reference {:.4})",
         rep.reduced, rep.samples, rep.rmse.median, rep.reference_rmse

@@ -19,7 +19,6 @@ use crate::solver::dynamics::Integrator;
 use crate::solver::from_model::ignored_forces;
 use crate::solver::output::{sto_string, BodyPose, BushingRecord};
 use crate::solver::{BodyIndex, StaticOptions, System, SystemSpec, Workspace};
-use crate::util::write_atomic;
 use anyhow::{bail, Context};
 use clap::Args as ClapArgs;
 use serde::Serialize;
@@ -549,10 +548,12 @@ fn check_durations(a: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The outputs into `dir`, all or nothing (the folder itself is created
+/// even when a run writes no file).
 fn write_all(dir: &Path, files: &[(PathBuf, Vec<u8>)]) -> anyhow::Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    for (p, bytes) in files {
-        write_atomic(p, bytes)?;
+    if files.is_empty() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
+    crate::util::write_all_or_nothing(files)?;
     Ok(())
 }

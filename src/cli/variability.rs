@@ -140,9 +140,8 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
             );
         }
     }
-    for (p, b) in &files {
-        crate::util::write_atomic(p, b)?;
-    }
+    let files: Vec<(PathBuf, Vec<u8>)> = files.into_iter().collect();
+    crate::util::write_all_or_nothing(&files)?;
     let r = &c.report;
     if r.operators.len() == 1 && args.files.len() > 1 {
         crate::outln!(

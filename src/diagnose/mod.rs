@@ -82,9 +82,6 @@ pub fn run(
     let exp = Experiment::read(experiment)?;
     let o = select::diagnose(&exp, opts)?;
     let (files, missing) = outputs(&exp, &o, out)?;
-    std::fs::create_dir_all(out).map_err(|e| crate::Error::io(out, e))?;
-    for (path, bytes) in files {
-        crate::util::write_atomic(&path, &bytes)?;
-    }
+    crate::util::write_all_or_nothing(&files)?;
     Ok((o, missing))
 }

@@ -38,7 +38,7 @@ use crate::error::{Error, Result};
 use crate::landmarks::stats::{self, Icc};
 use crate::landmarks::{Code, LandmarkId, LandmarkSet, Level};
 use crate::osim::Document;
-use crate::util::write_atomic;
+use crate::util::write_all_or_nothing;
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -571,8 +571,10 @@ pub fn run(
     models: Option<(&Document, &PropagationOptions)>,
 ) -> Result<Computed> {
     let c = compute(paths, models)?;
-    for (p, b) in output_files(&c)? {
-        write_atomic(&out_dir.join(p), &b)?;
-    }
+    let files: Vec<(PathBuf, Vec<u8>)> = output_files(&c)?
+        .into_iter()
+        .map(|(p, b)| (out_dir.join(p), b))
+        .collect();
+    write_all_or_nothing(&files)?;
     Ok(c)
 }

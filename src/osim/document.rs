@@ -198,8 +198,8 @@ impl Document {
         Ok((files, copies.missing))
     }
 
-    /// Write [`Self::files_for`] (each atomically, the model last); returns
-    /// the meshes found nowhere.
+    /// Write [`Self::files_for`] (all or nothing); returns the meshes found
+    /// nowhere.
     pub fn write_with_meshes(
         &self,
         out: &Path,
@@ -207,9 +207,7 @@ impl Document {
         keep_missing: bool,
     ) -> Result<Vec<String>> {
         let (files, missing) = self.files_for(out, extra, keep_missing)?;
-        for (p, bytes) in &files {
-            crate::util::write_atomic(p, bytes)?;
-        }
+        crate::util::write_all_or_nothing(&files)?;
         Ok(missing)
     }
 

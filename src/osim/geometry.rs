@@ -1,7 +1,11 @@
 //! Mesh file resolution like OpenSim: the model's folder, its `Geometry/`
 //! subfolder, then any extra folders given (`--geometry DIR`). A
 //! `mesh_file` that is absolute or contains `..` is never followed: it is
-//! reported as escaping its folder.
+//! reported as escaping its folder. Nor is a file found there that
+//! resolves (through a symbolic link, of the file or of a folder on its
+//! way) outside the model's folder tree or the `--geometry` folder it was
+//! found in: a model folder from someone else cannot make the tool read,
+//! or copy into an output, a file from elsewhere.
 
 use super::xml::Element;
 use crate::error::Result;
@@ -17,18 +21,39 @@ pub enum MeshLookup {
     Found(PathBuf),
     /// Not in any of the searched folders.
     Missing,
-    /// Absolute, or climbing out with `..`: not followed.
+    /// Absolute, climbing out with `..`, or a symbolic link leading out of
+    /// the folders searched: not followed.
     Escapes(String),
 }
 
 /// Folders searched for meshes of a model at `model_path`, in order.
 pub fn search_dirs(model_path: &Path, extra: &[PathBuf]) -> Vec<PathBuf> {
+    search_roots(model_path, extra)
+        .into_iter()
+        .map(|(d, _, _)| d)
+        .collect()
+}
+
+/// The folders searched, each with the tree a file found in it must stay
+/// inside (and that tree's name): the model's folder for the folder and
+/// its `Geometry/`, each `--geometry` folder for itself.
+fn search_roots(model_path: &Path, extra: &[PathBuf]) -> Vec<(PathBuf, PathBuf, &'static str)> {
     let dir = match model_path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let mut out = vec![dir.clone(), dir.join("Geometry")];
-    out.extend(extra.iter().cloned());
+    let model = "the model's folder";
+    let mut out = vec![
+        (dir.clone(), dir.clone(), model),
+        (dir.join("Geometry"), dir, model),
+    ];
+    out.extend(extra.iter().map(|d| {
+        (
+            d.clone(),
+            d.clone(),
+            "the --geometry folder it was found in",
+        )
+    }));
     out
 }
 
@@ -58,13 +83,27 @@ pub fn resolve(model_path: &Path, mesh_file: &str, extra: &[PathBuf]) -> MeshLoo
         Ok(r) => r,
         Err(why) => return MeshLookup::Escapes(format!("mesh_file '{mesh_file}' {why}")),
     };
-    for d in search_dirs(model_path, extra) {
+    for (d, root, tree) in search_roots(model_path, extra) {
         let p = d.join(rel);
         if p.is_file() {
+            if !inside(&p, &root) {
+                return MeshLookup::Escapes(format!(
+                    "mesh_file '{mesh_file}' is a symbolic link (or lies in a linked folder) leading outside {tree}; not followed"
+                ));
+            }
             return MeshLookup::Found(p);
         }
     }
     MeshLookup::Missing
+}
+
+/// `true` when `p` resolves (symbolic links followed) to a file inside
+/// the folder `root` (resolved likewise).
+fn inside(p: &Path, root: &Path) -> bool {
+    match (std::fs::canonicalize(p), std::fs::canonicalize(root)) {
+        (Ok(f), Ok(r)) => f.starts_with(r),
+        _ => false,
+    }
 }
 
 /// Every `mesh_file` of a model element tree (bodies, ground, offset

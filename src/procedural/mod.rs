@@ -382,11 +382,13 @@ impl GenericModel {
     }
 
     /// Write the model and its meshes into `dir` (everything is serialised
-    /// first, then written file by file atomically).
+    /// first, then written all or nothing).
     pub fn write(&self, dir: &Path, stem: &str) -> Result<()> {
-        for (rel, bytes) in self.files(stem) {
-            crate::util::write_atomic(&dir.join(rel), &bytes)?;
-        }
-        Ok(())
+        let files: Vec<(std::path::PathBuf, Vec<u8>)> = self
+            .files(stem)
+            .into_iter()
+            .map(|(rel, bytes)| (dir.join(rel), bytes))
+            .collect();
+        crate::util::write_all_or_nothing(&files)
     }
 }
