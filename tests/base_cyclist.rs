@@ -60,14 +60,15 @@ fn cyclist_base_model_in_opensim() {
     let doc = Document::read(&base).unwrap();
     let m = doc.model().unwrap();
     let mut per_body: BTreeMap<String, Vec<(String, Point3<f64>)>> = BTreeMap::new();
-    for mk in &m.markers {
+    for mk in m.markers.iter().filter(|mk| !mk.name.starts_with("FH_")) {
         let (body, x) = m.marker_frame(mk).unwrap();
         per_body
             .entry(body)
             .or_default()
             .push((mk.name.clone(), x * Point3::from(mk.location)));
     }
-    assert_eq!(m.markers.len(), 17 * 14 + 5);
+    // 14 per vertebra, 5 on S1, the femoral heads FH_R / FH_L
+    assert_eq!(m.markers.len(), 17 * 14 + 5 + 2);
     // The protocol's invariants hold on every vertebra (the base's guards).
     assert_eq!(
         report["guard_failures"],
@@ -137,6 +138,19 @@ fn cyclist_base_model_in_opensim() {
         kdiff < 1e-9,
         "tool and OpenSim marker positions differ by {kdiff}"
     );
+    // The femoral head markers sit on the generic model's hip joint centres
+    // (OpenSim on both models; the pelvis is welded at its generic pose).
+    let hips = common::run_py(
+        &py,
+        "hip_centres.py",
+        &[model.to_str().unwrap(), "hip_r", "hip_l"],
+    );
+    for (mk, joint) in [("FH_R", "hip_r"), ("FH_L", "hip_l")] {
+        for k in 0..3 {
+            let d = r["markers"][mk][k].as_f64().unwrap() - hips[joint][k].as_f64().unwrap();
+            assert!(d.abs() < 1e-9, "{mk} is {d} m off the centre of {joint}");
+        }
+    }
     let rows = r["scoliotic"].as_array().unwrap();
     assert!(!rows.is_empty());
     let crossing = common::assert_wrap_rows(rows);

@@ -74,6 +74,20 @@ fn example_patient_main_job() {
     ] {
         assert!(tmp.path().join("out").join(f).is_file(), "{f} not written");
     }
+    // The base's femoral head markers ride on the (welded) pelvis into the
+    // patient model unchanged: bending films are placed on them.
+    let marker = |doc: &Document, name: &str| {
+        let m = doc.model().unwrap();
+        let mk = m.markers.iter().find(|mk| mk.name == name).cloned();
+        mk.map(|mk| (m.marker_frame(&mk).unwrap().0, mk.location))
+    };
+    let base = Document::read(root().join("base_model/base.osim")).unwrap();
+    let patient = Document::read(&out).unwrap();
+    for name in ["FH_R", "FH_L"] {
+        let b = marker(&base, name).unwrap_or_else(|| panic!("base lacks {name}"));
+        assert_eq!(b.0, "pelvis");
+        assert_eq!(marker(&patient, name), Some(b), "{name}");
+    }
     let ev = tmp.path().join("eval");
     let o = run(&[
         "evaluate",

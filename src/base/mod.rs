@@ -18,7 +18,8 @@
 //!    ([`crate::palpation`]): its landmarks become the markers, its
 //!    vertebral centre (thesis sphere rule) the centre of the vertebral-body
 //!    wrapping sphere; add PathWraps ([`wrap`]);
-//! 6. the S1 plateau markers by the engine's sacrum rule;
+//! 6. the S1 plateau markers by the engine's sacrum rule, and the femoral
+//!    head centres as pelvis markers `FH_R` / `FH_L` ([`hips`]);
 //! 7. self-check ([`check`]) and draw the report views ([`views`]).
 //!
 //! [`build_base`] computes everything in memory and writes nothing; meshes
@@ -29,6 +30,7 @@ mod assemble;
 pub mod centres;
 pub mod check;
 pub mod guards;
+pub mod hips;
 pub mod joints;
 pub mod kin;
 pub mod overrides;
@@ -147,6 +149,9 @@ pub struct BaseReport {
     pub path_wraps_added: usize,
     pub muscles_with_wraps: usize,
     pub markers: Vec<MarkerRow>,
+    /// The femoral head centres kept as pelvis markers (empty when the
+    /// generic model has neither `FH_R`/`FH_L` markers nor hip joints).
+    pub hip_centres: Vec<hips::HipCentre>,
     /// Every finding of the palpation engine (warnings and errors).
     pub palpation_ordering_failures: Vec<String>,
     /// Landmarks (`T3_SP`) and centres (`T3_centre`) taken from the
@@ -217,6 +222,8 @@ pub fn build_base(
         &topo,
         &opts.overrides,
     )?;
+    let hip_centres = hips::hip_centres(&model, &topo, &gfile)?;
+    hips::add_hip_markers(&mut doc, &hip_centres);
     // 9. The meshes written beside the model.
     let out_meshes = meshes_to_write(&model, &topo, &sac, opts, source)?;
     // 10. Self-check, views and the report.
@@ -246,6 +253,7 @@ pub fn build_base(
         path_wraps_added: wrapping.path_wraps_added,
         muscles_with_wraps: wrapping.muscles_with_wraps,
         markers: markers.rows,
+        hip_centres,
         palpation_ordering_failures: markers.findings,
         palpation_given: pal.overridden,
         guards_checked: guards::Guard::ALL.to_vec(),

@@ -282,6 +282,27 @@ fn build_document(
     for m in muscles {
         doc.insert_component("ForceSet", muscle_element(m, &t.muscles.class))?;
     }
+    // the hip joint centres as femoral head markers (the base keeps them)
+    for (side, name) in [("r", "FH_R"), ("l", "FH_L")] {
+        let h = sk
+            .pelvis
+            .pelvis_landmarks
+            .get(&format!("hip_{side}"))
+            .ok_or_else(|| {
+                Error::invalid(
+                    "procedural model",
+                    format!("no hip joint centre on side {side}"),
+                )
+            })?;
+        doc.set_objects_mut("MarkerSet")
+            .children
+            .push(Node::Element(builders::marker(
+                name,
+                "/bodyset/pelvis",
+                &h.coords,
+                true,
+            )));
+    }
     Ok(doc)
 }
 
