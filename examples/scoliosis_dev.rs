@@ -9,8 +9,16 @@
 //! markers and centres in its ground ([`osim_spine::evaluate::metrics`]),
 //! against `truth.json` `metrics`.
 //!
+//! With `--segmentation`, every patient's `segmentation/labelmap.nii.gz`
+//! and `segmentation/meshes` instead: `osim-spine generate --base BASE
+//! --segmentation SEG --out OUT.osim`, scored against the `clean` set's
+//! truth (the segmentations are in its frame) over the levels from the
+//! top one measured to L5 (a label map cut by the field of view is scored
+//! on what it shows; Cobb and lordosis of the truth recomputed over the
+//! same levels from `landmarks_clean.csv`).
+//!
 //! Usage (see `benches/scoliosis_dev.sh`, which builds both bases):
-//! `cargo run --release --example scoliosis_dev -- BASE_DIR [DEV_DIR]`
+//! `cargo run --release --example scoliosis_dev -- BASE_DIR [DEV_DIR] [--segmentation]`
 
 use nalgebra::{Isometry3, Point3};
 use osim_spine::evaluate::{load_model, parse_centres_csv, CentreDef, ModelShape};
@@ -134,23 +142,46 @@ fn truth_in_ground(
     (g, centres.iter().map(|(l, p)| (*l, to_g(p))).collect())
 }
 
-fn score_set(
-    base: &Path,
-    dir: &Path,
-    set: &str,
-    truth: &serde_json::Value,
-    out: &Path,
-) -> Result<Score, String> {
-    let lm = dir.join(format!("landmarks_{set}.csv"));
+/// What a model is generated from: a landmark set of the patient's folder
+/// (`clean`, `noise2mm_1`, ...) or one of its segmentations (scored
+/// against the `clean` set, whose frame the segmentations share).
+enum Input {
+    Set(String),
+    Segmentation { label: String, path: PathBuf },
+}
+
+impl Input {
+    /// The set whose truth scores the model.
+    fn truth_set(&self) -> &str {
+        match self {
+            Input::Set(s) => s,
+            Input::Segmentation { .. } => "clean",
+        }
+    }
+    fn label(&self) -> &str {
+        match self {
+            Input::Set(s) => s,
+            Input::Segmentation { label, .. } => label,
+        }
+    }
+}
+
+/// Run `generate` on `input`; the model written.
+fn generate(base: &Path, dir: &Path, input: &Input, out: &Path) -> Result<PathBuf, String> {
     let osim = out.join(format!(
-        "{}_{set}.osim",
-        dir.file_name().unwrap().to_string_lossy()
+        "{}_{}.osim",
+        dir.file_name().unwrap().to_string_lossy(),
+        input.label().replace(['/', '.'], "_")
     ));
-    let o = Command::new(binary())
-        .args(["generate", "--base"])
-        .arg(base)
-        .arg("--landmarks")
-        .arg(&lm)
+    let mut cmd = Command::new(binary());
+    cmd.args(["generate", "--base"]).arg(base);
+    match input {
+        Input::Set(set) => cmd
+            .arg("--landmarks")
+            .arg(dir.join(format!("landmarks_{set}.csv"))),
+        Input::Segmentation { path, .. } => cmd.arg("--segmentation").arg(path),
+    };
+    let o = cmd
         .arg("--out")
         .arg(&osim)
         .args(
@@ -163,35 +194,83 @@ fn score_set(
     if !o.status.success() {
         return Err(format!(
             "generate failed on {}: {}",
-            lm.display(),
+            input.label(),
             String::from_utf8_lossy(&o.stderr)
         ));
     }
+    Ok(osim)
+}
+
+/// The levels scored: every level of a landmark set; for a segmentation,
+/// from the top vertebra the model measured (or filled) to L5.
+fn scored_levels(input: &Input, osim: &Path) -> Result<Vec<Level>, String> {
+    if let Input::Set(_) = input {
+        return Ok(Level::ALL.to_vec());
+    }
+    let rp = osim_spine::evaluate::report_path(osim);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&rp).map_err(|e| e.to_string())?)
+            .map_err(|e| e.to_string())?;
+    let top = v["levels_from_landmarks"]
+        .as_array()
+        .and_then(|a| a.first())
+        .and_then(|l| l.as_str())
+        .and_then(|l| l.parse::<Level>().ok())
+        .ok_or("no vertebra measured")?;
+    Ok(Level::ALL[top.index()..].to_vec())
+}
+
+fn score_set(
+    base: &Path,
+    dir: &Path,
+    input: &Input,
+    truth: &serde_json::Value,
+    out: &Path,
+) -> Result<Score, String> {
+    let set = input.truth_set();
+    let osim = generate(base, dir, input, out)?;
+    let levels = scored_levels(input, &osim)?;
+    let whole = levels.len() == Level::ALL.len();
+    let lm = dir.join(format!("landmarks_{set}.csv"));
     let m = load_model(&osim, CentreDef::Sphere).map_err(|e| e.to_string())?;
     let landmarks = io::load(&lm).map_err(|e| e.to_string())?;
     let tc = truth_centres(&dir.join(format!("truth_centres_{set}.csv")))?;
-    let x = s1_fit(&m, &landmarks);
+    // Diagnostic (SCOLIOSIS_DEV_S1=palpated): the S1 fit onto the
+    // palpated landmarks written beside the model instead of the set's.
+    let x = match (input, std::env::var("SCOLIOSIS_DEV_S1").as_deref()) {
+        (Input::Segmentation { .. }, Ok("palpated")) => {
+            let stem = osim.file_stem().unwrap().to_string_lossy().to_string();
+            let p = osim.with_file_name(format!("{stem}_landmarks.csv"));
+            s1_fit(&m, &io::load(&p).map_err(|e| e.to_string())?)
+        }
+        _ => s1_fit(&m, &landmarks),
+    };
     let d2: Vec<f64> = tc
         .iter()
+        .filter(|(l, _)| levels.contains(l))
         .filter_map(|(l, t)| m.centres.get(l).map(|c| (x * c - t).norm_squared()))
         .collect();
     let rmse_mm = (d2.iter().sum::<f64>() / d2.len() as f64).sqrt() * 1e3;
     let tm = &truth["metrics"];
-    let debug = std::env::var("SCOLIOSIS_DEV_DEBUG").is_ok_and(|d| set.contains(&d));
-    if set == "clean" || debug {
+    let debug = std::env::var("SCOLIOSIS_DEV_DEBUG").is_ok_and(|d| input.label().contains(&d));
+    let (g, gc) = truth_in_ground(&landmarks, &tc, &truth["sets"][set]);
+    let (g, gc) = (
+        only(&g, &levels),
+        gc.into_iter().filter(|(l, _)| levels.contains(l)).collect(),
+    );
+    let truth_cobb = shape::cobb(&g).map(|c| c.0).unwrap_or(f64::NAN);
+    let truth_lordosis = shape::lordosis(&g).unwrap_or(f64::NAN);
+    let truth_apex = shape::apex(&gc, &g)
+        .map(|l| l.to_string())
+        .unwrap_or_default();
+    if (set == "clean" && matches!(input, Input::Set(_))) || debug {
         // The scorer on the truth itself must give truth.json's metrics.
-        let (g, gc) = truth_in_ground(&landmarks, &tc, &truth["sets"][set]);
-        let c = shape::cobb(&g).map(|c| c.0).unwrap_or(f64::NAN);
-        let lo = shape::lordosis(&g).unwrap_or(f64::NAN);
-        let ap = shape::apex(&gc, &g)
-            .map(|l| l.to_string())
-            .unwrap_or_default();
         println!(
-            "scorer check {}: Cobb {:+.3} (truth.json {:+.3}), lordosis {:+.3} ({:+.3}), apex {ap} ({})",
+            "scorer check {}: Cobb {:+.3} (truth.json {:+.3}), lordosis {:+.3} ({:+.3}), apex {truth_apex} ({})",
             dir.display(),
-            c,
+            truth_cobb,
             tm["cobb_deg"].as_f64().unwrap_or(f64::NAN),
-            lo,
+            truth_lordosis,
             tm["lumbar_lordosis_deg"].as_f64().unwrap_or(f64::NAN),
             tm["apex"].as_str().unwrap_or("")
         );
@@ -208,19 +287,57 @@ fn score_set(
             }
         }
     }
-    let cobb = shape::cobb(&m.landmarks).map(|c| c.0).unwrap_or(f64::NAN);
-    let lordosis = shape::lordosis(&m.landmarks).unwrap_or(f64::NAN);
-    let apex_m = shape::apex(&m.centres, &m.landmarks)
+    // Over the whole spine the truth is truth.json's; over part of it,
+    // the truth landmarks' own metrics over the same levels.
+    let (t_cobb, t_lordosis, t_apex) = if whole {
+        (
+            tm["cobb_deg"].as_f64().unwrap_or(f64::NAN),
+            tm["lumbar_lordosis_deg"].as_f64().unwrap_or(f64::NAN),
+            tm["apex"].as_str().unwrap_or("").to_string(),
+        )
+    } else {
+        (truth_cobb, truth_lordosis, truth_apex)
+    };
+    let model_set = only(&m.landmarks, &levels);
+    let model_centres: BTreeMap<Level, Point3<f64>> = m
+        .centres
+        .iter()
+        .filter(|(l, _)| levels.contains(l))
+        .map(|(l, c)| (*l, *c))
+        .collect();
+    let cobb = shape::cobb(&model_set).map(|c| c.0).unwrap_or(f64::NAN);
+    let lordosis = shape::lordosis(&model_set).unwrap_or(f64::NAN);
+    let apex_m = shape::apex(&model_centres, &model_set)
         .map(|l| l.to_string())
         .unwrap_or_default();
+    let span = if whole {
+        String::new()
+    } else {
+        format!(" ({}-L5)", levels[0])
+    };
     Ok(Score {
-        name: format!("{}/{set}", dir.file_name().unwrap().to_string_lossy()),
+        name: format!(
+            "{}/{}{span}",
+            dir.file_name().unwrap().to_string_lossy(),
+            input.label()
+        ),
         rmse_mm,
-        cobb_err: cobb - tm["cobb_deg"].as_f64().unwrap_or(f64::NAN),
-        lordosis_err: lordosis - tm["lumbar_lordosis_deg"].as_f64().unwrap_or(f64::NAN),
-        apex_ok: tm["apex"].as_str() == Some(apex_m.as_str()),
+        cobb_err: cobb - t_cobb,
+        lordosis_err: lordosis - t_lordosis,
+        apex_ok: t_apex == apex_m,
         apex: apex_m,
     })
+}
+
+/// The landmarks of `set` at `levels` only.
+fn only(set: &LandmarkSet, levels: &[Level]) -> LandmarkSet {
+    let mut out = LandmarkSet::new();
+    for (id, p) in &set.points {
+        if levels.contains(&id.level) {
+            out.insert(id.level, id.code, *p);
+        }
+    }
+    out
 }
 
 /// The truth centres CSV; its `# frame:` line carries a parenthetical
@@ -251,9 +368,15 @@ fn main() {
         args.get(1)
             .expect("usage: scoliosis_dev BASE_DIR [DEV_DIR]"),
     );
+    let segmentation = args.iter().any(|a| a == "--segmentation");
+    let rest: Vec<&String> = args
+        .iter()
+        .skip(2)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
     let dev = PathBuf::from(
-        args.get(2)
-            .cloned()
+        rest.first()
+            .map(|s| s.to_string())
             .unwrap_or_else(|| "../shared/scoliosis-dev".into()),
     );
     let out = tempfile::tempdir().expect("temp dir");
@@ -267,26 +390,43 @@ fn main() {
     for p in &patients {
         let truth: serde_json::Value =
             serde_json::from_slice(&std::fs::read(p.join("truth.json")).unwrap()).unwrap();
-        let mut sets: Vec<String> = std::fs::read_dir(p)
-            .unwrap()
-            .filter_map(|e| {
-                e.ok()?
-                    .file_name()
-                    .to_str()?
-                    .strip_prefix("landmarks_")?
-                    .strip_suffix(".csv")
-                    .map(String::from)
-            })
-            .collect();
-        sets.sort();
-        for s in sets {
+        let inputs: Vec<Input> = if segmentation {
+            ["labelmap.nii.gz", "meshes"]
+                .iter()
+                .map(|s| Input::Segmentation {
+                    label: s.to_string(),
+                    path: p.join("segmentation").join(s),
+                })
+                .filter(|i| matches!(i, Input::Segmentation { path, .. } if path.exists()))
+                .collect()
+        } else {
+            set_names(p).into_iter().map(Input::Set).collect()
+        };
+        for s in inputs {
             match score_set(&base, p, &s, &truth, out.path()) {
                 Ok(sc) => scores.push(sc),
-                Err(e) => println!("FAILED {}/{s}: {e}", p.display()),
+                Err(e) => println!("FAILED {}/{}: {e}", p.display(), s.label()),
             }
         }
     }
     print_table(&scores);
+}
+
+/// The landmark sets of a patient's folder (`landmarks_<set>.csv`).
+fn set_names(p: &Path) -> Vec<String> {
+    let mut sets: Vec<String> = std::fs::read_dir(p)
+        .unwrap()
+        .filter_map(|e| {
+            e.ok()?
+                .file_name()
+                .to_str()?
+                .strip_prefix("landmarks_")?
+                .strip_suffix(".csv")
+                .map(String::from)
+        })
+        .collect();
+    sets.sort();
+    sets
 }
 
 fn print_table(scores: &[Score]) {

@@ -295,12 +295,6 @@ fn bad_landmark_sets_are_refused_without_output() {
         (n.to_string(), [v[0] / 1000.0, v[1] / 1000.0, v[2] / 1000.0])
     });
     refused("metres.csv", &metres, &["LM002", "declared units `mm`"]);
-    // A level gap (L2 removed).
-    refused(
-        "gap.csv",
-        &without(&lines, &|l| l.starts_with("L2_")),
-        &["L2"],
-    );
     // NaN.
     let nan = lines
         .iter()
@@ -726,6 +720,43 @@ fn a_missing_landmark_gives_a_reduced_fit() {
         .sqrt();
     println!("L2 centre moved {:.2} mm by the reduced fit", d * 1e3);
     assert!(d < 2e-3, "L2 centre moved {:.2} mm", d * 1e3);
+}
+
+/// A level missing between landmarked ones (a gap) is filled from its
+/// neighbours, said on the console and in the report (`filled_levels`),
+/// and lands near where the complete set puts it; the other measured
+/// levels' centres move by less than 0.3 mm.
+#[test]
+fn a_missing_level_is_filled_from_its_neighbours() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lines = example_lines();
+    let (_, full) = generate_report(tmp.path(), "full.csv", &(lines.join("\n") + "\n"));
+    let (err, gap) = generate_report(
+        tmp.path(),
+        "gap.csv",
+        &without(&lines, &|l| l.starts_with("L2_")),
+    );
+    assert_eq!(gap["filled_levels"], serde_json::json!(["L2"]), "{err}");
+    assert!(full["filled_levels"].as_array().unwrap().is_empty());
+    assert!(err.contains("L2 has no landmarks"), "{err}");
+    assert!(err.contains("LM021"), "{err}");
+    // Only the levels above the top measured one are above the field of view.
+    assert_eq!(
+        gap["above_fov"]["unmeasured"],
+        full["above_fov"]["unmeasured"]
+    );
+    let centre = |r: &serde_json::Value, l: &str| {
+        let c = &r["centres"][l];
+        nalgebra::Vector3::from_fn(|k, _| c[k].as_f64().unwrap())
+    };
+    // The measured levels (those above them are balanced, 400 mm of lever).
+    for level in full["levels_from_landmarks"].as_array().unwrap() {
+        let level = level.as_str().unwrap();
+        let d = (centre(&full, level) - centre(&gap, level)).norm() * 1e3;
+        println!("{level}: {d:.2} mm");
+        let limit = if level == "L2" { 2.0 } else { 0.3 };
+        assert!(d < limit, "{level} moved {d:.2} mm");
+    }
 }
 
 /// A level without either lateral pair (SR, SL, IR, IL) cannot measure

@@ -215,7 +215,11 @@ pub(crate) fn add_markers(
 /// The S1 plateau on the sacrum mesh (sacrum body frame): the hint is the
 /// L5-S1 joint's parent frame; L5's palpation, carried into the sacrum's
 /// frame at the default pose, selects the plateau and gives the coarse
-/// layout.
+/// layout, with L5's lateral landmarks by the protocol's literal rule
+/// (the furthest points, as operators and the scoliosis-dev maker copy
+/// them onto a coarse plateau; at the default pose of a base they are
+/// well defined, and a patient's sacrum is registered to the base's by
+/// its surface, [`crate::segmentation`]).
 fn palpate_sacrum_of(
     doc: &Document,
     mesh: &TriMesh,
@@ -240,7 +244,7 @@ fn palpate_sacrum_of(
     let l5 = vs.iter().zip(palps).find(|(v, _)| v.level == Level::L5);
     let facing = l5.and_then(|(v, p)| {
         let to_sacrum = pose.get("sacrum")?.inverse() * pose.get(&v.body)?;
-        Some(p.transformed(&to_sacrum))
+        Some(p.with_furthest_laterals().transformed(&to_sacrum))
     });
     palpation::palpate_sacrum(mesh, &hint, facing.as_ref())
 }

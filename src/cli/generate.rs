@@ -94,11 +94,11 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
     refuse_overwriting_inputs(&args)?;
-    // Landmarks (read, or palpated on the segmentation), checked.
-    let (set, landmarks_name, palpated) = checked_landmarks(&args)?;
-    // The model, generated in memory.
     let base_model = BaseModel::locate(args.base.as_deref())?;
     let base = base_model.read()?;
+    // Landmarks (read, or palpated on the segmentation), checked.
+    let (set, landmarks_name, palpated) = checked_landmarks(&args, &base, &base_model)?;
+    // The model, generated in memory.
     let opts = GenerateOptions {
         method: args.method,
         smooth: args.smooth,
@@ -132,8 +132,10 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
 #[allow(clippy::type_complexity)]
 fn checked_landmarks(
     args: &Args,
+    base: &Document,
+    base_model: &BaseModel,
 ) -> anyhow::Result<(LandmarkSet, String, Vec<(PathBuf, Vec<u8>)>)> {
-    let (raw, landmarks_name, palpated) = landmark_source(args)?;
+    let (raw, landmarks_name, palpated) = landmark_source(args, base, base_model)?;
     let rep = check_raw(&raw);
     // Missing landmarks (LM020) are not blocking here: the level is fitted
     // on those present (a reduced fit, reported) when enough remain.
@@ -214,11 +216,17 @@ fn write_outputs(
 /// view, shape and self-check.
 fn print_summary(r: &GenerateReport, out: &Path) {
     crate::outln!(
-        "generated {} ({} method): {} vertebrae from landmarks ({}), {} kept from the base model",
+        "generated {} ({} method): {} vertebrae from landmarks ({}), {} filled from their neighbours{}, {} kept from the base model",
         out.display(),
         r.method,
         r.levels_from_landmarks.len(),
         r.levels_from_landmarks.join(" "),
+        r.filled_levels.len(),
+        if r.filled_levels.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", r.filled_levels.join(" "))
+        },
         r.levels_from_base.len()
     );
     crate::outln!(
@@ -245,6 +253,17 @@ fn print_summary(r: &GenerateReport, out: &Path) {
 /// Warnings of the fits: reduced fits (and borrowed scale factors) and
 /// protocol mismatches (and their compensation).
 fn print_fit_warnings(r: &GenerateReport) {
+    for f in &r.filled {
+        crate::errln!(
+            "warning: {} has no landmarks (a gap in the set): placed between {} and {} from its neighbours (pose interpolated along the chain, scale factors {:.3} / {:.3} / {:.3} from theirs)",
+            f.level,
+            f.between[0],
+            f.between[1],
+            f.scale[0],
+            f.scale[1],
+            f.scale[2]
+        );
+    }
     for f in &r.reduced_fits {
         let borrowed = if f.borrowed_scale.is_empty() {
             String::new()
@@ -392,10 +411,14 @@ fn print_above_fov(a: Option<&crate::generate::AboveFovReport>, no_vertebra: boo
 }
 
 /// The raw landmarks, their name for messages and reports, and the files
-/// of a palpation to write beside the model (`--segmentation`).
+/// of a palpation to write beside the model (`--segmentation`: the
+/// patient's sacrum registered to the base's by its surface, the base's S1
+/// markers carried onto it).
 #[allow(clippy::type_complexity)]
 fn landmark_source(
     args: &Args,
+    base: &Document,
+    base_model: &BaseModel,
 ) -> anyhow::Result<(
     crate::landmarks::RawLandmarks,
     String,
@@ -412,7 +435,10 @@ fn landmark_source(
         .segmentation
         .as_ref()
         .ok_or_else(|| Error::invalid("generate", "give --landmarks or --segmentation"))?;
-    let p = crate::segmentation::palpate(seg, &args.seg.options()?)?;
+    let mut p = crate::segmentation::palpate(seg, &args.seg.options()?)?;
+    if let Some((mesh, s1)) = crate::generate::base_sacrum(base, base_model)? {
+        crate::segmentation::sacrum::carry_base_markers(&mut p, &mesh, &s1);
+    }
     super::palpate::print_summary(&p);
     let stem = args
         .out

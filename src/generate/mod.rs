@@ -47,6 +47,7 @@ pub mod balance;
 pub mod chain;
 pub mod clear;
 pub mod example;
+pub mod fill;
 pub mod pose;
 pub mod residuals;
 pub mod scale;
@@ -163,6 +164,8 @@ pub struct VertebraRow {
     /// Leave-one-out candidate's prediction error and threshold (mm) (lsq).
     pub loo_max_mm: Option<f64>,
     pub loo_threshold_mm: Option<f64>,
+    /// Placed from its neighbours (no landmarks: a gap in the set).
+    pub filled: bool,
 }
 
 /// Everything [`generate`] did and measured (the JSON report).
@@ -207,6 +210,11 @@ pub struct GenerateReport {
     /// Levels fitted on fewer landmarks than the protocol's (missing ones
     /// named); empty for a complete set.
     pub reduced_fits: Vec<ReducedFit>,
+    /// Levels missing between measured ones, placed from their neighbours
+    /// ([`fill`]), cranial to caudal; empty for a set without gaps.
+    pub filled_levels: Vec<String>,
+    /// How each of them was placed.
+    pub filled: Vec<fill::FilledLevel>,
     /// The generated model's spine shape from its markers and centres at
     /// the default pose ([`crate::landmarks::metrics::shape`]).
     pub shape: crate::landmarks::metrics::Shape,
@@ -290,6 +298,27 @@ pub fn base_markers(model: &Model) -> Result<BTreeMap<Level, (String, Points)>> 
     Ok(out)
 }
 
+/// The base model's sacrum surface (its body frame, metres, meshes scaled
+/// as the model scales them) and its S1 markers: what a patient's sacrum
+/// is registered to when the patient comes as a segmentation
+/// ([`crate::segmentation::sacrum`]). `None` when the base has no sacrum
+/// mesh or no S1 markers.
+pub fn base_sacrum(
+    base: &Document,
+    meshes: &dyn MeshSource,
+) -> Result<Option<(crate::mesh::TriMesh, Points)>> {
+    let model = base.model()?;
+    let markers = base_markers(&model)?;
+    let Some((body, s1)) = markers.get(&Level::S1) else {
+        return Ok(None);
+    };
+    let Some(b) = model.bodies.iter().find(|b| &b.name == body) else {
+        return Ok(None);
+    };
+    let mut missing = Vec::new();
+    Ok(mesh_of(b, meshes, &mut missing)?.map(|m| (m, s1.clone())))
+}
+
 /// Sacral frame from S1 endplate points: Y normal to the endplate (from the
 /// two diameters, `(SR - SL) x (SA - SP)`), Z right.
 fn sacral_rotation(p: &Points) -> Option<Rotation3<f64>> {
@@ -309,26 +338,16 @@ fn xyz_deg(r: &UnitQuaternion<f64>) -> [f64; 3] {
     [a.x.to_degrees(), a.y.to_degrees(), a.z.to_degrees()]
 }
 
-/// Levels of the set: contiguous, ending at S1 (the check module reports
-/// the details; this is the generator's own guard).
+/// Levels of the set, ending at S1 (the check module reports the details;
+/// this is the generator's own guard). Levels missing between measured
+/// ones are filled from their neighbours ([`fill`]).
 fn set_levels(set: &LandmarkSet, file: &str) -> Result<Vec<Level>> {
     let levels = set.levels();
     if levels.last() != Some(&Level::S1) {
         return Err(Error::invalid(
             file,
-            "the landmark set has no S1 landmarks: the run of levels must end at the sacrum",
+            "the landmark set has no S1 landmarks: the levels must end at the sacrum",
         ));
-    }
-    for w in levels.windows(2) {
-        if w[0].caudal() != Some(w[1]) {
-            return Err(Error::invalid(
-                file,
-                format!(
-                    "levels missing between {} and {}: the landmarked levels must be contiguous",
-                    w[0], w[1]
-                ),
-            ));
-        }
     }
     Ok(levels)
 }
@@ -468,6 +487,10 @@ pub fn generate(
         landmark_residuals,
         protocol_mismatches,
     ) = fit_with_protocol_check(&input, &patient)?;
+    let mut fits = fits;
+
+    // ---- 2b. levels missing between measured ones, from their neighbours
+    let filled = fill::fill_gaps(&mut fits, &x_sacrum, &poses0, &input.joint_centres);
 
     // ---- 3. scaling
     let mut doc = base.clone();
@@ -501,7 +524,7 @@ pub fn generate(
     let kin2 = Kinematics::new(&out_model)?;
     let poses2 = kin2.body_poses(&kin2.default_values())?;
     let centres = model_centres(&out_model, &poses2, CentreDef::default())?;
-    let (rows, outliers, landmark_rms) = vertebra_rows(&fits, &poses2);
+    let (rows, outliers, landmark_rms) = vertebra_rows(&fits, &poses2, &filled);
     let levels_from_base: Vec<String> = markers
         .keys()
         .filter(|l| !l.is_sacrum() && !fits.contains_key(l))
@@ -551,6 +574,8 @@ pub fn generate(
         self_check,
         above_fov,
         reduced_fits,
+        filled_levels: filled.iter().map(|f| f.level.clone()).collect(),
+        filled,
         shape,
         landmark_residuals,
     };
@@ -649,7 +674,7 @@ fn register_sacrum(
 
 /// Base joint centres between consecutive vertebrae, keyed by the upper
 /// level: the centre in the upper body and in the lower body.
-type JointCentres = BTreeMap<Level, (Point3<f64>, Point3<f64>)>;
+pub(crate) type JointCentres = BTreeMap<Level, (Point3<f64>, Point3<f64>)>;
 
 /// What every fit of step 2 shares: the levels, the base's markers and
 /// joint centres, the options.
@@ -997,6 +1022,7 @@ fn rewrite_joint_frames(
 fn vertebra_rows(
     fits: &BTreeMap<Level, pose::VertebraFit>,
     poses2: &BTreeMap<String, Isometry3<f64>>,
+    filled: &[fill::FilledLevel],
 ) -> (Vec<VertebraRow>, Vec<String>, f64) {
     let mut rows = Vec::new();
     let mut outliers = Vec::new();
@@ -1026,6 +1052,7 @@ fn vertebra_rows(
             outlier_error_mm: f.outlier.map(|(_, e)| e * 1e3),
             loo_max_mm: f.loo_max.map(|(_, e, _)| e * 1e3),
             loo_threshold_mm: f.loo_max.map(|(_, _, t)| t * 1e3),
+            filled: filled.iter().any(|x| x.level == l.to_string()),
         });
     }
     let landmark_rms =
@@ -1265,6 +1292,10 @@ fn chain_joints(
     };
     let mut joints = Vec::new();
     for (k, w) in chain.windows(2).enumerate() {
+        // A joint only between adjacent levels (a gap breaks the chain).
+        if w[0].caudal() != Some(w[1]) {
+            continue;
+        }
         let (Some((qu, pl)), Some(fu), Some(fl)) = (
             geometry.joint_centres.get(&w[0]),
             fits.get(&w[0]),

@@ -19,7 +19,7 @@
 //! | LM012 | error | duplicate landmark name |
 //! | LM013 | error | coordinates in a body's frame (`body` column: a model palpation for `base --palpation`) |
 //! | LM020 | error | landmark(s) missing at a level that is present |
-//! | LM021 | error | level missing inside the run of levels |
+//! | LM021 | warning | level missing between landmarked levels (a gap: `generate` fills it from its neighbours) |
 //! | LM022 | error | no S1 (the run must end at the sacrum) |
 //! | LM023 | info | levels covered |
 //! | LM030 | error/warning | superior endplate centre not cranial of the inferior one |
@@ -50,7 +50,9 @@
 //!   warning outside mean +- 4 s, error below mean - max(0.65 mean, 6 s) or
 //!   above mean + max(mean, 6 s) (gross errors only).
 //! - Spacing (LM041): centre distance over the expected one (half heights +
-//!   disc): warning outside [0.6, 1.5], error outside [0.4, 2.2].
+//!   disc): warning outside [0.6, 1.5], error outside [0.4, 2.2]. Across a
+//!   gap (LM021) the expected distance is summed over the missing levels,
+//!   and the two levels must still be in order (LM040).
 //! - Overlap (LM042): disc gap between the endplate means (5 points each)
 //!   along the mean cranial axis below -4 mm.
 //! - Displacement (LM043): the two adjacent discs' deviations from a
@@ -182,9 +184,9 @@ fn mm(x: f64) -> f64 {
 /// error findings of `osim-spine check` (plausibility ranges, endplate
 /// centre outside its outline, overlaps) are printed as warnings: severe
 /// deformities and coarse meshes can trip them legitimately.
-pub const GENERATE_BLOCKING: [&str; 13] = [
-    "LM001", "LM002", "LM003", "LM006", "LM007", "LM012", "LM020", "LM021", "LM022", "LM030",
-    "LM032", "LM037", "LM040",
+pub const GENERATE_BLOCKING: [&str; 12] = [
+    "LM001", "LM002", "LM003", "LM006", "LM007", "LM012", "LM020", "LM022", "LM030", "LM032",
+    "LM037", "LM040",
 ];
 
 /// Check a file: read, detect, validate. Never fails: a malformed file is
@@ -449,9 +451,11 @@ pub fn check_completeness(set: &LandmarkSet, lines: &BTreeMap<LandmarkId, usize>
         if !levels.contains(&l) {
             cx.push(
                 "LM021",
-                Severity::Error,
+                Severity::Warning,
                 &[],
-                format!("level {l} missing inside the run {first}..{last}"),
+                format!(
+                    "level {l} missing between landmarked levels ({first}..{last}): a gap, which `generate` fills from its neighbours"
+                ),
             );
             continue;
         }
@@ -827,6 +831,7 @@ fn check_neighbours(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
             }
         }
     }
+    check_across_gaps(cx, table, levels);
     // LM043: vertebra v with discs above (u-v, keyed u) and below (v-l, keyed v).
     for &(u, v) in &pairs {
         let (Some(above), Some(below)) = (dev.get(&u), dev.get(&v)) else {
@@ -836,6 +841,51 @@ fn check_neighbours(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
         let delta = mm(((below - above) * 0.5).norm());
         if cos < -0.5 && delta > 10.0 {
             cx.push("LM043", Severity::Error, &[id(v, Code::SEC), id(v, Code::IEC)], format!("{v} is displaced by about {delta:.1} mm with respect to both {u} and its caudal neighbour"));
+        }
+    }
+}
+
+/// Consecutive present levels across a gap (LM021): still in order along
+/// the spine (LM040) and about as far apart as the levels between them
+/// (LM041, the expected distance summed over the gap).
+fn check_across_gaps(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
+    let set = cx.set;
+    for w in levels.windows(2) {
+        let (u, l) = (w[0], w[1]);
+        if u.caudal() == Some(l) {
+            continue;
+        }
+        let (Some(cu), Some(cl)) = (centre(set, u), centre(set, l)) else {
+            continue;
+        };
+        let expected: f64 = (u.index()..l.index())
+            .filter_map(|i| Some((Level::from_index(i)?, Level::from_index(i + 1)?)))
+            .map(|(a, b)| {
+                let (da, db) = (table.level(a), table.level(b));
+                0.5 * da.body_height().mean
+                    + da.disc_height.mean
+                    + if b.is_sacrum() {
+                        0.0
+                    } else {
+                        0.5 * db.body_height().mean
+                    }
+            })
+            .sum();
+        let v = cu - cl;
+        let ids = [id(u, Code::SEC), id(l, Code::SEC)];
+        if v.y <= 0.0 {
+            cx.push("LM040", Severity::Error, &ids, format!("{u} is not cranial of {l} ({:.1} mm below it): levels out of order or mislabelled", mm(-v.y)));
+        }
+        let ratio = v.norm() / expected;
+        let msg = format!(
+            "{u}-{l} centre distance {:.1} mm across the gap, expected about {:.1} mm",
+            mm(v.norm()),
+            mm(expected)
+        );
+        if !(0.4..=2.2).contains(&ratio) {
+            cx.push("LM041", Severity::Error, &ids, msg);
+        } else if !(0.6..=1.5).contains(&ratio) {
+            cx.push("LM041", Severity::Warning, &ids, msg);
         }
     }
 }

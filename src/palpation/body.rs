@@ -280,12 +280,24 @@ fn lateral_extremes(
     lm: &LocalMesh,
     ep: &Endplate,
     x_range: (f64, f64),
-) -> Option<(Point3<f64>, Point3<f64>)> {
+) -> Option<[Point3<f64>; 4]> {
     let mut polys = region_polygons(lm, ep, LATERAL_SLAB * ep.tol, x_range);
     if polys.is_empty() {
         polys = region_polygons(lm, ep, f64::MAX, (f64::MIN, f64::MAX));
     }
-    Some((rim_middle(&polys, 1.0)?, rim_middle(&polys, -1.0)?))
+    let furthest = |side: f64| {
+        polys
+            .iter()
+            .flatten()
+            .copied()
+            .max_by(|a, b| (side * a.z).total_cmp(&(side * b.z)))
+    };
+    Some([
+        rim_middle(&polys, 1.0)?,
+        rim_middle(&polys, -1.0)?,
+        furthest(1.0)?,
+        furthest(-1.0)?,
+    ])
 }
 
 /// Landmarks of one endplate (local): centre, anterior, posterior, right,
@@ -296,6 +308,10 @@ pub(crate) struct EndplatePoints {
     pub back: Point3<f64>,
     pub right: Point3<f64>,
     pub left: Point3<f64>,
+    /// The literal furthest points of the region to the right and left
+    /// (a vertex of a coarse mesh, either end of a flat rim).
+    pub furthest_right: Point3<f64>,
+    pub furthest_left: Point3<f64>,
     pub midline_section: bool,
 }
 
@@ -332,7 +348,7 @@ pub(crate) fn endplate_points(
         .reduce(f64::min)
         .unwrap_or(f64::MIN);
     let x_range = column.map_or((f64::MIN, f64::MAX), |(lo, hi)| (lo.max(x_back), hi));
-    let (right, left) = lateral_extremes(lm, ep, x_range)?;
+    let [right, left, furthest_right, furthest_left] = lateral_extremes(lm, ep, x_range)?;
     let centre = match section
         .iter()
         .map(|[a, b]| closest_on_segment(&c, a, b))
@@ -360,6 +376,8 @@ pub(crate) fn endplate_points(
         back,
         right,
         left,
+        furthest_right,
+        furthest_left,
         midline_section,
     })
 }

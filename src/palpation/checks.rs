@@ -1,7 +1,12 @@
 //! Findings: the protocol's invariants on a palpated vertebra (14 distinct
 //! points, midline codes on the mid-sagittal plane, right/left and
 //! superior/inferior order) and anatomical plausibility of the mesh
-//! (left-right symmetry, pedicles on the upper body, centre in the body).
+//! (pedicles on the upper body, posterior elements behind them): errors,
+//! the landmarks cannot be placed. The auxiliary quantities (left-right
+//! symmetry, the centre's sphere inside the body) are warnings that lower
+//! the confidence of what they concern: an ordinary vertebra can be 2-4 %
+//! asymmetric, and the sphere through a flat-fronted body's anterior
+//! surface can centre a few millimetres behind its posterior wall.
 
 use super::{BodyState, Finding, Severity, VertebraPalpation};
 use crate::landmarks::Code;
@@ -14,9 +19,14 @@ pub const MIDLINE_M: f64 = 0.002;
 /// The posterior elements (laminae, spinous process) reach at least this
 /// share of the body depth behind the pedicle cut on a whole vertebra.
 const POSTERIOR_REACH: f64 = 0.3;
-/// Relative mirror cost above which a mesh is not left-right symmetric.
+/// Relative mirror cost above which a mesh is not left-right symmetric
+/// (a warning), and above which the mid-sagittal plane is doubtful enough
+/// to lower the midline landmarks' confidence further.
 const ASYMMETRY_WARN: f64 = 0.02;
-const ASYMMETRY_ERROR: f64 = 0.04;
+const ASYMMETRY_STRONG: f64 = 0.04;
+/// Confidence factor of the landmarks placed on (or mirrored about) a
+/// doubtful mid-sagittal plane: mildly and strongly asymmetric meshes.
+const ASYMMETRY_CONFIDENCE: [f64; 2] = [0.8, 0.6];
 
 fn finding(
     p: &VertebraPalpation,
@@ -91,16 +101,21 @@ pub fn protocol_findings(p: &VertebraPalpation) -> Vec<Finding> {
 pub(crate) fn anatomy_findings(st: &BodyState, sym_cost: f64, p: &mut VertebraPalpation) {
     let mut out = Vec::new();
     if sym_cost > ASYMMETRY_WARN {
-        let sev = if sym_cost > ASYMMETRY_ERROR {
-            Severity::Error
-        } else {
-            Severity::Warning
-        };
+        let factor = ASYMMETRY_CONFIDENCE[usize::from(sym_cost > ASYMMETRY_STRONG)];
         let msg = format!(
-            "the mesh is not left-right symmetric (mirror mismatch {:.1} % of its size): half a vertebra or not a vertebra? SEC..IL are placed on a doubtful mid-sagittal plane",
+            "the mesh is {:.1} % left-right asymmetric (mirror mismatch; ordinary vertebrae reach 2-4 %): SEC..IL are placed on a less certain mid-sagittal plane, their confidence x {factor}",
             sym_cost * 100.0
         );
-        out.push(finding(p, None, sev, msg));
+        for l in p.landmarks.values_mut() {
+            l.confidence *= factor;
+            l.note.get_or_insert_with(|| {
+                format!(
+                    "mid-sagittal plane from a {:.1} % asymmetric mesh",
+                    sym_cost * 100.0
+                )
+            });
+        }
+        out.push(finding(p, None, Severity::Warning, msg));
     }
     // Pedicles leave the upper half of the body: below it, the mesh is upside-down.
     let w = &st.walls;
@@ -154,10 +169,11 @@ fn posterior_elements(st: &BodyState, p: &VertebraPalpation) -> Option<Finding> 
     })
 }
 
-/// The vertebral centre must lie between the walls (the endplates'
+/// The vertebral centre should lie between the walls (the endplates'
 /// mid-sagittal ends, as the centre rule and the pedicle cut use them) and
-/// between the endplates.
-fn centre_findings(st: &BodyState, p: &VertebraPalpation) -> Vec<Finding> {
+/// between the endplates: a warning on the centre (not a landmark of the
+/// set), with [`VertebraPalpation::centre_confidence`] lowered.
+fn centre_findings(st: &BodyState, p: &mut VertebraPalpation) -> Vec<Finding> {
     let c = st.lm.to_mesh.inverse() * p.centre;
     let (s, i) = (&st.sup_pts, &st.inf_pts);
     let x_post = s.back.x.min(i.back.x);
@@ -181,7 +197,17 @@ fn centre_findings(st: &BodyState, p: &VertebraPalpation) -> Vec<Finding> {
             c.z.abs() * 1e3
         ));
     }
+    if !why.is_empty() {
+        p.centre_confidence = 0.5;
+    }
     why.into_iter()
-        .map(|m| finding(p, None, Severity::Error, format!("vertebral centre {m}")))
+        .map(|m| {
+            finding(
+                p,
+                None,
+                Severity::Warning,
+                format!("vertebral centre {m} (the sphere through the body's anterior surface; the landmarks are not affected)"),
+            )
+        })
         .collect()
 }

@@ -120,6 +120,13 @@ pub struct VertebraPalpation {
     pub findings: Vec<Finding>,
     /// How the centre's sphere was fitted.
     pub centre_fit: CentreFit,
+    /// 0..1: 1 = the centre lies inside the body as the rule expects.
+    pub centre_confidence: f64,
+    /// The literal furthest points of the endplate regions to the right
+    /// and left (`SR`, `SL`, `IR`, `IL`; mesh coordinates), where the
+    /// landmarks are the middles of the lateral rims (a base model's
+    /// coarse sacral plateau copies them from L5).
+    pub furthest: BTreeMap<Code, Point3<f64>>,
 }
 
 /// The least-squares sphere fit behind the vertebral centre.
@@ -150,6 +157,21 @@ impl VertebraPalpation {
         out.centre = iso * self.centre;
         for l in out.landmarks.values_mut() {
             l.point = iso * l.point;
+        }
+        for p in out.furthest.values_mut() {
+            *p = iso * *p;
+        }
+        out
+    }
+
+    /// The same palpation with `SR`, `SL`, `IR`, `IL` at the literal
+    /// furthest points of the endplate regions ([`Self::furthest`]).
+    pub fn with_furthest_laterals(&self) -> VertebraPalpation {
+        let mut out = self.clone();
+        for (c, p) in &self.furthest {
+            if let Some(l) = out.landmarks.get_mut(c) {
+                l.point = *p;
+            }
         }
         out
     }
@@ -318,6 +340,16 @@ pub fn palpate_vertebra(
         centre_radius: radius,
         findings,
         centre_fit,
+        centre_confidence: 1.0,
+        furthest: [
+            (Code::SR, st.sup_pts.furthest_right),
+            (Code::SL, st.sup_pts.furthest_left),
+            (Code::IR, st.inf_pts.furthest_right),
+            (Code::IL, st.inf_pts.furthest_left),
+        ]
+        .into_iter()
+        .map(|(c, p)| (c, lm.to_mesh_point(&p)))
+        .collect(),
     };
     checks::anatomy_findings(&st, sym_cost, &mut out);
     out.findings.extend(protocol_findings(&out));

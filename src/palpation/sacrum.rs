@@ -298,10 +298,17 @@ pub fn palpate_sacrum(
         centre_radius: 0.25 * (pts.right - pts.left).norm(),
         findings,
         centre_fit: super::CentreFit::default(),
+        centre_confidence: 1.0,
+        furthest: BTreeMap::new(),
     };
     out.findings.extend(protocol_findings(&out));
     Ok(out)
 }
+
+/// A plateau wider than this times L5's inferior endplate runs onto the
+/// alae (a real S1 plateau is 0.8-1.4 times as wide as L5's inferior
+/// endplate): its lateral extremes are not the plateau's.
+const MAX_WIDTH_OF_L5: f64 = 1.5;
 
 /// S1_SEC..S1_SL by the endplate rules, or the L5 layout on a coarse plateau.
 fn plateau_landmarks(
@@ -315,9 +322,15 @@ fn plateau_landmarks(
     let mut out = BTreeMap::new();
     out.insert(SEC, landmark(pts.centre, 1.0, None));
     let depth = (pts.front - pts.back).norm();
-    let l5_depth = facing_l5.and_then(|l5| Some((l5.local(IA)? - l5.local(IP)?).norm()));
-    let coarse =
-        ep.faces.len() < 4 || !pts.midline_section || l5_depth.is_some_and(|d| depth < 0.5 * d);
+    let width = (pts.right - pts.left).norm();
+    let l5_size = facing_l5.and_then(|l5| {
+        let d = (l5.local(IA)? - l5.local(IP)?).norm();
+        let w = (l5.local(IR)? - l5.local(IL)?).norm();
+        Some((d, w))
+    });
+    let coarse = ep.faces.len() < 4
+        || !pts.midline_section
+        || l5_size.is_some_and(|(d, w)| depth < 0.5 * d || width > MAX_WIDTH_OF_L5 * w);
     let layout = facing_l5.filter(|_| coarse);
     let Some(l5) = layout else {
         for (c, p) in [
@@ -338,32 +351,64 @@ fn plateau_landmarks(
         code: Some(SA),
         severity: Severity::Warning,
         message: format!(
-            "the sacral plateau is too coarse ({} faces, {:.1} mm deep): SEC, SA, SP, SR, SL are L5's inferior endplate landmarks projected onto the plateau plane",
+            "the sacral plateau is too coarse or runs onto the alae ({} faces, {:.1} mm deep, {:.1} mm wide): SEC, SA, SP, SR, SL keep the layout of L5's inferior endplate, on the plateau plane and about the sacrum's own mid-sagittal plane",
             ep.faces.len(),
-            depth * 1e3
+            depth * 1e3,
+            width * 1e3
         ),
     });
-    // The plateau plane n . p = offset; L5's inferior landmarks dropped onto it.
-    let to_local = lm.to_mesh.inverse();
-    for (c, from) in [(SEC, IEC), (SA, IA), (SP, IP), (SR, IR), (SL, IL)] {
-        let Some(l) = l5.landmarks.get(&from) else {
-            continue;
-        };
-        let mut p = to_local * l.point;
-        // Midline codes on the sacrum's own mid-sagittal plane (z = 0): a
-        // real S1 is not exactly aligned with L5.
-        if matches!(c, SEC | SA | SP) {
-            p.z = 0.0;
-        }
-        let on = p - ep.normal * (ep.normal.dot(&p.coords) - ep.offset);
+    for (c, p) in l5_layout(lm, ep, l5) {
         out.insert(
             c,
             landmark(
-                on,
+                p,
                 0.5,
-                Some(format!("L5_{from} projected onto a coarse plateau")),
+                Some("L5's inferior endplate layout on a coarse plateau".into()),
             ),
         );
     }
     Ok(out)
+}
+
+/// The protocol's coarse fallback (local coordinates): L5's inferior
+/// landmarks dropped onto the plateau plane, the layout turned about the
+/// plateau's normal so that L5's anterior axis is the sacrum's own, and
+/// centred on the sacrum's mid-sagittal plane (`SEC`, `SA`, `SP` on it):
+/// L5's pose on the sacrum (a scoliotic L5 is rotated and shifted on S1)
+/// does not move the sacrum's landmarks, only L5's size and the height of
+/// its endplate centre do.
+fn l5_layout(lm: &LocalMesh, ep: &Endplate, l5: &VertebraPalpation) -> Vec<(Code, Point3<f64>)> {
+    use Code::*;
+    let to_local = lm.to_mesh.inverse();
+    let n = ep.normal;
+    let drop = |p: Point3<f64>| p - n * (n.dot(&p.coords) - ep.offset);
+    let Some(iec) = l5.landmarks.get(&IEC).map(|l| drop(to_local * l.point)) else {
+        return Vec::new();
+    };
+    // L5's anterior axis and the sacrum's, in the plateau plane.
+    let in_plane = |v: Vector3<f64>| (v - n * n.dot(&v)).try_normalize(1e-9);
+    let l5_x = in_plane(to_local.rotation * (l5.frame.rotation * Vector3::x()));
+    let own_x = in_plane(Vector3::x());
+    let turn = match (l5_x, own_x) {
+        (Some(a), Some(b)) => {
+            UnitQuaternion::rotation_between(&a, &b).unwrap_or_else(UnitQuaternion::identity)
+        }
+        _ => UnitQuaternion::identity(),
+    };
+    // The centre on the sacrum's mid-sagittal plane (z = 0), on the plateau.
+    let mut sec = iec;
+    sec.z = 0.0;
+    let sec = drop(sec);
+    let mut out = vec![(SEC, sec)];
+    for (c, from) in [(SA, IA), (SP, IP), (SR, IR), (SL, IL)] {
+        let Some(l) = l5.landmarks.get(&from).map(|l| l.point) else {
+            continue;
+        };
+        let mut p = sec + turn * (drop(to_local * l) - iec);
+        if matches!(c, SA | SP) {
+            p.z = 0.0;
+        }
+        out.push((c, drop(p)));
+    }
+    out
 }

@@ -1,11 +1,15 @@
 //! From level surfaces to a landmark set: level selection, screening
-//! ([`super::checks`]), the frame of the segmentation, and the palpated
-//! levels assembled into a contiguous run ending at the sacrum, with every
-//! level left out and every uncertain landmark named.
+//! ([`super::checks`]), the naming of a mesh folder against the anatomy
+//! ([`super::evidence`]), the frame of the segmentation, and the palpated
+//! levels assembled into a landmark set ending at the sacrum (gaps allowed:
+//! one doubtful level does not drop the others), with every level left out
+//! and every uncertain landmark named.
 
 use super::checks::{self, Verdict};
+use super::evidence::{self, Place, Reading, Structure};
 use super::hints::frame_axes;
 use super::{Finding, Kind, LevelInput, LevelResult, Loaded, Options, Palpated, Severity};
+use crate::anatomy::DimensionTable;
 use crate::error::{Error, Result};
 use crate::landmarks::{Frame, LandmarkSet, Level};
 use crate::mesh::MeshQuery;
@@ -21,9 +25,20 @@ pub fn select_levels(loaded: &mut Loaded, range: Option<(Level, Level)>) -> Resu
     let (lo, hi) = (a.min(b), a.max(b));
     loaded.levels.retain(|l| (lo..=hi).contains(&l.level));
     if loaded.levels.is_empty() {
+        let cut: Vec<String> = loaded
+            .cut_by_fov
+            .iter()
+            .filter(|l| (lo..=hi).contains(*l))
+            .map(|l| l.to_string())
+            .collect();
+        let why = if cut.is_empty() {
+            String::new()
+        } else {
+            format!(" whole ({} cut by the field of view)", cut.join(", "))
+        };
         return Err(Error::invalid(
             "--levels",
-            format!("no level of {lo}..{hi} in the segmentation"),
+            format!("no level of {lo}..{hi} in the segmentation{why}"),
         ));
     }
     Ok(())
@@ -56,14 +71,17 @@ pub fn screen(loaded: &mut Loaded) {
         }
     }
     let levels: Vec<Level> = kept.iter().map(|l| l.level).collect();
-    let volumes: Vec<f64> = kept.iter().map(|l| l.mesh.signed_volume()).collect();
-    let big = checks::oversized(&levels, &volumes);
+    let parts: Vec<Structure> = kept
+        .iter()
+        .map(|l| Structure::of_mesh(&l.mesh, l.origin.clone(), false))
+        .collect();
+    let big = checks::merged(&levels, &parts);
     for (i, ratio) in &big {
         loaded.findings.push(Finding::new(
             Some(levels[*i]),
             Severity::Warning,
             format!(
-                "{} ({}): volume {ratio:.1} times its neighbours': two vertebrae in one label (merged labels)?; level left out",
+                "{} ({}): {ratio:.1} times as tall along the spine as its neighbours: two vertebrae in one label (merged labels)?; level left out",
                 levels[*i], kept[*i].origin
             ),
         ));
@@ -74,6 +92,48 @@ pub fn screen(loaded: &mut Loaded) {
         .filter(|(i, _)| !big.iter().any(|(j, _)| j == i))
         .map(|(_, l)| l)
         .collect();
+}
+
+/// A mesh folder's file names against the anatomy ([`evidence`]): a clear
+/// contradiction (files swapped, a level misnumbered, a "sacrum" that is a
+/// lumbar vertebra) refuses the folder naming the files; doubts are
+/// warnings. A label map's names were checked choosing its table.
+pub fn check_naming(loaded: &mut Loaded) -> Result<()> {
+    if loaded.kind != Kind::MeshFolder {
+        return Ok(());
+    }
+    let parts: Vec<(Place, Structure)> = loaded
+        .levels
+        .iter()
+        .map(|l| {
+            (
+                Place::Level(l.level),
+                Structure::of_mesh(&l.mesh, l.origin.clone(), false),
+            )
+        })
+        .collect();
+    let reading = Reading {
+        named: parts.iter().map(|(p, s)| (*p, s)).collect(),
+        others: Vec::new(),
+    };
+    let up = loaded.frame.map(|f| frame_axes(f).1);
+    let dims = DimensionTable::embedded()?;
+    let a = evidence::assess(&reading, up, &dims);
+    if !a.consistent() {
+        return Err(Error::invalid(
+            &loaded.source,
+            format!(
+                "the files' level names contradict the anatomy: {} (rename the files to the levels they hold)",
+                a.problems.join("; ")
+            ),
+        ));
+    }
+    for d in a.doubts {
+        loaded
+            .findings
+            .push(Finding::new(None, Severity::Warning, d));
+    }
+    Ok(())
 }
 
 /// Least agreement of the anatomy with a frame for that frame to be taken
@@ -133,8 +193,7 @@ pub fn world_frame(loaded: &mut Loaded, hints: &[FrameHint]) -> Result<Frame> {
     }
 }
 
-/// The palpated levels, the contiguous run ending at the most caudal one,
-/// and the landmark set (OpenSim frame, metres).
+/// The palpated levels and the landmark set (OpenSim frame, metres).
 pub fn assemble(
     mut loaded: Loaded,
     world: Frame,
@@ -147,8 +206,7 @@ pub fn assemble(
             levels.push(p);
         }
     }
-    keep_contiguous(&mut levels, &mut loaded.findings);
-    name_missing(&levels, opts, &mut loaded.findings);
+    name_missing(&levels, opts, &loaded.cut_by_fov, &mut loaded.findings);
     require_sacrum(&levels, opts, &loaded)?;
     let to_os = world.to_opensim();
     let mut set = LandmarkSet::new();
@@ -268,40 +326,57 @@ fn with_distances(
     }
 }
 
-/// Keep the run of consecutive levels that ends at the most caudal one
-/// (a landmark set is a contiguous run); name the levels dropped.
-fn keep_contiguous(levels: &mut Vec<LevelResult>, findings: &mut Vec<Finding>) {
-    let mut start = levels.len().saturating_sub(1);
-    while start > 0 && levels[start - 1].level.caudal() == Some(levels[start].level) {
-        start -= 1;
-    }
-    if start > 0 {
-        let gap_below = levels[start - 1].level;
-        for r in levels.drain(..start) {
-            findings.push(Finding::new(Some(r.level), Severity::Warning, format!(
-                "{}: left out: a landmark set is a contiguous run of levels and the level below {gap_below} is missing",
-                r.level
-            )));
-        }
-    }
-}
-
-/// A warning naming the levels of the wanted range that are not in the set.
-fn name_missing(levels: &[LevelResult], opts: &Options, findings: &mut Vec<Finding>) {
+/// The levels of the wanted range that are not in the set, in one
+/// warning: those between palpated levels (gaps, which `generate` fills
+/// from their neighbours), those cut by the field of view, and the others
+/// (above or below what the segmentation holds whole).
+fn name_missing(
+    levels: &[LevelResult],
+    opts: &Options,
+    cut: &[Level],
+    findings: &mut Vec<Finding>,
+) {
     let (lo, hi) = opts
         .levels
         .map(|(a, b)| (a.min(b), a.max(b)))
         .unwrap_or((Level::T1, Level::S1));
-    let missing: Vec<String> = Level::ALL
+    let have = |l: &Level| levels.iter().any(|r| r.level == *l);
+    let (Some(top), Some(bottom)) = (levels.first(), levels.last()) else {
+        return;
+    };
+    let missing: Vec<Level> = Level::ALL
         .into_iter()
-        .filter(|l| (lo..=hi).contains(l) && !levels.iter().any(|r| r.level == *l))
-        .map(|l| l.to_string())
+        .filter(|l| (lo..=hi).contains(l) && !have(l))
         .collect();
-    if !missing.is_empty() {
+    let names = |f: &dyn Fn(&Level) -> bool| -> Vec<String> {
+        missing
+            .iter()
+            .filter(|l| f(l))
+            .map(|l| l.to_string())
+            .collect()
+    };
+    let inside = |l: &Level| *l > top.level && *l < bottom.level;
+    let gaps = names(&|l| inside(l));
+    let fov = names(&|l| cut.contains(l) && !inside(l));
+    let rest = names(&|l| !(cut.contains(l) || inside(l)));
+    let mut parts = Vec::new();
+    if !gaps.is_empty() {
+        parts.push(format!(
+            "{} between palpated levels (a gap: `generate` fills it from its neighbours)",
+            gaps.join(" ")
+        ));
+    }
+    if !fov.is_empty() {
+        parts.push(format!("{} cut by the field of view", fov.join(" ")));
+    }
+    if !rest.is_empty() {
+        parts.push(format!("{} not in the segmentation whole", rest.join(" ")));
+    }
+    if !parts.is_empty() {
         findings.push(Finding::new(
             None,
             Severity::Warning,
-            format!("levels not in the landmark set: {}", missing.join(" ")),
+            format!("levels not in the landmark set: {}", parts.join("; ")),
         ));
     }
 }

@@ -1,9 +1,12 @@
 //! Plausibility of each level's surface before palpation: the pieces of
-//! the surface (two vertebrae in one label come as two pieces of similar
-//! size), its size against a vertebra's, and its volume against its
-//! neighbours' (a label holding two fused vertebrae is about twice its
-//! neighbours). A failing level is left out with a named warning.
+//! the surface (two vertebrae in one label may come as two pieces of
+//! similar size), its size against a vertebra's, and its height along the
+//! spine against its neighbours' (a label holding two vertebrae is about
+//! twice as tall as one; a volume ratio says little, adjacent vertebrae
+//! differ by up to 2.5 times). A failing level is left out with a named
+//! warning.
 
+use super::evidence::Structure;
 use crate::landmarks::Level;
 use crate::mesh::TriMesh;
 
@@ -18,8 +21,9 @@ const MIN_DIAGONAL: f64 = 0.03;
 /// A piece holding at least this fraction of the largest piece's area
 /// counts as a vertebra-sized piece; smaller ones are segmentation debris.
 const PIECE_FRACTION: f64 = 0.2;
-/// Volume over the mean of the neighbours' beyond which a label is taken
-/// for two vertebrae (adjacent vertebrae differ by about 10-20%).
+/// Height along the spine over the mean of the neighbours' beyond which a
+/// label is taken for two vertebrae (one vertebra is 0.8-1.25 times its
+/// neighbours' height; two in one label about twice).
 const MERGED_RATIO: f64 = 1.6;
 
 /// Connected pieces of a mesh (triangles sharing vertices), largest area first.
@@ -177,29 +181,34 @@ fn group_touching(parts: &[TriMesh]) -> Vec<Vec<usize>> {
     out.into_values().collect()
 }
 
-/// Levels (index into `volumes`, cranial to caudal, sacrum excluded by
-/// the caller) whose volume exceeds [`MERGED_RATIO`] times the mean of
-/// their neighbours': likely two vertebrae in one label.
-pub fn oversized(levels: &[Level], volumes: &[f64]) -> Vec<(usize, f64)> {
+/// Levels (index into `levels`, cranial to caudal) whose height along the
+/// spine (the line through their neighbours' centroids) exceeds
+/// [`MERGED_RATIO`] times their neighbours' (within two levels, the
+/// sacrum excluded): likely two vertebrae in one label.
+pub fn merged(levels: &[Level], parts: &[Structure]) -> Vec<(usize, f64)> {
     let n = levels.len();
     let mut out = Vec::new();
     for i in 0..n {
-        if levels[i].is_sacrum() {
+        if levels[i].is_sacrum() || parts[i].truncated {
             continue;
         }
-        let nb: Vec<f64> = [i.checked_sub(1), (i + 1 < n).then_some(i + 1)]
+        let nb: Vec<usize> = [i.checked_sub(1), (i + 1 < n).then_some(i + 1)]
             .into_iter()
             .flatten()
-            .filter(|&j| !levels[j].is_sacrum())
+            .filter(|&j| !levels[j].is_sacrum() && !parts[j].truncated)
             .filter(|&j| levels[j].index().abs_diff(levels[i].index()) <= 2)
-            .map(|j| volumes[j])
             .collect();
-        if nb.is_empty() {
+        let (Some(&a), Some(&b)) = (nb.first(), nb.last()) else {
             continue;
-        }
-        let mean = nb.iter().sum::<f64>() / nb.len() as f64;
-        if volumes[i] > MERGED_RATIO * mean {
-            out.push((i, volumes[i] / mean));
+        };
+        let (top, bottom) = if a == b { (i.min(a), i.max(a)) } else { (a, b) };
+        let Some(u) = (parts[top].centroid - parts[bottom].centroid).try_normalize(1e-9) else {
+            continue;
+        };
+        let mean = nb.iter().map(|&j| parts[j].extent(&u)).sum::<f64>() / nb.len() as f64;
+        let r = parts[i].extent(&u) / mean.max(1e-9);
+        if r > MERGED_RATIO {
+            out.push((i, r));
         }
     }
     out

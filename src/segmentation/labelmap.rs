@@ -1,16 +1,17 @@
-//! A NIfTI label map to per-level surfaces: the label table (given, or the
-//! built-in one whose levels lie in cranio-caudal order in the map's
-//! world), a named finding for every label that is not a T1..S1 vertebra,
-//! a level left out when its label touches the edge of the field of view,
-//! and one surface per level on the label's bounding box.
+//! A NIfTI label map to per-level surfaces: the label table (given, or
+//! chosen from the anatomy, [`super::choose`]), one line for the labels
+//! that are not T1..S1 vertebrae, a level left out when its label touches
+//! the edge of the field of view (the map refused when every vertebra
+//! does), and one surface per level on the label's bounding box.
 
+use super::choose::{choose_table, join, list};
 use super::labels::{LabelClass, LabelTable};
 use super::nifti::{self, LabelMap};
 use super::surface::{self, LabelStats};
 use super::{source_name, Finding, Kind, LevelInput, Loaded, Options, Severity};
 use crate::error::{Error, Result};
 use crate::landmarks::{Frame, Level, Units};
-use nalgebra::{Point3, Vector3};
+use nalgebra::Vector3;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -32,11 +33,32 @@ pub fn load(path: &Path, opts: &Options) -> Result<Loaded> {
             format!(
                 "no vertebra label (T1..L5, sacrum) of the {} table in the map; labels present: {}",
                 table.name,
-                list_labels(&stats)
+                list(&stats.keys().copied().collect::<Vec<_>>())
             ),
         ));
     }
-    let levels = extract_levels(&map, &stats, &wanted, opts.progress, &mut findings);
+    let mut cut = Vec::new();
+    let levels = extract_levels(
+        &map,
+        &stats,
+        &wanted,
+        opts.progress,
+        &mut findings,
+        &mut cut,
+    );
+    if levels.is_empty() {
+        let names: Vec<String> = wanted
+            .iter()
+            .map(|(l, labels)| format!("{l} (label {})", join(labels)))
+            .collect();
+        return Err(Error::invalid(
+            path.display().to_string(),
+            format!(
+                "every vertebra of the map is cut by the field of view ({}): no level can be palpated whole",
+                names.join(", ")
+            ),
+        ));
+    }
     Ok(Loaded {
         kind: Kind::LabelMap,
         source: source_name(path),
@@ -45,17 +67,8 @@ pub fn load(path: &Path, opts: &Options) -> Result<Loaded> {
         label_table: Some(table.name),
         levels,
         findings,
+        cut_by_fov: cut,
     })
-}
-
-/// Labels present, as text (at most 20).
-fn list_labels(stats: &BTreeMap<u16, LabelStats>) -> String {
-    let v: Vec<String> = stats.keys().take(20).map(|l| l.to_string()).collect();
-    if v.is_empty() {
-        "none (the map is empty)".into()
-    } else {
-        v.join(" ")
-    }
 }
 
 /// Each level of the table present in the map, with its labels.
@@ -77,114 +90,56 @@ fn present_levels(
     out
 }
 
-/// The `--labels` table, or the built-in table whose levels are best
-/// ordered cranio-caudally (superior = +z of the RAS world).
-fn choose_table(
-    map: &LabelMap,
-    stats: &BTreeMap<u16, LabelStats>,
-    given: Option<&Path>,
-    path: &Path,
-) -> Result<(LabelTable, Vec<Finding>)> {
-    if let Some(p) = given {
-        return Ok((LabelTable::read(p)?, vec![]));
-    }
-    let scored: Vec<(i64, usize, LabelTable)> = LabelTable::builtin()
-        .into_iter()
-        .map(|t| {
-            let lv = present_levels(&t, stats);
-            (order_score(map, stats, &lv), lv.len(), t)
-        })
-        .collect();
-    let best = scored
-        .iter()
-        .max_by_key(|(s, n, _)| (*s, *n))
-        .filter(|(_, n, _)| *n > 0)
-        .ok_or_else(|| {
-            Error::invalid(
-                path.display().to_string(),
-                format!(
-                    "no vertebra label of TotalSegmentator or TotalSpineSeg in the map (labels present: {}); give the table with --labels FILE",
-                    list_labels(stats)
-                ),
-            )
-        })?;
-    let note = format!(
-        "label table: {} (its levels are in cranio-caudal order in the map; give --labels to override)",
-        best.2.name
-    );
-    Ok((
-        best.2.clone(),
-        vec![Finding::new(None, Severity::Info, note)],
-    ))
-}
-
-/// Level pairs in cranio-caudal order minus pairs out of order, judged by
-/// the world height (+z, RAS) of the labels' bounding-box centres.
-fn order_score(
-    map: &LabelMap,
-    stats: &BTreeMap<u16, LabelStats>,
-    lv: &BTreeMap<Level, Vec<u16>>,
-) -> i64 {
-    let z: Vec<f64> = lv
-        .values()
-        .map(|labels| box_centre(map, &union_box(stats, labels)).z)
-        .collect();
-    let mut score = 0;
-    for i in 0..z.len() {
-        for j in i + 1..z.len() {
-            score += if z[i] > z[j] { 1 } else { -1 };
-        }
-    }
-    score
-}
-
-/// Union of the bounding boxes of some labels.
+/// Union of the statistics of some labels.
 fn union_box(stats: &BTreeMap<u16, LabelStats>, labels: &[u16]) -> LabelStats {
     let mut it = labels.iter().filter_map(|l| stats.get(l));
     let first = *it.next().expect("present labels only");
-    it.fold(first, |mut a, b| {
-        a.count += b.count;
-        for k in 0..3 {
-            a.min[k] = a.min[k].min(b.min[k]);
-            a.max[k] = a.max[k].max(b.max[k]);
-        }
-        a
-    })
+    it.fold(first, |a, b| a.union(b))
 }
 
-/// World position of a box's centre.
-fn box_centre(map: &LabelMap, s: &LabelStats) -> Point3<f64> {
-    let c = Vector3::from_fn(|k, _| 0.5 * (s.min[k] + s.max[k]) as f64);
-    map.world(&Point3::from(c))
-}
-
-/// Labels present that are not a T1..S1 vertebra: info for structures
-/// the table names, a warning for labels it does not know.
+/// Labels present that are not a T1..S1 vertebra: one line counting the
+/// structures the table names (cervical vertebrae, organs, vessels, other
+/// bones, discs, the cord) and one naming the labels it does not know.
 fn label_findings(table: &LabelTable, stats: &BTreeMap<u16, LabelStats>) -> Vec<Finding> {
     let mut out = Vec::new();
     let mut others = Vec::new();
+    let mut unknown = Vec::new();
     for &l in stats.keys() {
         match table.classes.get(&(l as u32)) {
             Some(LabelClass::Level(_)) => {}
-            Some(LabelClass::Cervical(c)) => others.push(format!("{l} (C{c})")),
-            Some(LabelClass::Other(name)) => others.push(format!("{l} ({name})")),
-            None => out.push(Finding::new(
-                None,
-                Severity::Warning,
-                format!(
-                    "label {l} is not in the {} table: not a vertebra of the model, ignored",
-                    table.name
-                ),
+            Some(_) => others.push(format!(
+                "{l} {}",
+                table.class_name(l as u32).unwrap_or_default()
             )),
+            None => unknown.push(l),
         }
     }
     if !others.is_empty() {
+        let shown: Vec<&str> = others.iter().take(8).map(String::as_str).collect();
         out.push(Finding::new(
             None,
             Severity::Info,
             format!(
-                "labels that are not T1..S1 vertebrae, ignored: {}",
-                others.join(", ")
+                "{} other structures ignored (not T1..S1 vertebrae: {}{})",
+                others.len(),
+                shown.join(", "),
+                if others.len() > shown.len() {
+                    ", ..."
+                } else {
+                    ""
+                }
+            ),
+        ));
+    }
+    if !unknown.is_empty() {
+        out.push(Finding::new(
+            None,
+            Severity::Warning,
+            format!(
+                "{} label(s) not in the {} table ignored: {}",
+                unknown.len(),
+                table.name,
+                list(&unknown)
             ),
         ));
     }
@@ -192,13 +147,14 @@ fn label_findings(table: &LabelTable, stats: &BTreeMap<u16, LabelStats>) -> Vec<
 }
 
 /// One surface per level (metres); a level whose labels touch the edge of
-/// the field of view is left out with a warning.
+/// the field of view is left out with a warning and listed in `cut`.
 fn extract_levels(
     map: &LabelMap,
     stats: &BTreeMap<u16, LabelStats>,
     wanted: &BTreeMap<Level, Vec<u16>>,
     progress: bool,
     findings: &mut Vec<Finding>,
+    cut: &mut Vec<Level>,
 ) -> Vec<LevelInput> {
     let bar = progress_bar(wanted.len(), progress);
     // Levels cut by the field of view are left out, named.
@@ -210,10 +166,11 @@ fn extract_levels(
                 Some(level),
                 Severity::Warning,
                 format!(
-                    "label {} touches the edge of the field of view (voxels {:?}..{:?} of {:?}): truncated vertebra, level left out",
+                    "{level} (label {}) is cut by the field of view (it reaches the map's edge: voxels {:?}..{:?} of {:?}): left out",
                     join(labels), b.min, b.max, map.dims
                 ),
             ));
+            cut.push(level);
             bar.inc(1);
         } else {
             inside.push((level, labels, b));
@@ -246,15 +203,6 @@ fn only_inferior_cut(map: &LabelMap, b: &LabelStats) -> bool {
         let high = b.max[k] + 1 == map.dims[k] && axis.z > -0.5;
         !low && !high
     })
-}
-
-/// `25+26`.
-fn join(labels: &[u16]) -> String {
-    labels
-        .iter()
-        .map(|l| l.to_string())
-        .collect::<Vec<_>>()
-        .join("+")
 }
 
 /// A progress bar on stderr (hidden when not wanted or not a terminal).

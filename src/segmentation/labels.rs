@@ -1,8 +1,12 @@
 //! Label tables of NIfTI label maps: which integer label is which level.
 //!
-//! Built in:
-//! - TotalSegmentator v2, task `total` (`totalsegmentator/map_to_binary.py`,
-//!   `class_map["total"]` in github.com/wasserth/TotalSegmentator):
+//! Built in (every class by name, so that a label can be named in messages
+//! and a label a table does not have is evidence against it):
+//! - TotalSegmentator v1, 104 classes (`totalsegmentator/map_to_binary.py`,
+//!   `class_map["total_v1"]` in github.com/wasserth/TotalSegmentator):
+//!   18..34 `vertebrae_L5`..`vertebrae_T1`, 35..41 `vertebrae_C7`..
+//!   `vertebrae_C1`, 92 `sacrum`;
+//! - TotalSegmentator v2, task `total`, 117 classes (`class_map["total"]`):
 //!   25 `sacrum`, 26 `vertebrae_S1`, 27..43 `vertebrae_L5`..`vertebrae_T1`,
 //!   44..50 `vertebrae_C7`..`vertebrae_C1`; every other label is an organ,
 //!   a vessel or another bone.
@@ -76,25 +80,71 @@ pub fn class_of_name(name: &str) -> LabelClass {
     }
 }
 
+const TOTAL_V1_NAMES: &str = concat!(
+    "spleen kidney_right kidney_left gallbladder liver stomach aorta inferior_vena_cava ",
+    "portal_vein_and_splenic_vein pancreas adrenal_gland_right adrenal_gland_left ",
+    "lung_upper_lobe_left lung_lower_lobe_left lung_upper_lobe_right lung_middle_lobe_right ",
+    "lung_lower_lobe_right vertebrae_L5 vertebrae_L4 vertebrae_L3 vertebrae_L2 vertebrae_L1 ",
+    "vertebrae_T12 vertebrae_T11 vertebrae_T10 vertebrae_T9 vertebrae_T8 vertebrae_T7 ",
+    "vertebrae_T6 vertebrae_T5 vertebrae_T4 vertebrae_T3 vertebrae_T2 vertebrae_T1 vertebrae_C7 ",
+    "vertebrae_C6 vertebrae_C5 vertebrae_C4 vertebrae_C3 vertebrae_C2 vertebrae_C1 esophagus ",
+    "trachea heart_myocardium heart_atrium_left heart_ventricle_left heart_atrium_right ",
+    "heart_ventricle_right pulmonary_artery brain iliac_artery_left iliac_artery_right ",
+    "iliac_vena_left iliac_vena_right small_bowel duodenum colon rib_left_1 rib_left_2 rib_left_3 ",
+    "rib_left_4 rib_left_5 rib_left_6 rib_left_7 rib_left_8 rib_left_9 rib_left_10 rib_left_11 ",
+    "rib_left_12 rib_right_1 rib_right_2 rib_right_3 rib_right_4 rib_right_5 rib_right_6 ",
+    "rib_right_7 rib_right_8 rib_right_9 rib_right_10 rib_right_11 rib_right_12 humerus_left ",
+    "humerus_right scapula_left scapula_right clavicula_left clavicula_right femur_left ",
+    "femur_right hip_left hip_right sacrum face gluteus_maximus_left gluteus_maximus_right ",
+    "gluteus_medius_left gluteus_medius_right gluteus_minimus_left gluteus_minimus_right ",
+    "autochthon_left autochthon_right iliopsoas_left iliopsoas_right urinary_bladder",
+);
+
+const TOTAL_V2_NAMES: &str = concat!(
+    "spleen kidney_right kidney_left gallbladder liver stomach pancreas adrenal_gland_right ",
+    "adrenal_gland_left lung_upper_lobe_left lung_lower_lobe_left lung_upper_lobe_right ",
+    "lung_middle_lobe_right lung_lower_lobe_right esophagus trachea thyroid_gland small_bowel ",
+    "duodenum colon urinary_bladder prostate kidney_cyst_left kidney_cyst_right sacrum ",
+    "vertebrae_S1 vertebrae_L5 vertebrae_L4 vertebrae_L3 vertebrae_L2 vertebrae_L1 vertebrae_T12 ",
+    "vertebrae_T11 vertebrae_T10 vertebrae_T9 vertebrae_T8 vertebrae_T7 vertebrae_T6 vertebrae_T5 ",
+    "vertebrae_T4 vertebrae_T3 vertebrae_T2 vertebrae_T1 vertebrae_C7 vertebrae_C6 vertebrae_C5 ",
+    "vertebrae_C4 vertebrae_C3 vertebrae_C2 vertebrae_C1 heart aorta pulmonary_vein ",
+    "brachiocephalic_trunk subclavian_artery_right subclavian_artery_left ",
+    "common_carotid_artery_right common_carotid_artery_left brachiocephalic_vein_left ",
+    "brachiocephalic_vein_right atrial_appendage_left superior_vena_cava inferior_vena_cava ",
+    "portal_vein_and_splenic_vein iliac_artery_left iliac_artery_right iliac_vena_left ",
+    "iliac_vena_right humerus_left humerus_right scapula_left scapula_right clavicula_left ",
+    "clavicula_right femur_left femur_right hip_left hip_right spinal_cord gluteus_maximus_left ",
+    "gluteus_maximus_right gluteus_medius_left gluteus_medius_right gluteus_minimus_left ",
+    "gluteus_minimus_right autochthon_left autochthon_right iliopsoas_left iliopsoas_right brain ",
+    "skull rib_left_1 rib_left_2 rib_left_3 rib_left_4 rib_left_5 rib_left_6 rib_left_7 ",
+    "rib_left_8 rib_left_9 rib_left_10 rib_left_11 rib_left_12 rib_right_1 rib_right_2 ",
+    "rib_right_3 rib_right_4 rib_right_5 rib_right_6 rib_right_7 rib_right_8 rib_right_9 ",
+    "rib_right_10 rib_right_11 rib_right_12 sternum costal_cartilages",
+);
+
+/// A table from its class names, label 1 first.
+fn from_names(name: &str, names: &str) -> LabelTable {
+    let classes = names
+        .split_whitespace()
+        .enumerate()
+        .map(|(i, n)| (i as u32 + 1, class_of_name(n)))
+        .collect();
+    LabelTable {
+        name: name.into(),
+        classes,
+    }
+}
+
 impl LabelTable {
-    /// TotalSegmentator v2, task `total` (vertebrae and sacrum; every other
-    /// label of that task is "other").
+    /// TotalSegmentator v1 (104 classes).
+    pub fn total_segmentator_v1() -> LabelTable {
+        from_names("TotalSegmentator v1 (104 classes)", TOTAL_V1_NAMES)
+    }
+
+    /// TotalSegmentator v2, task `total` (117 classes).
     pub fn total_segmentator() -> LabelTable {
-        let mut classes = BTreeMap::new();
-        classes.insert(25, LabelClass::Level(Level::S1)); // sacrum
-        classes.insert(26, LabelClass::Level(Level::S1)); // vertebrae_S1
-        for (i, label) in (27..=43).enumerate() {
-            // 27 = L5 ... 43 = T1
-            let level = Level::from_index(16 - i).expect("T1..L5");
-            classes.insert(label, LabelClass::Level(level));
-        }
-        for (i, label) in (44..=50).enumerate() {
-            classes.insert(label, LabelClass::Cervical(7 - i as u8));
-        }
-        LabelTable {
-            name: "TotalSegmentator (total)".into(),
-            classes,
-        }
+        from_names("TotalSegmentator v2 (total, 117 classes)", TOTAL_V2_NAMES)
     }
 
     /// TotalSpineSeg (vertebrae, sacrum, cord, canal, discs).
@@ -129,9 +179,21 @@ impl LabelTable {
     /// The built-in tables.
     pub fn builtin() -> Vec<LabelTable> {
         vec![
+            LabelTable::total_segmentator_v1(),
             LabelTable::total_segmentator(),
             LabelTable::total_spine_seg(),
         ]
+    }
+
+    /// The name of a label's class (`vertebrae_L3`, `liver`), `None` when
+    /// the table has no such label.
+    pub fn class_name(&self, label: u32) -> Option<String> {
+        self.classes.get(&label).map(|c| match c {
+            LabelClass::Level(l) if l.is_sacrum() => "sacrum".to_string(),
+            LabelClass::Level(l) => format!("vertebra {l}"),
+            LabelClass::Cervical(c) => format!("vertebra C{c}"),
+            LabelClass::Other(n) => n.clone(),
+        })
     }
 
     /// Read a `--labels` file.
@@ -215,7 +277,23 @@ mod tests {
             let levels = t.labels_of_levels();
             assert_eq!(levels.len(), 18, "{}", t.name);
         }
+        // TotalSegmentator's own class maps (map_to_binary.py).
+        let v1 = LabelTable::total_segmentator_v1();
+        assert_eq!(v1.classes.len(), 104);
+        assert_eq!(v1.classes[&18], LabelClass::Level(Level::L5));
+        assert_eq!(v1.classes[&34], LabelClass::Level(Level::T1));
+        assert_eq!(v1.classes[&35], LabelClass::Cervical(7));
+        assert_eq!(v1.classes[&92], LabelClass::Level(Level::S1));
+        assert_eq!(v1.classes[&7], LabelClass::Other("aorta".into()));
         let ts = LabelTable::total_segmentator();
+        assert_eq!(ts.classes.len(), 117);
+        assert_eq!(ts.classes[&25], LabelClass::Level(Level::S1));
+        assert_eq!(ts.classes[&26], LabelClass::Level(Level::S1));
+        assert_eq!(ts.classes[&79], LabelClass::Other("spinal_cord".into()));
+        assert_eq!(
+            ts.classes[&117],
+            LabelClass::Other("costal_cartilages".into())
+        );
         assert_eq!(ts.classes[&27], LabelClass::Level(Level::L5));
         assert_eq!(ts.classes[&43], LabelClass::Level(Level::T1));
         assert_eq!(ts.classes[&44], LabelClass::Cervical(7));

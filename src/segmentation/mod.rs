@@ -17,12 +17,15 @@
 
 pub mod assemble;
 pub mod checks;
+pub mod choose;
+pub mod evidence;
 pub mod folder;
 pub mod hints;
 pub mod labelmap;
 pub mod labels;
 pub mod nifti;
 pub mod report;
+pub mod sacrum;
 pub mod surface;
 pub mod voxelise;
 
@@ -104,6 +107,8 @@ pub struct Loaded {
     pub label_table: Option<String>,
     pub levels: Vec<LevelInput>,
     pub findings: Vec<Finding>,
+    /// Levels left out because the field of view cuts them (label maps).
+    pub cut_by_fov: Vec<Level>,
 }
 
 /// One palpated level.
@@ -124,7 +129,7 @@ pub struct Palpated {
     pub kind: Kind,
     pub source: String,
     pub label_table: Option<String>,
-    /// The landmarks (metres, OpenSim frame), a contiguous run of levels.
+    /// The landmarks (metres, OpenSim frame); levels may have gaps.
     pub set: LandmarkSet,
     /// Axes of the segmentation (declared, the NIfTI world or detected).
     pub world: Frame,
@@ -219,6 +224,7 @@ fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
         label_table: None,
         levels,
         findings,
+        cut_by_fov: Vec::new(),
     })
 }
 
@@ -322,6 +328,7 @@ pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
     let mut loaded = load(path, opts)?;
     assemble::select_levels(&mut loaded, opts.levels)?;
     assemble::screen(&mut loaded);
+    assemble::check_naming(&mut loaded)?;
     let pairs: Vec<(Level, &TriMesh)> = loaded.levels.iter().map(|l| (l.level, &l.mesh)).collect();
     let (hints, notes) = hints::frame_hints(&pairs, loaded.frame);
     for n in notes {

@@ -12,13 +12,17 @@ use fast_surface_nets::ndshape::RuntimeShape;
 use fast_surface_nets::{surface_nets, SurfaceNetsBuffer};
 use nalgebra::Point3;
 
-/// Voxel count and bounding box of one label.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Voxel count, bounding box and moments of one label.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LabelStats {
     pub count: u64,
     /// Inclusive voxel index bounds.
     pub min: [usize; 3],
     pub max: [usize; 3],
+    /// Sums of the voxel indices (i, j, k) and of their products (ii, jj,
+    /// kk, ij, ik, jk): the label's centroid and second moments.
+    pub sum: [f64; 3],
+    pub sum_sq: [f64; 6],
 }
 
 impl LabelStats {
@@ -26,6 +30,30 @@ impl LabelStats {
     /// view may cut it).
     pub fn touches_edge(&self, dims: &[usize; 3]) -> bool {
         (0..3).any(|k| self.min[k] == 0 || self.max[k] + 1 == dims[k])
+    }
+
+    /// The union of two labels' statistics (a level with two labels).
+    pub fn union(mut self, b: &LabelStats) -> LabelStats {
+        self.count += b.count;
+        for k in 0..3 {
+            self.min[k] = self.min[k].min(b.min[k]);
+            self.max[k] = self.max[k].max(b.max[k]);
+            self.sum[k] += b.sum[k];
+        }
+        for k in 0..6 {
+            self.sum_sq[k] += b.sum_sq[k];
+        }
+        self
+    }
+
+    /// Centroid (voxel index coordinates) and covariance (voxels^2).
+    pub fn moments(&self) -> (nalgebra::Point3<f64>, nalgebra::Matrix3<f64>) {
+        let n = self.count.max(1) as f64;
+        let m = nalgebra::Vector3::from(self.sum) / n;
+        let q = self.sum_sq.map(|v| v / n);
+        let c = nalgebra::Matrix3::new(q[0], q[3], q[4], q[3], q[1], q[5], q[4], q[5], q[2])
+            - m * m.transpose();
+        (m.into(), c)
     }
 }
 
@@ -43,11 +71,24 @@ pub fn label_stats(map: &LabelMap) -> std::collections::BTreeMap<u16, LabelStats
             count: 0,
             min: p,
             max: p,
+            sum: [0.0; 3],
+            sum_sq: [0.0; 6],
         });
         s.count += 1;
         for k in 0..3 {
             s.min[k] = s.min[k].min(p[k]);
             s.max[k] = s.max[k].max(p[k]);
+        }
+        let [x, y, z] = p.map(|v| v as f64);
+        s.sum[0] += x;
+        s.sum[1] += y;
+        s.sum[2] += z;
+        for (acc, v) in s
+            .sum_sq
+            .iter_mut()
+            .zip([x * x, y * y, z * z, x * y, x * z, y * z])
+        {
+            *acc += v;
         }
     }
     stats
