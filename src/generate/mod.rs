@@ -47,6 +47,7 @@ pub mod balance;
 pub mod chain;
 pub mod clear;
 pub mod example;
+pub mod geometry;
 pub mod pose;
 pub mod residuals;
 pub mod scale;
@@ -65,6 +66,7 @@ use crate::osim::document::{set_f64, set_vec3};
 use crate::osim::model::Model;
 use crate::osim::Document;
 pub use balance::{AboveFov, AboveFovReport};
+pub use geometry::{GeometryChoice, PatientGeometry};
 use nalgebra::{Isometry3, Point3, Rotation3, UnitQuaternion, Vector3};
 pub use pose::Method;
 use pose::Points;
@@ -213,6 +215,9 @@ pub struct GenerateReport {
     /// Every landmark's residual after its vertebra's fit (as OpenSim's
     /// Scale tool lists marker errors), vertebra frames.
     pub landmark_residuals: Vec<residuals::LandmarkResidual>,
+    /// The patient's own vertebrae (`--geometry patient`, [`geometry`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<geometry::GeometryReport>,
 }
 
 /// What the orientation smoothing did ([`smooth`]).
@@ -261,6 +266,9 @@ pub struct Generated {
     pub report: GenerateReport,
     /// (suffix, SVG text): `frontal`, `sagittal`.
     pub views: Vec<(String, String)>,
+    /// Meshes of the model that are not the base model's (the patient's,
+    /// [`geometry`]), by `mesh_file`, in their bodies' frames (m).
+    pub meshes: BTreeMap<String, crate::mesh::TriMesh>,
 }
 
 /// Base-model markers `<LEVEL>_<CODE>` in their bodies' frames, and the
@@ -428,6 +436,20 @@ pub fn generate(
     opts: &GenerateOptions,
     meshes: Option<&dyn MeshSource>,
 ) -> Result<Generated> {
+    generate_with_geometry(base, set, set_name, opts, meshes, None)
+}
+
+/// [`generate`], the vertebrae wearing the patient's own meshes where
+/// `patient` has them ([`geometry`]); `set` must be the landmarks palpated
+/// on those meshes.
+pub fn generate_with_geometry(
+    base: &Document,
+    set: &LandmarkSet,
+    set_name: &str,
+    opts: &GenerateOptions,
+    meshes: Option<&dyn MeshSource>,
+    patient_geometry: Option<&PatientGeometry>,
+) -> Result<Generated> {
     let bfile = base.path().display().to_string();
     let model = base.model()?;
     let kin = Kinematics::new(&model)?;
@@ -471,7 +493,7 @@ pub fn generate(
 
     // ---- 3. scaling
     let mut doc = base.clone();
-    let (scales, scaling) = scale_bodies(&mut doc, &fits)?;
+    let (mut scales, scaling) = scale_bodies(&mut doc, &fits)?;
 
     // ---- 4. joint frames
     let (rewritten, prefixes) =
@@ -490,8 +512,42 @@ pub fn generate(
         None => None,
     };
 
+    // ---- 4c. the patient's own vertebrae ([`geometry`]): meshes, markers,
+    // sphere centres, joints at the discs, mass, attachments out of bone
+    let mut radii = sphere_radii(&model);
+    let applied = match patient_geometry {
+        Some(pg) => {
+            let placed: Vec<Level> = fits.keys().copied().chain([Level::S1]).collect();
+            let at = geometry::Placement {
+                registration: registration.isometry(),
+                landmarks: &patient,
+                placed,
+                base_meshes: meshes,
+            };
+            let a = geometry::apply(&mut doc, pg, &at)?;
+            radii.extend(a.sphere_radii.iter().map(|(n, r)| (n.clone(), *r)));
+            for b in &a.bodies {
+                scales.remove(b);
+            }
+            Some(a)
+        }
+        None => None,
+    };
+    let own_meshes = applied
+        .as_ref()
+        .map(|a| a.meshes.clone())
+        .unwrap_or_default();
+    let overlay = geometry::Overlay {
+        own: &own_meshes,
+        base: meshes,
+    };
+    let meshes: Option<&dyn MeshSource> = match (&applied, meshes) {
+        (Some(_), _) => Some(&overlay),
+        (None, m) => m,
+    };
+
     // ---- 5. wrap spheres
-    let spheres = wraps::refit_spheres(&mut doc, &scales, &sphere_radii(&model), &prefixes)?;
+    let spheres = wraps::refit_spheres(&mut doc, &scales, &radii, &prefixes)?;
 
     // ---- 5b. muscle paths clear of the vertebrae ([`clear`])
     let path_edits = clear_muscle_paths(&mut doc, meshes)?;
@@ -520,7 +576,8 @@ pub fn generate(
     let shape = crate::landmarks::metrics::shape(&model_set, &centres);
     let views = if opts.views {
         let model_markers: Vec<Point3<f64>> = model_set.points.values().copied().collect();
-        views::generate_views(&centres, &registered, &model_markers)
+        let bones = views::posed_triangles(&own_meshes, &out_model, &poses2);
+        views::generate_views(&centres, &registered, &model_markers, &bones)
     } else {
         Vec::new()
     };
@@ -553,8 +610,14 @@ pub fn generate(
         reduced_fits,
         shape,
         landmark_residuals,
+        geometry: applied.map(|a| a.report),
     };
-    Ok(Generated { doc, report, views })
+    Ok(Generated {
+        doc,
+        report,
+        views,
+        meshes: own_meshes,
+    })
 }
 
 /// The set's landmarks grouped by level.
@@ -973,8 +1036,7 @@ fn rewrite_joint_frames(
         .ok_or_else(|| Error::invalid(bfile, format!("the {ll} markers give no frame")))?;
         let qu = xu.rotation * UnitQuaternion::from_rotation_matrix(&ru);
         let ql = xl.rotation * UnitQuaternion::from_rotation_matrix(&rl);
-        let q = ql.slerp(&qu, 0.5);
-        let j = Isometry3::from_parts(nalgebra::center(&iec, &sec).coords.into(), q);
+        let j = disc_frame(&iec, &sec, &qu, &ql);
         let p_in_l = xl.inverse() * j;
         let c_in_u = xu.inverse() * j;
         write_joint(
@@ -990,6 +1052,19 @@ fn rewrite_joint_frames(
     }
     let prefixes: Vec<String> = prefixes;
     Ok((rewritten, prefixes))
+}
+
+/// An intervertebral joint's frame in ground: origin midway between the
+/// upper vertebra's inferior endplate centre `iec` and the lower one's
+/// superior endplate centre `sec` (the disc centre), orientation half-way
+/// (quaternion midpoint) between the two vertebrae's frames `qu`, `ql`.
+fn disc_frame(
+    iec: &Point3<f64>,
+    sec: &Point3<f64>,
+    qu: &UnitQuaternion<f64>,
+    ql: &UnitQuaternion<f64>,
+) -> Isometry3<f64> {
+    Isometry3::from_parts(nalgebra::center(iec, sec).coords.into(), ql.slerp(qu, 0.5))
 }
 
 /// The report's row per fitted vertebra, the outliers rejected and the
