@@ -20,9 +20,14 @@
 //!    centre (the protocol's least-squares sphere through the anterior
 //!    body surface) with its radius, before the wrap rules shrink it;
 //! 3. each intervertebral joint between two patient levels is at the
-//!    patient's disc centre (midway between the upper IEC and the lower
-//!    SEC landmarks), oriented half-way between the two vertebrae's ISB
-//!    frames from the landmarks ([`super::disc_frame`]);
+//!    patient's disc: the base's joint centre carried into the patient by
+//!    each of its two vertebrae (the landmark fit, as the chain fit places
+//!    joints, refined by a rigid ICP of the scaled base mesh onto the
+//!    patient's surface, [`SURFACE_FIT_LIMIT`]), midway between the two, so
+//!    that the disc keeps the base's joint relative to the bone (a patient
+//!    whose vertebrae are the base's, posed, gets the base's joints back);
+//!    oriented half-way between the two vertebrae's ISB frames from the
+//!    patient's landmarks ([`super::disc_frame`]);
 //! 4. mass and inertia scaled from the (scaled) base by the ratio of the
 //!    patient's bone volume to the scaled base mesh's: mass by the ratio,
 //!    inertia by its 5/3 power (a body grown uniformly to that volume);
@@ -38,7 +43,7 @@
 
 use crate::base::kin::Kinematics;
 use crate::error::{Error, Result};
-use crate::landmarks::{Code, Level};
+use crate::landmarks::Level;
 use crate::mesh::source::MeshSource;
 use crate::mesh::{MeshQuery, TriMesh};
 use crate::osim::document::{set_f64, set_numbers, set_vec3};
@@ -75,6 +80,10 @@ pub const MAX_TRIANGLES: usize = 5000;
 pub const SMOOTH_PASSES: usize = 10;
 /// How far outside the bone a moved attachment is put (m).
 pub const ATTACHMENT_CLEARANCE: f64 = 0.0005;
+/// Largest move of a joint centre by the surface refinement (m): beyond
+/// it the patient's bone is too unlike the base's for the rigid ICP to be
+/// trusted, and the landmark fit alone places the joint.
+pub const SURFACE_FIT_LIMIT: f64 = 0.003;
 
 /// One level of the patient's segmentation, ready for the model.
 #[derive(Debug, Clone)]
@@ -244,6 +253,11 @@ pub struct MeshRow {
     /// frame (m) and radius before the wrap rules (m); none for the sacrum.
     pub sphere_centre: Option<[f64; 3]>,
     pub sphere_radius: Option<f64>,
+    /// The scaled base mesh registered onto the patient's (rigid ICP from
+    /// the landmark fit): how far it moved (mm at the mesh's extent) and
+    /// its trimmed RMS (mm); `None` when the base mesh is missing.
+    pub surface_fit_mm: Option<f64>,
+    pub surface_rms_mm: Option<f64>,
 }
 
 /// A muscle attachment moved out of a patient bone.
@@ -285,6 +299,9 @@ pub struct Applied {
     pub sphere_radii: BTreeMap<String, f64>,
     /// Bodies wearing a patient mesh.
     pub bodies: Vec<String>,
+    /// Per body, the rigid correction (ground) taking the landmark-fitted
+    /// scaled base mesh onto the patient's surface.
+    pub surface_fits: BTreeMap<String, Isometry3<f64>>,
 }
 
 /// What [`apply`] needs from the generator.
@@ -295,6 +312,10 @@ pub struct Placement<'a> {
     pub landmarks: &'a BTreeMap<Level, super::pose::Points>,
     /// Levels placed from landmarks (vertebrae) and S1.
     pub placed: Vec<Level>,
+    /// The base's joint centres carried into the patient by the fits of
+    /// the two vertebrae of each joint, in their (scaled) body frames,
+    /// keyed by the upper level ([`super::carried_joints`]).
+    pub joints: super::JointCentres,
     /// The base model's meshes (for the scaled base volumes).
     pub base_meshes: Option<&'a dyn MeshSource>,
 }
@@ -321,6 +342,7 @@ pub fn apply(doc: &mut Document, pg: &PatientGeometry, at: &Placement) -> Result
         meshes: BTreeMap::new(),
         sphere_radii: BTreeMap::new(),
         bodies: Vec::new(),
+        surface_fits: BTreeMap::new(),
     };
     // Steps 1, 2, 4: each patient level's body.
     for l in Level::ALL {
@@ -339,7 +361,8 @@ pub fn apply(doc: &mut Document, pg: &PatientGeometry, at: &Placement) -> Result
         out.bodies.push(body);
     }
     // Step 3: joints at the patient's disc centres.
-    out.report.joints_at_patient_discs = patient_joints(doc, &model, &poses, at)?;
+    out.report.joints_at_patient_discs =
+        patient_joints(doc, &model, &poses, at, &out.surface_fits)?;
     // Step 5: attachments out of the patient's bones.
     let bones: Vec<(String, MeshQuery)> = out
         .bodies
@@ -389,7 +412,19 @@ fn wear(
         .ok_or_else(|| Error::invalid(&file, format!("no body '{body}'")))?;
     let mesh = pl.mesh.transformed(&to_body);
     let volume = mesh.signed_volume();
-    let base_volume = scaled_base_volume(b, at.base_meshes)?;
+    let base_mesh = scaled_base_mesh(b, at.base_meshes)?;
+    let base_volume = base_mesh
+        .as_ref()
+        .filter(|m| m.edge_report().is_watertight())
+        .map(TriMesh::signed_volume)
+        .filter(|v| *v > 0.0);
+    let surface = match &base_mesh {
+        Some(m) => Some(surface_fit(m, &mesh)?),
+        None => None,
+    };
+    if let Some((t, _, _)) = &surface {
+        out.surface_fits.insert(body.clone(), x * t * x.inverse());
+    }
     let mesh_file = pg.mesh_file(l);
     let el = doc
         .component_mut("BodySet", &body)
@@ -427,18 +462,40 @@ fn wear(
         base_mass_kg: b.mass,
         sphere_centre: sphere.map(|c| [c.x, c.y, c.z]),
         sphere_radius: sphere.map(|_| pl.radius),
+        surface_fit_mm: surface.as_ref().map(|(_, d, _)| d * 1e3),
+        surface_rms_mm: surface.as_ref().map(|(_, _, r)| r * 1e3),
     })
 }
 
-/// Volume of a body's (scaled) base meshes when they are closed and
-/// outward; `None` otherwise (the mass is then kept).
-fn scaled_base_volume(
+/// The rigid motion (body frame) taking the scaled base mesh onto the
+/// patient's mesh `patient` (ICP from where the landmark fit put it), how
+/// far it moves the base mesh's vertices at most (m) and the trimmed RMS
+/// (m).
+fn surface_fit(base: &TriMesh, patient: &TriMesh) -> Result<(Isometry3<f64>, f64, f64)> {
+    let q = MeshQuery::new(patient).map_err(|e| Error::invalid("patient mesh", e.to_string()))?;
+    let opts = crate::mesh::IcpOptions {
+        initial: Some(crate::mesh::Similarity::identity()),
+        max_iterations: 100,
+        ..crate::mesh::IcpOptions::default()
+    };
+    let r = crate::mesh::icp(&base.vertices, &q, &opts)?;
+    let t = Isometry3::from_parts(r.transform.translation.into(), r.transform.rotation);
+    let moved = base
+        .vertices
+        .iter()
+        .map(|p| (t * p - p).norm())
+        .fold(0.0f64, f64::max);
+    Ok((t, moved, r.trimmed_rms))
+}
+
+/// A body's (scaled) base meshes merged, in its frame; `None` when it has
+/// none or one is missing.
+fn scaled_base_mesh(
     b: &crate::osim::model::Body,
     source: Option<&dyn MeshSource>,
-) -> Result<Option<f64>> {
+) -> Result<Option<TriMesh>> {
     let Some(src) = source else { return Ok(None) };
-    let mut v = 0.0;
-    let mut any = false;
+    let mut parts = Vec::new();
     for g in &b.geometry {
         if let Geometry::Mesh {
             mesh_file,
@@ -449,15 +506,14 @@ fn scaled_base_volume(
             let Some(m) = src.load(mesh_file)? else {
                 return Ok(None);
             };
-            let m = m.scaled(scale_factors);
-            if !m.edge_report().is_watertight() {
-                return Ok(None);
-            }
-            v += m.signed_volume();
-            any = true;
+            parts.push(m.scaled(scale_factors));
         }
     }
-    Ok((any && v > 0.0).then_some(v))
+    if parts.is_empty() {
+        return Ok(None);
+    }
+    let refs: Vec<&TriMesh> = parts.iter().collect();
+    TriMesh::merge(&refs).map(Some)
 }
 
 /// The body's mesh geometry replaced by one visible Mesh of `mesh_file`
@@ -531,14 +587,27 @@ fn set_markers(
     Ok(())
 }
 
-/// Step 3: every intervertebral joint between two levels with the
-/// patient's landmarks rewritten at the disc centre; returns their names.
+/// Step 3: every intervertebral joint between two placed levels at the
+/// patient's disc: midway between the base's joint centre carried by the
+/// upper vertebra's fit and by the lower one's (they agree to the chain's
+/// joint mismatch), oriented half-way between the two vertebrae's ISB
+/// frames from the patient's landmarks; returns the joints written.
 fn patient_joints(
     doc: &mut Document,
     model: &Model,
     poses: &BTreeMap<String, Isometry3<f64>>,
     at: &Placement,
+    surface_fits: &BTreeMap<String, Isometry3<f64>>,
 ) -> Result<Vec<String>> {
+    // A joint centre carried by a body's landmark fit, then its surface fit
+    // when that moves it less than the limit.
+    let carry = |body: &str, x: &Isometry3<f64>, p: &Point3<f64>| {
+        let g = x * p;
+        match surface_fits.get(body).map(|t| t * g) {
+            Some(h) if (h - g).norm() <= SURFACE_FIT_LIMIT => h,
+            _ => g,
+        }
+    };
     let mut done = Vec::new();
     for jf in model.joint_frames()? {
         let (Some(lu), Some(ll)) = (
@@ -550,10 +619,11 @@ fn patient_joints(
         if lu.caudal() != Some(ll) || !at.placed.contains(&lu) || !at.placed.contains(&ll) {
             continue;
         }
-        let (Some(pu), Some(pl)) = (at.landmarks.get(&lu), at.landmarks.get(&ll)) else {
-            continue;
-        };
-        let (Some(iec), Some(sec)) = (pu.get(&Code::IEC), pl.get(&Code::SEC)) else {
+        let (Some(pu), Some(pl), Some((ju, jl))) = (
+            at.landmarks.get(&lu),
+            at.landmarks.get(&ll),
+            at.joints.get(&lu),
+        ) else {
             continue;
         };
         let ru = super::isb_rotation(pu);
@@ -571,8 +641,8 @@ fn patient_joints(
             continue;
         };
         let j = super::disc_frame(
-            iec,
-            sec,
+            &carry(&jf.child_body, xu, ju),
+            &carry(&jf.parent_body, xl, jl),
             &nalgebra::UnitQuaternion::from_rotation_matrix(&ru),
             &nalgebra::UnitQuaternion::from_rotation_matrix(&rl),
         );

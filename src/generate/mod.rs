@@ -518,10 +518,16 @@ pub fn generate_with_geometry(
     let applied = match patient_geometry {
         Some(pg) => {
             let placed: Vec<Level> = fits.keys().copied().chain([Level::S1]).collect();
+            let joint_geometry = JointGeometry {
+                joint_centres: &input.joint_centres,
+                centres: &input.body_centres,
+            };
+            let scaling = smoothing.joint_scaling.unwrap_or(JointScaling::WithBody);
             let at = geometry::Placement {
                 registration: registration.isometry(),
                 landmarks: &patient,
                 placed,
+                joints: carried_joints(&fits, &joint_geometry, scaling),
                 base_meshes: meshes,
             };
             let a = geometry::apply(&mut doc, pg, &at)?;
@@ -712,7 +718,7 @@ fn register_sacrum(
 
 /// Base joint centres between consecutive vertebrae, keyed by the upper
 /// level: the centre in the upper body and in the lower body.
-type JointCentres = BTreeMap<Level, (Point3<f64>, Point3<f64>)>;
+pub type JointCentres = BTreeMap<Level, (Point3<f64>, Point3<f64>)>;
 
 /// What every fit of step 2 shares: the levels, the base's markers and
 /// joint centres, the options.
@@ -1054,9 +1060,9 @@ fn rewrite_joint_frames(
     Ok((rewritten, prefixes))
 }
 
-/// An intervertebral joint's frame in ground: origin midway between the
-/// upper vertebra's inferior endplate centre `iec` and the lower one's
-/// superior endplate centre `sec` (the disc centre), orientation half-way
+/// An intervertebral joint's frame in ground: origin midway between a
+/// point of the upper vertebra and one of the lower (the generic route:
+/// the upper IEC and the lower SEC, the disc centre), orientation half-way
 /// (quaternion midpoint) between the two vertebrae's frames `qu`, `ql`.
 fn disc_frame(
     iec: &Point3<f64>,
@@ -1320,6 +1326,26 @@ impl JointScaling {
     }
 }
 
+impl JointGeometry<'_> {
+    /// A joint centre `p` of level `l`'s unscaled body frame, placed in its
+    /// body scaled by `scale` under the joint model `scaling`.
+    fn place(
+        &self,
+        p: &Point3<f64>,
+        l: Level,
+        scale: &Vector3<f64>,
+        scaling: JointScaling,
+    ) -> Point3<f64> {
+        match scaling {
+            JointScaling::WithBody => pose::scale_point(p, scale),
+            JointScaling::AboutCentre => {
+                let c = self.centres.get(&l).copied().unwrap_or(Point3::origin());
+                p + (pose::scale_point(&c, scale) - c)
+            }
+        }
+    }
+}
+
 /// The chain's joints, each body's joint centre placed by `scaling`.
 fn chain_joints(
     fits: &BTreeMap<Level, pose::VertebraFit>,
@@ -1327,17 +1353,6 @@ fn chain_joints(
     geometry: &JointGeometry,
     scaling: JointScaling,
 ) -> Vec<chain::ChainJoint> {
-    let place = |p: &Point3<f64>, l: Level, f: &pose::VertebraFit| match scaling {
-        JointScaling::WithBody => pose::scale_point(p, &f.scale),
-        JointScaling::AboutCentre => {
-            let c = geometry
-                .centres
-                .get(&l)
-                .copied()
-                .unwrap_or(Point3::origin());
-            p + (pose::scale_point(&c, &f.scale) - c)
-        }
-    };
     let mut joints = Vec::new();
     for (k, w) in chain.windows(2).enumerate() {
         let (Some((qu, pl)), Some(fu), Some(fl)) = (
@@ -1350,11 +1365,41 @@ fn chain_joints(
         joints.push(chain::ChainJoint {
             upper: k,
             lower: k + 1,
-            in_upper: place(qu, w[0], fu),
-            in_lower: place(pl, w[1], fl),
+            in_upper: geometry.place(qu, w[0], &fu.scale, scaling),
+            in_lower: geometry.place(pl, w[1], &fl.scale, scaling),
         });
     }
     joints
+}
+
+/// Every base joint centre between a fitted vertebra and the fitted
+/// vertebra or sacrum below, carried into both bodies (scaled frames) by
+/// their fits under `scaling`, keyed by the upper level.
+fn carried_joints(
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+    geometry: &JointGeometry,
+    scaling: JointScaling,
+) -> JointCentres {
+    let one = Vector3::repeat(1.0);
+    let mut out = JointCentres::new();
+    for (lu, (qu, pl)) in geometry.joint_centres {
+        let (Some(fu), Some(ll)) = (fits.get(lu), lu.caudal()) else {
+            continue;
+        };
+        let sl = match fits.get(&ll) {
+            Some(f) => f.scale,
+            None if ll.is_sacrum() => one,
+            None => continue,
+        };
+        out.insert(
+            *lu,
+            (
+                geometry.place(qu, *lu, &fu.scale, scaling),
+                geometry.place(pl, ll, &sl, scaling),
+            ),
+        );
+    }
+    out
 }
 
 /// The chain smoothed under the joint model the landmarks support best
