@@ -710,6 +710,9 @@ impl ShapeTruth {
         let clean: BTreeMap<String, Vector3<f64>> = posed
             .markers
             .iter()
+            // Landmarks only: the base's other markers (FH_R / FH_L) are
+            // not in the palpation protocol.
+            .filter(|(n, _)| LandmarkId::parse_name(n).is_some())
             .map(|(n, p)| (n.clone(), x.apply(p)))
             .collect();
         // Truth's Cobb angle in the model's ground (OpenSim's posed markers).

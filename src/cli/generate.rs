@@ -10,7 +10,10 @@
 pub use crate::embedded::base_file;
 use crate::embedded::BaseModel;
 use crate::error::Error;
-use crate::generate::{generate, GenerateOptions, GenerateReport, Generated, Method};
+use crate::generate::{
+    generate_with_geometry, GenerateOptions, GenerateReport, Generated, GeometryChoice, Method,
+    PatientGeometry,
+};
 use crate::landmarks::check::{check_raw, Severity};
 use crate::landmarks::LandmarkSet;
 use crate::osim::geometry::check_relative;
@@ -41,6 +44,12 @@ pub struct Args {
     pub segmentation: Option<PathBuf>,
     #[command(flatten)]
     pub seg: super::palpate::SegArgs,
+    /// Vertebra meshes the model wears: base (the base model's, scaled by
+    /// each vertebra's landmarks) or patient (the segmentation's own, with
+    /// --segmentation: wrap spheres, joints, markers and mass from the
+    /// patient's bones; written to Geometry/ as `<stem>_<LEVEL>.vtp`).
+    #[arg(long, value_enum, ignore_case = true, default_value_t = GeometryChoice::Base)]
+    pub geometry: GeometryChoice,
     /// Output model (.osim); meshes go to Geometry/ beside it.
     #[arg(long, value_name = "MODEL.osim")]
     pub out: PathBuf,
@@ -93,11 +102,29 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
+    if args.geometry == GeometryChoice::Patient && args.segmentation.is_none() {
+        return Err(Error::invalid(
+            "--geometry",
+            "`--geometry patient` takes the patient's meshes from a segmentation: give --segmentation instead of --landmarks",
+        )
+        .into());
+    }
     refuse_overwriting_inputs(&args)?;
     let base_model = BaseModel::locate(args.base.as_deref())?;
     let base = base_model.read()?;
     // Landmarks (read, or palpated on the segmentation), checked.
-    let (set, landmarks_name, palpated) = checked_landmarks(&args, &base, &base_model)?;
+    let (set, landmarks_name, palpated, segmentation) =
+        checked_landmarks(&args, &base, &base_model)?;
+    // The patient's meshes (`--geometry patient`), named after the model.
+    let stem = args
+        .out
+        .file_stem()
+        .map(|s| patient_model_name(&s.to_string_lossy()))
+        .unwrap_or_else(|| "patient".into());
+    let patient_geometry = match (&segmentation, args.geometry) {
+        (Some(p), GeometryChoice::Patient) => Some(PatientGeometry::from_palpated(p, &stem)),
+        _ => None,
+    };
     // The model, generated in memory.
     let opts = GenerateOptions {
         method: args.method,
@@ -107,7 +134,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         above_fov: args.above_fov,
         ..GenerateOptions::default()
     };
-    let mut g = generate(&base, &set, &landmarks_name, &opts, Some(&base_model))?;
+    let mut g = generate_with_geometry(
+        &base,
+        &set,
+        &landmarks_name,
+        &opts,
+        Some(&base_model),
+        patient_geometry.as_ref(),
+    )?;
     // The model is named after the patient's landmark file (or segmentation).
     let patient = args
         .landmarks
@@ -134,8 +168,13 @@ fn checked_landmarks(
     args: &Args,
     base: &Document,
     base_model: &BaseModel,
-) -> anyhow::Result<(LandmarkSet, String, Vec<(PathBuf, Vec<u8>)>)> {
-    let (raw, landmarks_name, palpated) = landmark_source(args, base, base_model)?;
+) -> anyhow::Result<(
+    LandmarkSet,
+    String,
+    Vec<(PathBuf, Vec<u8>)>,
+    Option<crate::segmentation::Palpated>,
+)> {
+    let (raw, landmarks_name, palpated, segmentation) = landmark_source(args, base, base_model)?;
     let rep = check_raw(&raw);
     // Missing landmarks (LM020) are not blocking here: the level is fitted
     // on those present (a reduced fit, reported) when enough remain.
@@ -175,7 +214,7 @@ fn checked_landmarks(
     if let Some(d) = &set.detection {
         crate::outln!("landmarks: {}", d.summary());
     }
-    Ok((set, landmarks_name, palpated))
+    Ok((set, landmarks_name, palpated, segmentation))
 }
 
 /// Write the model (with its meshes), the palpation's files, the report
@@ -195,7 +234,7 @@ fn write_outputs(
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "model".into());
-    let mut files = model_files(base_model, &g.doc, &args.out)?;
+    let mut files = model_files(base_model, g, &args.out)?;
     files.append(&mut palpated);
     files.push((
         dir.join(format!("{stem}_report.json")),
@@ -241,12 +280,58 @@ fn print_summary(r: &GenerateReport, out: &Path) {
         crate::outln!("outlier landmarks (rejected): {}", r.outliers.join(", "));
     }
     print_fit_warnings(r);
+    if let Some(g) = &r.geometry {
+        print_geometry(g);
+    }
     crate::outln!("orientation smoothing: {}", r.smoothing.note);
     print_above_fov(r.above_fov.as_ref(), r.levels_from_landmarks.is_empty());
     print_shape(&r.shape);
     match &r.self_check {
         Some(sc) => print_self_check(sc),
         None => crate::outln!("self-check: skipped (--no-self-check)"),
+    }
+}
+
+/// Which vertebrae wear the patient's meshes, which keep the base's, and
+/// the attachments moved out of the patient's bones.
+fn print_geometry(g: &crate::generate::geometry::GeometryReport) {
+    let most = g.meshes.iter().map(|m| m.triangles).max().unwrap_or(0);
+    crate::outln!(
+        "geometry: the patient's own meshes ({}) on {} levels: {} (at most {most} triangles each); wrap spheres at the patient's vertebral centres; {} joints at the patient's disc centres; {}",
+        g.segmentation,
+        g.patient_levels.len(),
+        g.patient_levels.join(" "),
+        g.joints_at_patient_discs.len(),
+        g.mass_rule
+    );
+    if !g.base_levels.is_empty() {
+        crate::outln!(
+            "geometry: scaled base meshes kept for {}",
+            g.base_levels.join("; ")
+        );
+    }
+    if !g.moved_attachments.is_empty() {
+        let deepest = g
+            .moved_attachments
+            .iter()
+            .fold(0.0f64, |m, p| m.max(p.depth_mm));
+        let shown: Vec<String> = g
+            .moved_attachments
+            .iter()
+            .take(5)
+            .map(|p| {
+                format!(
+                    "{} {} out of {} ({:.1} mm)",
+                    p.muscle, p.point, p.bone, p.depth_mm
+                )
+            })
+            .collect();
+        crate::errln!(
+            "warning: {} muscle attachment(s) were inside the patient's bone (up to {deepest:.1} mm) and moved out along its surface normal: {}{}",
+            g.moved_attachments.len(),
+            shown.join(", "),
+            if g.moved_attachments.len() > 5 { ", ... (all in the report)" } else { "" }
+        );
     }
 }
 
@@ -410,10 +495,10 @@ fn print_above_fov(a: Option<&crate::generate::AboveFovReport>, no_vertebra: boo
     );
 }
 
-/// The raw landmarks, their name for messages and reports, and the files
-/// of a palpation to write beside the model (`--segmentation`: the
-/// patient's sacrum registered to the base's by its surface, the base's S1
-/// markers carried onto it).
+/// The raw landmarks, their name for messages and reports, the files of
+/// a palpation to write beside the model and the palpation itself
+/// (`--segmentation`: the patient's sacrum registered to the base's by its
+/// surface, the base's S1 markers carried onto it).
 #[allow(clippy::type_complexity)]
 fn landmark_source(
     args: &Args,
@@ -423,12 +508,14 @@ fn landmark_source(
     crate::landmarks::RawLandmarks,
     String,
     Vec<(PathBuf, Vec<u8>)>,
+    Option<crate::segmentation::Palpated>,
 )> {
     if let Some(path) = &args.landmarks {
         return Ok((
             crate::landmarks::read_path(path)?,
             path.display().to_string(),
             vec![],
+            None,
         ));
     }
     let seg = args
@@ -457,17 +544,20 @@ fn landmark_source(
         raw,
         format!("{} (palpated)", crate::segmentation::source_name(seg)),
         files,
+        Some(p),
     ))
 }
 
 /// The bytes of a generated model written to `out` (.osim): the model,
-/// then each mesh it references (taken from the base model) under
-/// `Geometry/` beside `out`.
+/// then each mesh it references (the generator's own, e.g. the patient's,
+/// as ASCII VTP; else taken from the base model) under `Geometry/` beside
+/// `out`.
 pub fn model_files(
     base: &BaseModel,
-    doc: &Document,
+    g: &Generated,
     out: &Path,
 ) -> crate::Result<Vec<(PathBuf, Vec<u8>)>> {
+    let doc = &g.doc;
     let dir = match out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
@@ -487,6 +577,13 @@ pub fn model_files(
             let label = base.label().display().to_string();
             let rel = check_relative(mesh_file)
                 .map_err(|why| Error::invalid(&label, format!("mesh_file '{mesh_file}' {why}")))?;
+            if let Some(m) = g.meshes.get(mesh_file) {
+                files.push((
+                    dir.join("Geometry").join(rel),
+                    crate::mesh::vtp::to_ascii(m).into_bytes(),
+                ));
+                continue;
+            }
             let bytes = base.mesh_bytes(mesh_file)?.ok_or_else(|| {
                 Error::invalid(
                     &label,

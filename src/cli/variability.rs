@@ -129,9 +129,7 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
         let mdir = args.out.join("models");
         for (label, g) in &c.models {
             let stem = model_stem(label);
-            for (p, b) in
-                super::generate::model_files(bp, &g.doc, &mdir.join(format!("{stem}.osim")))?
-            {
+            for (p, b) in super::generate::model_files(bp, g, &mdir.join(format!("{stem}.osim")))? {
                 files.insert(p, b);
             }
             files.insert(

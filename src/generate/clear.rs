@@ -403,7 +403,8 @@ fn clear_of(
     })
 }
 
-fn path_points<'a>(doc: &'a mut Document, muscle: &str) -> Option<&'a mut Element> {
+/// The `objects` of a muscle's PathPointSet.
+pub(super) fn path_points<'a>(doc: &'a mut Document, muscle: &str) -> Option<&'a mut Element> {
     doc.component_mut("ForceSet", muscle)?
         .elements_mut()
         .find(|e| e.name == "GeometryPath")?

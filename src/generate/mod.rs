@@ -48,6 +48,7 @@ pub mod chain;
 pub mod clear;
 pub mod example;
 pub mod fill;
+pub mod geometry;
 pub mod pose;
 pub mod residuals;
 pub mod scale;
@@ -66,6 +67,7 @@ use crate::osim::model::Model;
 use crate::osim::props::{set_f64, set_vec3};
 use crate::osim::Document;
 pub use balance::{AboveFov, AboveFovReport};
+pub use geometry::{GeometryChoice, PatientGeometry};
 use nalgebra::{Isometry3, Point3, Rotation3, UnitQuaternion, Vector3};
 pub use pose::Method;
 use pose::Points;
@@ -221,6 +223,9 @@ pub struct GenerateReport {
     /// Every landmark's residual after its vertebra's fit (as OpenSim's
     /// Scale tool lists marker errors), vertebra frames.
     pub landmark_residuals: Vec<residuals::LandmarkResidual>,
+    /// The patient's own vertebrae (`--geometry patient`, [`geometry`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<geometry::GeometryReport>,
 }
 
 /// What the orientation smoothing did ([`smooth`]).
@@ -269,6 +274,9 @@ pub struct Generated {
     pub report: GenerateReport,
     /// (suffix, SVG text): `frontal`, `sagittal`.
     pub views: Vec<(String, String)>,
+    /// Meshes of the model that are not the base model's (the patient's,
+    /// [`geometry`]), by `mesh_file`, in their bodies' frames (m).
+    pub meshes: BTreeMap<String, crate::mesh::TriMesh>,
 }
 
 /// Base-model markers `<LEVEL>_<CODE>` in their bodies' frames, and the
@@ -447,6 +455,20 @@ pub fn generate(
     opts: &GenerateOptions,
     meshes: Option<&dyn MeshSource>,
 ) -> Result<Generated> {
+    generate_with_geometry(base, set, set_name, opts, meshes, None)
+}
+
+/// [`generate`], the vertebrae wearing the patient's own meshes where
+/// `patient` has them ([`geometry`]); `set` must be the landmarks palpated
+/// on those meshes.
+pub fn generate_with_geometry(
+    base: &Document,
+    set: &LandmarkSet,
+    set_name: &str,
+    opts: &GenerateOptions,
+    meshes: Option<&dyn MeshSource>,
+    patient_geometry: Option<&PatientGeometry>,
+) -> Result<Generated> {
     let bfile = base.path().display().to_string();
     let model = base.model()?;
     let kin = Kinematics::new(&model)?;
@@ -494,7 +516,7 @@ pub fn generate(
 
     // ---- 3. scaling
     let mut doc = base.clone();
-    let (scales, scaling) = scale_bodies(&mut doc, &fits)?;
+    let (mut scales, scaling) = scale_bodies(&mut doc, &fits)?;
 
     // ---- 4. joint frames
     let (rewritten, prefixes) =
@@ -513,8 +535,48 @@ pub fn generate(
         None => None,
     };
 
+    // ---- 4c. the patient's own vertebrae ([`geometry`]): meshes, markers,
+    // sphere centres, joints at the discs, mass, attachments out of bone
+    let mut radii = sphere_radii(&model);
+    let applied = match patient_geometry {
+        Some(pg) => {
+            let placed: Vec<Level> = fits.keys().copied().chain([Level::S1]).collect();
+            let joint_geometry = JointGeometry {
+                joint_centres: &input.joint_centres,
+                centres: &input.body_centres,
+            };
+            let scaling = smoothing.joint_scaling.unwrap_or(JointScaling::WithBody);
+            let at = geometry::Placement {
+                registration: registration.isometry(),
+                landmarks: &patient,
+                placed,
+                joints: carried_joints(&fits, &joint_geometry, scaling),
+                base_meshes: meshes,
+            };
+            let a = geometry::apply(&mut doc, pg, &at)?;
+            radii.extend(a.sphere_radii.iter().map(|(n, r)| (n.clone(), *r)));
+            for b in &a.bodies {
+                scales.remove(b);
+            }
+            Some(a)
+        }
+        None => None,
+    };
+    let own_meshes = applied
+        .as_ref()
+        .map(|a| a.meshes.clone())
+        .unwrap_or_default();
+    let overlay = geometry::Overlay {
+        own: &own_meshes,
+        base: meshes,
+    };
+    let meshes: Option<&dyn MeshSource> = match (&applied, meshes) {
+        (Some(_), _) => Some(&overlay),
+        (None, m) => m,
+    };
+
     // ---- 5. wrap spheres
-    let spheres = wraps::refit_spheres(&mut doc, &scales, &sphere_radii(&model), &prefixes)?;
+    let spheres = wraps::refit_spheres(&mut doc, &scales, &radii, &prefixes)?;
 
     // ---- 5b. muscle paths clear of the vertebrae ([`clear`])
     let path_edits = clear_muscle_paths(&mut doc, meshes)?;
@@ -543,7 +605,8 @@ pub fn generate(
     let shape = crate::landmarks::metrics::shape(&model_set, &centres);
     let views = if opts.views {
         let model_markers: Vec<Point3<f64>> = model_set.points.values().copied().collect();
-        views::generate_views(&centres, &registered, &model_markers)
+        let bones = views::posed_triangles(&own_meshes, &out_model, &poses2);
+        views::generate_views(&centres, &registered, &model_markers, &bones)
     } else {
         Vec::new()
     };
@@ -578,8 +641,14 @@ pub fn generate(
         filled,
         shape,
         landmark_residuals,
+        geometry: applied.map(|a| a.report),
     };
-    Ok(Generated { doc, report, views })
+    Ok(Generated {
+        doc,
+        report,
+        views,
+        meshes: own_meshes,
+    })
 }
 
 /// The set's landmarks grouped by level.
@@ -674,7 +743,7 @@ fn register_sacrum(
 
 /// Base joint centres between consecutive vertebrae, keyed by the upper
 /// level: the centre in the upper body and in the lower body.
-pub(crate) type JointCentres = BTreeMap<Level, (Point3<f64>, Point3<f64>)>;
+pub type JointCentres = BTreeMap<Level, (Point3<f64>, Point3<f64>)>;
 
 /// What every fit of step 2 shares: the levels, the base's markers and
 /// joint centres, the options.
@@ -998,8 +1067,7 @@ fn rewrite_joint_frames(
         .ok_or_else(|| Error::invalid(bfile, format!("the {ll} markers give no frame")))?;
         let qu = xu.rotation * UnitQuaternion::from_rotation_matrix(&ru);
         let ql = xl.rotation * UnitQuaternion::from_rotation_matrix(&rl);
-        let q = ql.slerp(&qu, 0.5);
-        let j = Isometry3::from_parts(nalgebra::center(&iec, &sec).coords.into(), q);
+        let j = disc_frame(&iec, &sec, &qu, &ql);
         let p_in_l = xl.inverse() * j;
         let c_in_u = xu.inverse() * j;
         write_joint(
@@ -1015,6 +1083,19 @@ fn rewrite_joint_frames(
     }
     let prefixes: Vec<String> = prefixes;
     Ok((rewritten, prefixes))
+}
+
+/// An intervertebral joint's frame in ground: origin midway between a
+/// point of the upper vertebra and one of the lower (the generic route:
+/// the upper IEC and the lower SEC, the disc centre), orientation half-way
+/// (quaternion midpoint) between the two vertebrae's frames `qu`, `ql`.
+fn disc_frame(
+    iec: &Point3<f64>,
+    sec: &Point3<f64>,
+    qu: &UnitQuaternion<f64>,
+    ql: &UnitQuaternion<f64>,
+) -> Isometry3<f64> {
+    Isometry3::from_parts(nalgebra::center(iec, sec).coords.into(), ql.slerp(qu, 0.5))
 }
 
 /// The report's row per fitted vertebra, the outliers rejected and the
@@ -1272,6 +1353,26 @@ impl JointScaling {
     }
 }
 
+impl JointGeometry<'_> {
+    /// A joint centre `p` of level `l`'s unscaled body frame, placed in its
+    /// body scaled by `scale` under the joint model `scaling`.
+    fn place(
+        &self,
+        p: &Point3<f64>,
+        l: Level,
+        scale: &Vector3<f64>,
+        scaling: JointScaling,
+    ) -> Point3<f64> {
+        match scaling {
+            JointScaling::WithBody => pose::scale_point(p, scale),
+            JointScaling::AboutCentre => {
+                let c = self.centres.get(&l).copied().unwrap_or(Point3::origin());
+                p + (pose::scale_point(&c, scale) - c)
+            }
+        }
+    }
+}
+
 /// The chain's joints, each body's joint centre placed by `scaling`.
 fn chain_joints(
     fits: &BTreeMap<Level, pose::VertebraFit>,
@@ -1279,17 +1380,6 @@ fn chain_joints(
     geometry: &JointGeometry,
     scaling: JointScaling,
 ) -> Vec<chain::ChainJoint> {
-    let place = |p: &Point3<f64>, l: Level, f: &pose::VertebraFit| match scaling {
-        JointScaling::WithBody => pose::scale_point(p, &f.scale),
-        JointScaling::AboutCentre => {
-            let c = geometry
-                .centres
-                .get(&l)
-                .copied()
-                .unwrap_or(Point3::origin());
-            p + (pose::scale_point(&c, &f.scale) - c)
-        }
-    };
     let mut joints = Vec::new();
     for (k, w) in chain.windows(2).enumerate() {
         // A joint only between adjacent levels (a gap breaks the chain).
@@ -1306,11 +1396,41 @@ fn chain_joints(
         joints.push(chain::ChainJoint {
             upper: k,
             lower: k + 1,
-            in_upper: place(qu, w[0], fu),
-            in_lower: place(pl, w[1], fl),
+            in_upper: geometry.place(qu, w[0], &fu.scale, scaling),
+            in_lower: geometry.place(pl, w[1], &fl.scale, scaling),
         });
     }
     joints
+}
+
+/// Every base joint centre between a fitted vertebra and the fitted
+/// vertebra or sacrum below, carried into both bodies (scaled frames) by
+/// their fits under `scaling`, keyed by the upper level.
+fn carried_joints(
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+    geometry: &JointGeometry,
+    scaling: JointScaling,
+) -> JointCentres {
+    let one = Vector3::repeat(1.0);
+    let mut out = JointCentres::new();
+    for (lu, (qu, pl)) in geometry.joint_centres {
+        let (Some(fu), Some(ll)) = (fits.get(lu), lu.caudal()) else {
+            continue;
+        };
+        let sl = match fits.get(&ll) {
+            Some(f) => f.scale,
+            None if ll.is_sacrum() => one,
+            None => continue,
+        };
+        out.insert(
+            *lu,
+            (
+                geometry.place(qu, *lu, &fu.scale, scaling),
+                geometry.place(pl, ll, &sl, scaling),
+            ),
+        );
+    }
+    out
 }
 
 /// The chain smoothed under the joint model the landmarks support best

@@ -12,15 +12,22 @@
 //! | [`sphere`] | least-squares sphere fit and the anterior vertebral-body node rule |
 //! | [`register`] | Kabsch/Umeyama, ICP with PCA initialisation, residual statistics, generalised Procrustes |
 //! | [`sample`] | seeded uniform surface sampling |
+//! | [`distance`] | symmetric surface distance between two surfaces |
+//! | [`manifold`] | non-manifold edges of voxel surfaces split |
+//! | [`smooth`], [`decimate`] | Taubin's lambda/mu smoothing; quadric-error decimation (meshoptimizer) |
 //!
 //! [`read`] and [`write()`] dispatch on the file extension.
 
+pub mod decimate;
+pub mod distance;
 pub mod geom;
+pub mod manifold;
 pub mod obj;
 pub mod ply;
 pub mod query;
 pub mod register;
 pub mod sample;
+pub mod smooth;
 pub mod source;
 pub mod sphere;
 pub mod stl;
