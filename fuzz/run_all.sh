@@ -1,5 +1,5 @@
 #!/bin/sh
-# The long fuzz pass (issue 19): every reader's target for SECONDS (default
+# The long fuzz pass: every reader's target for SECONDS (default
 # 300) with a 1 GB memory limit and a 2 s per-input timeout, so a hang or
 # an allocation blow-up is a finding. Run from the repo root after
 # `cargo install cargo-fuzz` and `sh fuzz/seed.sh`:

@@ -1,4 +1,4 @@
-//! Issue 19: a short, seeded, stable-toolchain fuzz pass over the same
+//! A short, seeded, stable-toolchain fuzz pass over the same
 //! corpora as the cargo-fuzz targets (`fuzz/`): every corpus and fixture
 //! file is mutated (bit flips, byte inserts/deletes, duplicated and cut
 //! chunks, hostile tokens spliced in) and fed to its reader in process.
