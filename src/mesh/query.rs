@@ -36,6 +36,8 @@ pub struct MeshQuery {
     tri_map: Vec<usize>,
     /// Length scale for tolerances (bounding-box diagonal).
     scale: f64,
+    /// Bounding box of the vertices: a point outside is outside the surface.
+    bounds: (Point3<f64>, Point3<f64>),
 }
 
 /// Fixed ray directions for the parity test (irrational-ish, not aligned
@@ -82,6 +84,7 @@ impl MeshQuery {
             shape,
             tri_map,
             scale,
+            bounds: (lo, hi),
         })
     }
 
@@ -206,6 +209,11 @@ impl MeshQuery {
     /// Is `p` inside the closed surface? Majority vote of crossing parity
     /// along three rays (independent of triangle winding).
     pub fn contains(&self, p: &Point3<f64>) -> bool {
+        // Outside the bounding box: outside, without casting a ray.
+        let (lo, hi) = &self.bounds;
+        if (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]) {
+            return false;
+        }
         let votes = RAYS
             .iter()
             .filter(|d| {
