@@ -46,7 +46,7 @@ fn main() {
                 let s = &o.stats[i];
                 format!(
                     "{}:{:.0}{}(tr{:.0},ho{:.0})",
-                    s.family.label(),
+                    s.label,
                     s.score,
                     if s.earns { "*" } else { "" },
                     s.dchi2_train,

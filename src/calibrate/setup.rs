@@ -120,6 +120,12 @@ pub fn build_problem_with(
     sys: System,
 ) -> Result<(Problem, Arc<StiffnessFamily>)> {
     let measured = exp.measured_dofs();
+    if measured.is_empty() {
+        return Err(Error::invalid(
+            format!("experiment {}", exp.dir.display()),
+            "kinematics.csv has no measured value: every rx .. tz cell is empty (nothing to calibrate against)",
+        ));
+    }
     let dofs = match &setup.dofs {
         Some(d) => d.clone(),
         None => {

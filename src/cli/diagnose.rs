@@ -21,7 +21,8 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
-    /// Worker threads (default: all cores); the results do not depend on it.
+    /// Worker threads (default and at most: the machine's cores); the
+    /// results do not depend on it.
     #[arg(long)]
     pub jobs: Option<usize>,
 }
@@ -31,7 +32,26 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     // Never write into a folder that holds an input.
     let protected = crate::util::guard::Protected::default().inputs([&a.experiment]);
     crate::util::guard::check_output_dir(&a.out, &protected, a.force)?;
-    super::with_jobs(a.jobs, || run_inner(&a))
+    let cores = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    let jobs = worker_threads(a.jobs, cores);
+    if let (Some(asked), Some(j)) = (a.jobs, jobs) {
+        if asked > j {
+            crate::errln!("--jobs {asked}: capped at the {cores} cores of this machine");
+        }
+    }
+    super::with_jobs(jobs, || run_inner(&a))
+}
+
+/// The worker threads for `--jobs requested` on a machine of `cores`
+/// cores: at most the cores (more threads only add memory and switching),
+/// at least one; `None` (all cores) without `--jobs` or with `--jobs 0`.
+pub fn worker_threads(requested: Option<usize>, cores: usize) -> Option<usize> {
+    match requested {
+        None | Some(0) => None,
+        Some(j) => Some(j.min(cores.max(1))),
+    }
 }
 
 fn run_inner(a: &Args) -> anyhow::Result<i32> {
@@ -42,14 +62,31 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     let (o, missing) = diagnose::run(&a.experiment, &a.out, &opts)?;
     super::warn_missing_meshes(&a.out.join("improved.osim"), &missing, false);
     let (b, au) = o.heldout_rmse();
+    let effects: Vec<&str> = o.effects.iter().map(|e| e.effect.name()).collect();
+    let both = if effects.len() > 1 {
+        format!(" [effects: {}]", effects.join(" + "))
+    } else {
+        String::new()
+    };
+    let rests = if o.assumptions.is_empty() {
+        ""
+    } else {
+        ", resting on an assumed noise"
+    };
     crate::errln!(
-        "verdict: {} (confidence {:.2}); held-out rotation RMSE {:.4} -> {:.4} deg; wrote {}",
+        "verdict: {}{both} (confidence {:.2}{rests}); held-out rotation RMSE {:.4} -> {:.4} deg; wrote {}",
         o.verdict,
         o.confidence,
         b,
         au,
         a.out.join("diagnosis.json").display()
     );
+    for x in &o.assumptions {
+        crate::errln!("ASSUMED: {x}");
+    }
+    if let Some(line) = diagnose::report::ratios_line(&o) {
+        crate::errln!("{line}");
+    }
     crate::errln!("{}", diagnose::report::noise_line(&o));
     crate::errln!("{}", diagnose::report::params_line(&o));
     crate::errln!("{}", diagnose::report::separable_line(&o));

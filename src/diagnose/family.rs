@@ -13,9 +13,10 @@
 //! | `baseline` | none | linear diagonal (BushingForce) |
 //! | `level_dependent_stiffness` / `scalar` | per-level factor `exp(m_l)` on all three DoFs (L-1; the first level is the reference) | linear |
 //! | `level_dependent_stiffness` / `per_dof` | per-level, per-DoF factors (3L, replacing the 3 global ones) | linear |
+//! | `level_dependent_stiffness` / `trend` | per measured DoF a log-linear trend along the spine, `k_ld = k_d exp(b_d (z_l - z_mean))` with `z_l` the level's position from the fixed body (one parameter per DoF; a table of one magnitude can predict a level it has not seen from it) | linear |
 //! | `nonlinear_stiffness` / `sinh` | per DoF `lambda_d = exp(s_d)`: `M = k sinh(lambda th) / lambda` | FunctionBased/ExpressionBased |
 //! | `nonlinear_stiffness` / `cubic` | per DoF `c_d = k_d exp(s_d)`: `M = k th + c th^3` | FunctionBasedBushingForce (PolynomialFunction) |
-//! | `asymmetric_stiffness` / `bilinear` | per DoF `k+ = k- exp(a_d)` | FunctionBasedBushingForce (PiecewiseLinearFunction) |
+//! | `asymmetric_stiffness` / `bilinear` | per DoF loaded in both directions `k+ = k- exp(a_d)`, shared by the levels | FunctionBasedBushingForce (PiecewiseLinearFunction) |
 //! | `asymmetric_stiffness` / `per_level` | per level and DoF one-sided stiffening `exp(|a_ld|)` of the positive (`a > 0`) or negative (`a < 0`) side (levels of the mask; others symmetric) | idem |
 //! | `coupled_stiffness` / `uniform` | 3 correlations `rho_ij`, `K_ij = rho_ij sqrt(k_i k_j)` | ExpressionBasedBushingForce (linear) |
 //! | `coupled_stiffness` / `per_level` | 3 correlations per level | idem |
@@ -88,6 +89,8 @@ pub enum Kind {
     Baseline,
     LevelScalar,
     LevelPerDof,
+    /// A log-linear stiffness trend along the spine per DoF.
+    LevelTrend,
     NonlinearSinh,
     NonlinearCubic,
     AsymmetricBilinear,
@@ -110,7 +113,9 @@ impl Kind {
     pub fn effect(&self) -> Effect {
         match self {
             Kind::Baseline => Effect::None,
-            Kind::LevelScalar | Kind::LevelPerDof => Effect::LevelDependentStiffness,
+            Kind::LevelScalar | Kind::LevelPerDof | Kind::LevelTrend => {
+                Effect::LevelDependentStiffness
+            }
             Kind::NonlinearSinh | Kind::NonlinearCubic => Effect::NonlinearStiffness,
             Kind::AsymmetricBilinear | Kind::AsymmetricPerLevel => Effect::AsymmetricStiffness,
             Kind::CoupledUniform | Kind::CoupledPerLevel | Kind::CoupledLocal => {
@@ -126,6 +131,7 @@ impl Kind {
             Kind::Baseline => "baseline",
             Kind::LevelScalar => "level_scalar",
             Kind::LevelPerDof => "level_per_dof",
+            Kind::LevelTrend => "level_trend",
             Kind::NonlinearSinh => "nonlinear_sinh",
             Kind::NonlinearCubic => "nonlinear_cubic",
             Kind::AsymmetricBilinear => "asymmetric_bilinear",
@@ -163,6 +169,9 @@ pub struct Family {
     /// A second effect's family (mixed effects): its own parameters follow
     /// this family's in `x`, its global block is this one's.
     pub add: Option<Box<Family>>,
+    /// The rotational DoF (0 rx, 1 ry, 2 rz) of each own per-DoF parameter
+    /// (trend and shared-asymmetry kinds: only the DoFs the data can show).
+    pub dofs: Vec<usize>,
 }
 
 /// Box of the global log-factors: e^4 ~ 55 either way.
@@ -215,6 +224,7 @@ impl Family {
             lo: Vec::new(),
             hi: Vec::new(),
             add: None,
+            dofs: Vec::new(),
         };
         // the global block (per level and DoF for LevelPerDof)
         if kind != Kind::LevelPerDof {
@@ -275,9 +285,25 @@ impl Family {
                     self.push(format!("log_c_{d}"), (0.1f64).ln(), -12.0, 5.0);
                 }
             }
+            Kind::LevelTrend => {
+                // the DoFs measured as a primary rotation whose level
+                // pattern no coupling through tilted levels can imitate
+                self.dofs = sim.trend_dofs();
+                for d in self.dofs.clone() {
+                    let name = format!("trend_log_k_{}_per_level", DOF3[d]);
+                    self.push(name, 0.0, -1.5, 1.5);
+                }
+            }
             Kind::AsymmetricBilinear => {
-                for d in DOF3 {
-                    self.push(format!("log_kpos_over_kneg_{d}"), 0.0, -3.0, 3.0);
+                // the DoFs loaded in both directions (all three when no
+                // case has a primary rotation)
+                let pd = sim.primary_dofs();
+                self.dofs = (0..3).filter(|&d| pd[d].1).collect();
+                if self.dofs.is_empty() {
+                    self.dofs = vec![0, 1, 2];
+                }
+                for d in self.dofs.clone() {
+                    self.push(format!("log_kpos_over_kneg_{}", DOF3[d]), 0.0, -3.0, 3.0);
                 }
             }
             Kind::AsymmetricPerLevel => {
@@ -364,12 +390,63 @@ impl Family {
         v
     }
 
-    /// Label of the variant (`a+b` for a pair).
+    /// Label of the variant (`a+b` for a pair; the DoFs of a per-DoF
+    /// kind that acts on some of the three only, e.g. `level_trend[rz]`).
     pub fn label(&self) -> String {
+        let one = |f: &Family| {
+            let per_dof = matches!(f.kind, Kind::LevelTrend | Kind::AsymmetricBilinear);
+            if per_dof && f.dofs.len() < 3 {
+                let d: Vec<&str> = f.dofs.iter().map(|&d| DOF3[d]).collect();
+                format!("{}[{}]", f.kind.label(), d.join(","))
+            } else {
+                f.kind.label().to_string()
+            }
+        };
         match &self.add {
-            Some(a) => format!("{}+{}", self.kind.label(), a.kind.label()),
-            None => self.kind.label().to_string(),
+            Some(a) => format!("{}+{}", one(self), one(a)),
+            None => one(self),
         }
+    }
+
+    /// The variants of a per-DoF kind (trend, shared asymmetry) on every
+    /// non-empty subset of the DoFs its full family has: the data may show
+    /// the effect about some axes only (a trend in flexion, none in axial
+    /// rotation), and a parameter for an axis without it only adds noise
+    /// to the prediction of a level the fit has not seen.
+    pub fn dof_subsets(kind: Kind, sim: &Sim, start_global: [f64; 3]) -> Vec<Family> {
+        let full = Family::new(kind, sim, start_global);
+        let n = full.dofs.len();
+        if !matches!(kind, Kind::LevelTrend | Kind::AsymmetricBilinear) {
+            return vec![full];
+        }
+        // no DoF to act on: the baseline again
+        if n == 0 {
+            return Vec::new();
+        }
+        if n == 1 {
+            return vec![full];
+        }
+        (1..(1usize << n))
+            .map(|m| {
+                let keep: Vec<usize> = (0..n).filter(|i| m & (1 << i) != 0).collect();
+                let mut f = full.clone();
+                f.dofs = keep.iter().map(|&i| full.dofs[i]).collect();
+                f.names = full.names[..3].to_vec();
+                f.names
+                    .extend(keep.iter().map(|&i| full.names[3 + i].clone()));
+                let pick = |v: &[f64]| -> Vec<f64> {
+                    v[..3]
+                        .iter()
+                        .copied()
+                        .chain(keep.iter().map(|&i| v[3 + i]))
+                        .collect()
+                };
+                f.x0 = pick(&full.x0);
+                f.lo = pick(&full.lo);
+                f.hi = pick(&full.hi);
+                f
+            })
+            .collect()
     }
 
     /// Size of the global block (0 for LevelPerDof, whose per-level block
@@ -417,6 +494,19 @@ impl Family {
                 let l = li.unwrap_or(0);
                 out.insert(format!("{pre}k_{}_ratio_to_nominal", DOF3[d]), v.exp());
                 out.insert(format!("{pre}k_{}_N*m/rad", DOF3[d]), kn(l, d) * v.exp());
+            } else if let Some(d) = key
+                .strip_prefix("trend_log_k_")
+                .and_then(|k| k.strip_suffix("_per_level"))
+            {
+                out.insert(format!("k_{d}_ratio_per_level"), v.exp());
+                if let Some((near, far)) = trend_span(sim) {
+                    let span = sim.position[far] - sim.position[near];
+                    let key = format!(
+                        "k_{d}_ratio_{}_to_{}",
+                        sim.levels[far].name, sim.levels[near].name
+                    );
+                    out.insert(key, (v * span).exp());
+                }
             } else if key == "log_m" {
                 out.insert(format!("{pre}k_ratio_to_{}", sim.levels[0].name), v.exp());
             } else if key.starts_with("log_lambda_") {
@@ -515,6 +605,12 @@ impl Family {
                     }
                 }
                 Kind::LevelScalar => {}
+                Kind::LevelTrend => {
+                    let z = sim.position.get(li).copied().unwrap_or(0.0) - mean_position(sim);
+                    for (j, &d) in self.dofs.iter().enumerate() {
+                        p.k[d] *= (get(j) * z).exp();
+                    }
+                }
                 // the deflection scale follows the level's own compliance
                 // (factor 1 without a level effect)
                 Kind::NonlinearSinh => {
@@ -532,8 +628,8 @@ impl Family {
                     }
                 }
                 Kind::AsymmetricBilinear => {
-                    for d in 0..3 {
-                        one_sided(p, d, true, get(d).exp());
+                    for (j, &d) in self.dofs.iter().enumerate() {
+                        one_sided(p, d, true, get(j).exp());
                     }
                 }
                 Kind::AsymmetricPerLevel => {
@@ -612,6 +708,21 @@ impl Family {
         let v = self.variant(sim, x)?;
         apply_variant(sim, &v)
     }
+}
+
+/// The mean position of the levels along the spine (the trend's centre).
+pub fn mean_position(sim: &Sim) -> f64 {
+    let n = sim.position.len().max(1) as f64;
+    sim.position.iter().sum::<f64>() / n
+}
+
+/// The levels nearest to and farthest from the fixed body (the ends of a
+/// trend), `None` with fewer than two distinct positions.
+pub fn trend_span(sim: &Sim) -> Option<(usize, usize)> {
+    let by = |a: &usize, b: &usize| sim.position[*a].total_cmp(&sim.position[*b]);
+    let near = (0..sim.position.len()).min_by(by)?;
+    let far = (0..sim.position.len()).max_by(by)?;
+    (sim.position[far] > sim.position[near]).then_some((near, far))
 }
 
 /// A one-sided stiffening of rotational DoF `d` by `factor` on the

@@ -54,6 +54,10 @@ pub struct Fitted {
     /// predicted by the fit of the fold that held it out); `None` for a
     /// single split, whose held-out cases `pred` already predicts unseen.
     pub heldout_pred: Option<Vec<[f64; 6]>>,
+    /// Standard error of each parameter at the fit (Gauss-Newton:
+    /// `sqrt(diag((J^T J)^-1))` of the weighted residuals, i.e. under the
+    /// fit's noise weights; NaN where the data do not determine it).
+    pub se: Vec<f64>,
 }
 
 impl Fitted {
@@ -131,6 +135,7 @@ pub fn fit(
         ftol: 1e-7,
     };
     let res = lm::minimize(f, &family.x0, &family.lo, &family.hi, &opts)?;
+    let se = standard_errors(&res.jac);
     let sys = family.system(sim, &res.x)?;
     let all: Vec<usize> = (0..sim.loads.len()).collect();
     let mut wa = sim.warm();
@@ -142,13 +147,54 @@ pub fn fit(
         pred,
         iterations: res.iterations,
         heldout_pred: None,
+        se,
     })
+}
+
+/// Parameter standard errors from the weighted residuals' Jacobian:
+/// `sqrt(diag((J^T J)^-1))`, NaN for all when `J^T J` is singular.
+pub fn standard_errors(jac: &DMatrix<f64>) -> Vec<f64> {
+    let n = jac.ncols();
+    let jtj = jac.transpose() * jac;
+    match jtj.try_inverse() {
+        Some(c) => (0..n)
+            .map(|i| {
+                if c[(i, i)] >= 0.0 {
+                    c[(i, i)].sqrt()
+                } else {
+                    f64::NAN
+                }
+            })
+            .collect(),
+        None => vec![f64::NAN; n],
+    }
 }
 
 /// The kinds fitted first (in parallel); the pose family with offsets
 /// and the local variants start from their results (see `select`).
-/// Preload only with follower loads.
-pub fn kinds(has_follower: bool) -> Vec<Kind> {
+/// Preload only with follower loads. A published-table design
+/// (leave-one-level-out, `table`) fits only the families whose
+/// parameters are shared by the levels or follow a trend along the spine
+/// (a per-level parameter of a level held out is never seen), and drops
+/// the effects in `untestable`.
+pub fn kinds(has_follower: bool, table: Option<&[String]>) -> Vec<Kind> {
+    if let Some(untestable) = table {
+        let testable = |k: &Kind| !untestable.iter().any(|e| e == k.effect().name());
+        let mut k: Vec<Kind> = [
+            Kind::LevelTrend,
+            Kind::NonlinearSinh,
+            Kind::NonlinearCubic,
+            Kind::AsymmetricBilinear,
+            Kind::CoupledUniform,
+        ]
+        .into_iter()
+        .filter(testable)
+        .collect();
+        if has_follower {
+            k.push(Kind::Preload);
+        }
+        return k;
+    }
     let mut k = vec![
         Kind::LevelScalar,
         Kind::LevelPerDof,

@@ -46,6 +46,10 @@ pub struct PairFit {
     /// Significantly better than the best single effect, in training and
     /// held out.
     pub accepted: bool,
+    /// Earns its parameters against the baseline on its own (training
+    /// improvement significant, held-out improvement above
+    /// [`HELDOUT_MIN`]), as a single effect must.
+    pub earns: bool,
 }
 
 /// One effect of `verdict.effects`.
@@ -66,27 +70,40 @@ pub struct PairCtx<'a> {
     pub stats: &'a [CandidateStats],
     /// The best single effect (index into the fits).
     pub top: usize,
+    /// The baseline fit.
+    pub baseline: &'a Fitted,
+    /// A published table's design (see [`pair_stats`]).
+    pub table: bool,
 }
 
 /// The pairs of the best [`PAIR_CANDIDATES`] earning effects (`earning`,
-/// ranked), fitted and compared with the best single effect (a pair whose
-/// fit fails, e.g. a law with no equilibrium, is left out).
+/// ranked).
+pub fn earning_pairs(earning: &[usize]) -> Vec<[usize; 2]> {
+    let best: Vec<usize> = earning.iter().copied().take(PAIR_CANDIDATES).collect();
+    let mut out = Vec::new();
+    for i in 0..best.len() {
+        for j in i + 1..best.len() {
+            out.push([best[i], best[j]]);
+        }
+    }
+    out
+}
+
+/// The pairs `pairs` (indices into the fits), fitted and compared with
+/// the best single effect (a pair whose fit fails, e.g. a law with no
+/// equilibrium, is left out).
 pub fn fit_pairs(
     fctx: &FitCtx,
     design: &super::design::Design,
     fits: &Fits,
     pc: &PairCtx,
-    earning: &[usize],
+    pairs: &[[usize; 2]],
 ) -> Vec<PairFit> {
-    let best: Vec<usize> = earning.iter().copied().take(PAIR_CANDIDATES).collect();
     let mut out = Vec::new();
-    for i in 0..best.len() {
-        for j in i + 1..best.len() {
-            let (a, b) = (best[i], best[j]);
-            // a pair whose fit finds no equilibrium is not a candidate
-            if let Ok(fit) = fit_pair(fctx, design, fits, a, b) {
-                out.push(pair_stats(pc, fits, fit, [a, b]));
-            }
+    for &[a, b] in pairs {
+        // a pair whose fit finds no equilibrium is not a candidate
+        if let Ok(fit) = fit_pair(fctx, design, fits, a, b) {
+            out.push(pair_stats(pc, fits, fit, [a, b]));
         }
     }
     out
@@ -121,14 +138,27 @@ fn pair_stats(pc: &PairCtx, fits: &Fits, fit: Fitted, members: [usize; 2]) -> Pa
     // against the best single effect on the held-out cells
     let d_ho = stats[pc.top].chi2_heldout - chi_ho;
     let n_ho = split.heldout.len().max(1) as f64;
-    let t = (chi_ho / n_ho).max(1.0);
-    let win = win_probability(
-        d_ho,
-        &heldout(pc, &fit),
-        &heldout(pc, &fits.fits[pc.top]),
-        t,
-    );
-    let accepted = p_train < ALPHA && d_ho > HELDOUT_MIN * t && win >= PAIR_WIN;
+    let (ra, rb) = (heldout(pc, &fit), heldout(pc, &fits.fits[pc.top]));
+    let t = if pc.table {
+        local_misfit(&ra, &rb)
+    } else {
+        (chi_ho / n_ho).max(1.0)
+    };
+    let win = win_probability(d_ho, &ra, &rb, t);
+    // a table's few levels rarely make the margin sure: a significant pair
+    // is reported with its win probability as the confidence's cap
+    let sure = win >= PAIR_WIN || pc.table;
+    let accepted = p_train < ALPHA && d_ho > HELDOUT_MIN * t && sure;
+    // against the baseline, as a single effect earns its parameters
+    let b_tr = chi2_of(sim, pc.baseline, &split.train, w, false) - chi_tr;
+    let b_ho = chi2_of(sim, pc.baseline, &split.heldout, w, true) - chi_ho;
+    let b_dp = (fit.x.len().saturating_sub(pc.baseline.x.len())).max(1) as f64;
+    let b_p = if b_tr > 0.0 {
+        ChiSquared::new(b_dp).map(|c| c.sf(b_tr)).unwrap_or(1.0)
+    } else {
+        1.0
+    };
+    let earns = b_p < ALPHA && b_ho > HELDOUT_MIN;
     PairFit {
         effects: [stats[members[0]].effect, stats[members[1]].effect],
         fit,
@@ -140,6 +170,27 @@ fn pair_stats(pc: &PairCtx, fits: &Fits, fit: Fitted, members: [usize; 2]) -> Pa
         dchi2_heldout: d_ho,
         win,
         accepted,
+        earns,
+    }
+}
+
+/// The held-out reduced chi-square of a model (residuals `ra`, noise
+/// units) on the cells where its predictions differ from another's (`rb`),
+/// at least 1: the misfit that bears on the comparison of the two (a
+/// misfit both share, in cells neither changes, does not).
+pub fn local_misfit(ra: &[f64], rb: &[f64]) -> f64 {
+    let scale = ra.iter().chain(rb).fold(0.0f64, |m, v| m.max(v.abs()));
+    let (mut ss, mut n) = (0.0, 0.0);
+    for (a, b) in ra.iter().zip(rb) {
+        if (a - b).abs() > 1e-9 * scale.max(1.0) {
+            ss += a * a;
+            n += 1.0;
+        }
+    }
+    if n > 0.0 {
+        (ss / n).max(1.0)
+    } else {
+        1.0
     }
 }
 
@@ -153,12 +204,12 @@ pub fn pair_shares(p: &PairFit, stats: &[CandidateStats], chi_b: f64) -> Vec<Eff
     let mut v = vec![
         EffectShare {
             effect: stats[a].effect,
-            family: stats[a].family.label().to_string(),
+            family: stats[a].label.clone(),
             share: ((chi_b - ca) + (cb - cab)) / denom,
         },
         EffectShare {
             effect: stats[b].effect,
-            family: stats[b].family.label().to_string(),
+            family: stats[b].label.clone(),
             share: ((chi_b - cb) + (ca - cab)) / denom,
         },
     ];
@@ -170,7 +221,7 @@ pub fn pair_shares(p: &PairFit, stats: &[CandidateStats], chi_b: f64) -> Vec<Eff
 pub fn single_share(s: &CandidateStats, chi_b: f64) -> EffectShare {
     EffectShare {
         effect: s.effect,
-        family: s.family.label().to_string(),
+        family: s.label.clone(),
         share: (chi_b - s.chi2_heldout) / chi_b.max(1e-300),
     }
 }
@@ -183,6 +234,8 @@ mod tests {
     fn stat(effect: Effect, chi2_heldout: f64) -> CandidateStats {
         CandidateStats {
             family: Kind::LevelScalar,
+            label: "level_scalar".into(),
+            dofs: vec![],
             effect,
             n_params: 3,
             chi2_train: 0.0,
@@ -217,12 +270,14 @@ mod tests {
                     lo: vec![],
                     hi: vec![],
                     add: None,
+                    dofs: vec![],
                 },
                 x: vec![],
                 pred: vec![],
                 iterations: 0,
                 at_bound: 0,
                 heldout_pred: None,
+                se: vec![],
             },
             members: [0, 1],
             effects: [Effect::LevelDependentStiffness, Effect::CoupledStiffness],
@@ -233,6 +288,7 @@ mod tests {
             dchi2_heldout: 30.0,
             win: 1.0,
             accepted: true,
+            earns: true,
         };
         let s = pair_shares(&p, &stats, 100.0);
         // A: (60 + 70) / 200 = 0.65, B: (20 + 30) / 200 = 0.25; sum 0.9

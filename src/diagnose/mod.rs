@@ -14,6 +14,7 @@
 //! | `gap` | the held-out gap: held-out cells, RMSE, where the baseline's gap sits |
 //! | `mixed` | two effects fitted together, kept when they explain significantly more of the held-out gap; the share of each (`verdict.effects`) |
 //! | `other` | what the augmented model leaves of the held-out gap and its structure (by level, DoF, load, protocol order): the `other` verdict |
+//! | `ratios` | the fitted stiffness ratios (trend along the spine, direction asymmetry, level factors) with 95% intervals |
 //! | `select` | [`select::diagnose`]: the procedure, noise estimate, criterion, verdict, gap decomposition |
 //! | `synth` | synthetic labelled experiments (truth = nominal + one random effect, solved by the crate's solver, plus noise) for testing generality |
 //! | `report` | `diagnosis.json`, Markdown, SVG figures, the improved `.osim` |
@@ -26,6 +27,7 @@ pub mod law;
 pub mod mixed;
 pub mod noise;
 pub mod other;
+pub mod ratios;
 pub mod report;
 pub mod select;
 pub mod sim;

@@ -36,7 +36,7 @@ pub fn best_candidates(o: &Outcome, n: usize) -> String {
         .map(|&j| {
             let s = &o.stats[j];
             let earns = if s.earns { "*" } else { "" };
-            format!("{}:{:.0}{earns}", s.family.label(), s.score)
+            format!("{}:{:.0}{earns}", s.label, s.score)
         })
         .collect();
     best.join(" ")
@@ -48,7 +48,7 @@ fn ranked_json(o: &Outcome) -> Vec<Value> {
         .iter()
         .map(|&i| {
             let s = &o.stats[i];
-            json!({"effect": s.effect.name(), "score": r4(s.score), "family": s.family.label(),
+            json!({"effect": s.effect.name(), "score": r4(s.score), "family": s.label,
                    "earns": s.earns, "n_params": s.n_params, "p_train": s.p_train,
                    "dchi2_train": r4(s.dchi2_train), "dchi2_heldout": r4(s.dchi2_heldout)})
         })
@@ -60,7 +60,7 @@ fn candidates_json(o: &Outcome) -> Vec<Value> {
     o.stats
         .iter()
         .map(|s| {
-            json!({"family": s.family.label(), "effect": s.effect.name(), "n_params": s.n_params,
+            json!({"family": s.label, "effect": s.effect.name(), "n_params": s.n_params,
                    "chi2_train": r4(s.chi2_train), "chi2_heldout": r4(s.chi2_heldout),
                    "heldout_rotation_rmse": r4(s.heldout_rot_rmse),
                    "dchi2_train": r4(s.dchi2_train), "p_train": s.p_train, "dbic_train": r4(s.dbic_train),
@@ -227,6 +227,9 @@ pub fn diagnosis_json(o: &Outcome, exp: &Experiment, model_file: Option<&str>) -
             "ranked": ranked_json(o),
             "family": o.augmented().family.label(),
             "reasons": o.reasons,
+            "ratios": o.ratios.iter().map(|r| json!({"quantity": r.quantity, "ratio": r4(r.ratio),
+                "ci95": r.ci95.map(r4), "text": r.text})).collect::<Vec<_>>(),
+            "assumptions": o.assumptions,
         },
         "where": where_json(o, &gap_json, &missing),
         "gap_cells": gap_json,
@@ -260,7 +263,7 @@ fn primary_alone(o: &Outcome) -> Value {
     };
     let (b, _) = o.heldout_rmse();
     let a = o.stats[i].heldout_rot_rmse;
-    json!({"family": o.stats[i].family.label(), "augmented_rmse": r4(a),
+    json!({"family": o.stats[i].label, "augmented_rmse": r4(a),
            "shrink": if b > 0.0 { r4(1.0 - a / b) } else { 0.0 }})
 }
 
@@ -818,6 +821,41 @@ fn effects_md(m: &mut String, o: &Outcome) {
     }
 }
 
+/// The fitted ratios with their 95% intervals.
+fn ratios_md(m: &mut String, o: &Outcome) {
+    if o.ratios.is_empty() {
+        return;
+    }
+    let _ = writeln!(m, "\nFitted stiffness ratios (95% intervals):\n");
+    for r in &o.ratios {
+        let _ = writeln!(m, "- {}", r.text);
+    }
+}
+
+/// One line on the fitted ratios for the console (the first few).
+pub fn ratios_line(o: &Outcome) -> Option<String> {
+    const SHOWN: usize = 6;
+    if o.ratios.is_empty() {
+        return None;
+    }
+    let mut parts: Vec<String> = o
+        .ratios
+        .iter()
+        .take(SHOWN)
+        .map(|r| r.text.clone())
+        .collect();
+    if o.ratios.len() > SHOWN {
+        parts.push(format!(
+            "... and {} more in diagnosis.json",
+            o.ratios.len() - SHOWN
+        ));
+    }
+    Some(format!(
+        "Fitted ratios (95% intervals): {}",
+        parts.join("; ")
+    ))
+}
+
 /// What the augmented model leaves of the held-out gap, and its structure.
 fn remaining_md(m: &mut String, o: &Outcome) {
     let r = &o.remaining;
@@ -910,7 +948,11 @@ pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
     for r in &o.reasons {
         let _ = writeln!(m, "- {r}");
     }
+    for a in &o.assumptions {
+        let _ = writeln!(m, "- ASSUMED: {a}");
+    }
     effects_md(&mut m, o);
+    ratios_md(&mut m, o);
     design_md(&mut m, o);
     let _ = writeln!(m, "{}\n", noise_line(o));
     let _ = writeln!(m, "{}\n", params_line(o));
@@ -920,7 +962,7 @@ pub fn markdown(o: &Outcome, exp: &Experiment, json: &Value) -> String {
         let _ = writeln!(
             m,
             "| {} | {} | {} | {:.1} | {:.2e} | {:.1} | {:.1} | {} |",
-            s.family.label(),
+            s.label,
             s.effect.name(),
             s.n_params,
             s.dchi2_train,

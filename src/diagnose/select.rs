@@ -31,10 +31,10 @@
 //! runner-up's score within [`INDISTINGUISHABLE`] of the winner's.
 
 use super::design::Design;
-use super::family::{Effect, Kind};
+use super::family::{Effect, Family, Kind};
 use super::fit::{kinds, Fitted, Weights};
 use super::gap::{chi2_of, rmse, rotations};
-use super::mixed::{fit_pairs, pair_shares, single_share, EffectShare, PairCtx, PairFit};
+use super::mixed::{self, fit_pairs, pair_shares, single_share, EffectShare, PairCtx, PairFit};
 use super::noise;
 use super::other::{remaining, Remaining};
 use super::sim::Sim;
@@ -177,6 +177,11 @@ impl Serialize for Verdict {
 #[derive(Debug, Clone, Serialize)]
 pub struct CandidateStats {
     pub family: Kind,
+    /// The variant's label (`level_trend[rz]`).
+    pub label: String,
+    /// The rotational DoFs a per-DoF variant acts on (trend, shared
+    /// asymmetry; empty for the others).
+    pub dofs: Vec<usize>,
     pub effect: Effect,
     pub n_params: usize,
     pub chi2_train: f64,
@@ -258,6 +263,12 @@ pub struct Outcome {
     /// What the augmented model leaves of the held-out gap, and its
     /// structure (the basis of `other`).
     pub remaining: Remaining,
+    /// The fitted stiffness ratios of the reported model with their 95%
+    /// intervals (empty for `none` and `unidentifiable`).
+    pub ratios: Vec<super::ratios::Ratio>,
+    /// What the verdict's confidence rests on that the data do not give
+    /// (an assumed noise).
+    pub assumptions: Vec<String>,
 }
 
 /// Selection statistics of every fit against the baseline (noise weights `w`).
@@ -290,6 +301,8 @@ fn candidate_stats(
             let untestable = design.is_untestable(f.family.kind.effect().name());
             CandidateStats {
                 family: f.family.kind,
+                label: f.family.label(),
+                dofs: f.family.dofs.clone(),
                 effect: f.family.kind.effect(),
                 n_params: f.x.len(),
                 chi2_train: chi_tr,
@@ -308,8 +321,10 @@ fn candidate_stats(
         .collect()
 }
 
-/// The best variant of each effect (lowest training BIC), ranked by score.
-fn rank_effects(stats: &[CandidateStats], n_train: usize) -> Vec<usize> {
+/// The best variant of each effect (lowest training BIC), ranked by
+/// score, the effects the design can test first: a candidate the design
+/// cannot test is never ranked above one it can.
+fn rank_effects(stats: &[CandidateStats], n_train: usize, design: &Design) -> Vec<usize> {
     let ln_n = (n_train.max(1) as f64).ln();
     let bic = |s: &CandidateStats| s.chi2_train + s.n_params as f64 * ln_n;
     let mut per_effect: BTreeMap<Effect, usize> = BTreeMap::new();
@@ -319,9 +334,43 @@ fn rank_effects(stats: &[CandidateStats], n_train: usize) -> Vec<usize> {
             *e = i;
         }
     }
+    // a table's per-DoF variants: the DoFs whose own parameter is
+    // significant in training
+    if design.by_level {
+        for (e, best) in per_effect.iter_mut() {
+            if let Some(i) = significant_dofs_variant(stats, *e) {
+                *best = i;
+            }
+        }
+    }
     let mut ranked: Vec<usize> = per_effect.values().copied().collect();
-    ranked.sort_by(|a, b| stats[*b].score.total_cmp(&stats[*a].score).then(a.cmp(b)));
+    let untestable = |i: &usize| design.is_untestable(stats[*i].effect.name());
+    ranked.sort_by(|a, b| {
+        untestable(a)
+            .cmp(&untestable(b))
+            .then(stats[*b].score.total_cmp(&stats[*a].score))
+            .then(a.cmp(b))
+    });
     ranked
+}
+
+/// Among the per-DoF variants of effect `e` (fitted on every subset of
+/// DoFs), the one acting on exactly the DoFs whose single-DoF variant
+/// improves the training fit significantly (`p < ALPHA`), chosen from the
+/// training data alone: a trend in flexion and none in axial rotation is
+/// fitted in flexion only. `None` when no single-DoF variant is
+/// significant or the effect has no per-DoF variants.
+fn significant_dofs_variant(stats: &[CandidateStats], e: Effect) -> Option<usize> {
+    let of_e = || stats.iter().enumerate().filter(move |(_, s)| s.effect == e);
+    let mut dofs: Vec<usize> = of_e()
+        .filter(|(_, s)| s.dofs.len() == 1 && s.p_train < ALPHA)
+        .map(|(_, s)| s.dofs[0])
+        .collect();
+    dofs.sort_unstable();
+    if dofs.is_empty() {
+        return None;
+    }
+    of_e().find(|(_, s)| s.dofs == dofs).map(|(i, _)| i)
 }
 
 /// The verdict, the chosen fit, the confidence and the reasons.
@@ -358,6 +407,8 @@ impl HeldoutResiduals {
 
 /// Everything a decision reads.
 struct Evidence<'a> {
+    sim: &'a Sim,
+    w: Weights,
     design: &'a Design,
     split: &'a Split,
     stats: &'a [CandidateStats],
@@ -390,10 +441,52 @@ impl Evidence<'_> {
         }
     }
 
-    /// The accepted pair with the lowest held-out chi-square.
+    /// The fraction of the baseline's held-out excess over the noise that
+    /// a model of held-out residuals `r` (noise units, one per held-out
+    /// cell) closes on the cells of the rotational DoFs `dofs` (all cells
+    /// when empty): in a table's design, what a per-DoF effect explains is
+    /// judged where it acts.
+    fn excess_closed_on(&self, r: &[f64], dofs: &[usize]) -> f64 {
+        let on = |k: usize| {
+            let d = self.sim.cells[self.split.heldout[k]].dof;
+            dofs.is_empty() || dofs.contains(&d)
+        };
+        let (mut cb, mut cm, mut n) = (0.0, 0.0, 0.0);
+        for (k, rm) in r.iter().enumerate().filter(|(k, _)| on(*k)) {
+            cb += self.hr.base[k].powi(2);
+            cm += rm.powi(2);
+            n += 1.0;
+        }
+        if cb - n <= 0.0 {
+            1.0
+        } else {
+            (cb - cm) / (cb - n)
+        }
+    }
+
+    /// The DoFs a fit's effects act on (empty: all of them).
+    fn model_dofs(&self, members: &[usize]) -> Vec<usize> {
+        let mut out = Vec::new();
+        for &m in members {
+            if self.stats[m].dofs.is_empty() {
+                return Vec::new();
+            }
+            out.extend(self.stats[m].dofs.iter().copied());
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// The accepted pair with the lowest held-out chi-square (one that
+    /// earns its parameters against the baseline when no single effect
+    /// does).
     fn best_pair(&self) -> Option<usize> {
         (0..self.pairs.len())
-            .filter(|&i| self.pairs[i].accepted)
+            .filter(|&i| {
+                let p = &self.pairs[i];
+                p.accepted && (p.earns || !self.earning.is_empty())
+            })
             .min_by(|&a, &b| {
                 let (pa, pb) = (&self.pairs[a], &self.pairs[b]);
                 pa.chi2_heldout.total_cmp(&pb.chi2_heldout)
@@ -416,7 +509,20 @@ fn guides_confound(ev: &Evidence, verdict: Verdict, chosen: usize) -> bool {
 /// is as good or an untestable effect could carry the gap.
 fn decide_effect(ev: &Evidence) -> Decision {
     let stats = ev.stats;
-    let top = ev.earning[0];
+    // the best earning effect, else the better member of the pair that
+    // earns on its own
+    let top = match (ev.earning.first(), ev.best_pair()) {
+        (Some(&t), _) => t,
+        (None, Some(p)) => {
+            let m = ev.pairs[p].members;
+            if stats[m[0]].score >= stats[m[1]].score {
+                m[0]
+            } else {
+                m[1]
+            }
+        }
+        (None, None) => return decide_none(ev),
+    };
     let t = (stats[top].chi2_heldout / ev.n_ho()).max(1.0);
     let mut confidence = calibrated_confidence(stats, ev.ranked, top, &ev.hr.fits, &ev.hr.base, t);
     let pair = ev.best_pair();
@@ -456,7 +562,25 @@ fn decide_effect(ev: &Evidence) -> Decision {
     }
     // an effect the design cannot test could carry the gap too: only a
     // model that closes most of the held-out excess over the noise excludes it
-    let closed = ev.excess_closed(model_chi);
+    let closed = if ev.design.by_level {
+        // a table's design: judged on the DoFs the effects act on
+        let (r, members) = match pair {
+            Some(p) => {
+                let f = &ev.pairs[p].fit;
+                let r: Vec<f64> = ev
+                    .split
+                    .heldout
+                    .iter()
+                    .map(|&c| f.heldout_residual(ev.sim, c) * ev.w.cell(&ev.sim.cells[c]))
+                    .collect();
+                (r, ev.pairs[p].members.to_vec())
+            }
+            None => (ev.hr.fits[chosen].clone(), vec![chosen]),
+        };
+        ev.excess_closed_on(&r, &ev.model_dofs(&members))
+    } else {
+        ev.excess_closed(model_chi)
+    };
     if closed < DECISIVE_SHRINK {
         for (e, why) in &ev.design_gaps {
             reasons.push(format!(
@@ -609,6 +733,10 @@ struct Setup {
     prior: [Option<Option<noise::ClassNoise>>; 2],
     /// Weights of the fits.
     fw: Weights,
+    /// A published table's design: the effects it cannot test.
+    table: Option<Vec<String>>,
+    /// The specimens the cells are means over, when they are means.
+    means_over: Option<u32>,
 }
 
 impl Setup {
@@ -616,10 +744,25 @@ impl Setup {
     /// for means, or from replicates.
     fn new(exp: &Experiment) -> Result<Setup> {
         let mut sim = Sim::new(exp)?;
+        // nothing moved above the noise: nothing to diagnose
+        if let Some(why) = noise::no_motion(&sim, ALPHA) {
+            return Err(crate::Error::invalid(
+                format!("experiment {}", exp.dir.display()),
+                why,
+            ));
+        }
         let mut design = Design::new(&exp.cases);
         design.note_measurement(&measured_dofs(&sim));
+        // a published table (one magnitude, primary rotations): leave one
+        // level out
+        let table = design.leave_one_level_out(sim.levels.len()).then(|| {
+            let primary = sim.primary_dofs().map(|p| p.0);
+            design.note_tilt(sim.tilt_spread, primary, super::sim::TILT_TOL_DEG);
+            design.untestable_names()
+        });
         let split = Split::of(&sim, &design);
-        let assumed = noise::assume_spread_of_means(&mut sim, exp.measurement.n_specimens);
+        let means_over = noise::means_over(&exp.measurement);
+        let assumed = noise::assume_spread_of_means(&mut sim, means_over);
         let prior = noise::prior(&sim, &exp.cases, assumed);
         let fw = noise::fit_weights(&prior);
         Ok(Setup {
@@ -628,6 +771,8 @@ impl Setup {
             split,
             prior,
             fw,
+            table,
+            means_over,
         })
     }
 
@@ -639,9 +784,22 @@ impl Setup {
 
     /// The progress bar over every fit of every run.
     fn progress(&self, opts: &Options) -> indicatif::ProgressBar {
-        let n_kinds = kinds(self.design.has_follower).len() as u64;
+        let n_kinds: usize = kinds(self.design.has_follower, self.table.as_deref())
+            .into_iter()
+            .map(|k| match self.table {
+                Some(_) => Family::dof_subsets(k, &self.sim, [0.0; 3]).len(),
+                None => 1,
+            })
+            .sum();
+        let n_kinds = n_kinds as u64;
         let runs = self.design.folds as u64 + 1;
-        progress_bar(opts, (n_kinds + 4 + self.offsets() as u64) * runs)
+        // the baseline, and the second-stage variants outside a table's design
+        let more = if self.table.is_some() {
+            1
+        } else {
+            4 + self.offsets() as u64
+        };
+        progress_bar(opts, (n_kinds + more) * runs)
     }
 
     /// The fits' shared data: the training cells of the design.
@@ -654,6 +812,7 @@ impl Setup {
             w: self.fw,
             max_iterations: opts.max_iterations,
             pb,
+            table: self.table.as_deref(),
         }
     }
 }
@@ -688,12 +847,14 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
     let w = noise_model.weights();
     // statistics, ranking, pairs of effects
     let stats = candidate_stats(sim, design, split, &fitted.baseline, &fitted.fits, w);
-    let ranked = rank_effects(&stats, split.train.len());
+    let ranked = rank_effects(&stats, split.train.len(), design);
     let earning: Vec<usize> = ranked.iter().copied().filter(|&i| stats[i].earns).collect();
-    let pairs = pairs_of(&ctx, design, split, &fitted, &stats, &earning, w);
+    let pairs = pairs_of(&ctx, design, split, &fitted, &stats, (&ranked, &earning), w);
     pb.finish_and_clear();
     // the verdict
     let ev = Evidence {
+        sim,
+        w,
         design,
         split,
         stats: &stats,
@@ -708,7 +869,7 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         hr: HeldoutResiduals::of(sim, split, &fitted.baseline, &fitted.fits, w),
         chi_b: chi2_of(sim, &fitted.baseline, &split.heldout, w, true),
     };
-    let d = if earning.is_empty() {
+    let d = if earning.is_empty() && ev.best_pair().is_none() {
         decide_none(&ev)
     } else {
         decide_effect(&ev)
@@ -720,7 +881,24 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         .is_some_and(|c| c.source != noise::NoiseSource::Residuals);
     let cells = (split.train.as_slice(), split.heldout.as_slice());
     let rem = remaining(sim, design, cells, (w, given), model, ev.chi_b);
-    let d = other_or(d, &rem);
+    let mut d = other_or(d, &rem);
+    if !fitted.dropped.is_empty() {
+        d.reasons.push(format!(
+            "left out of the comparison (a fit found no equilibrium for the parameters it tried): {}",
+            fitted.dropped.join(", ")
+        ));
+    }
+    // the reported model's ratios, with intervals widened by its training misfit
+    let ratios = match d.verdict {
+        Verdict::Effect(_) | Verdict::Other if d.chosen.is_some() => {
+            let m = model_of(&d, &fitted, &pairs, &ranked);
+            let dof = (split.train.len() as f64 - m.x.len() as f64).max(1.0);
+            let red = chi2_of(sim, m, &split.train, w, false) / dof;
+            super::ratios::of_fit(sim, m, red.sqrt())
+        }
+        _ => Vec::new(),
+    };
+    let assumptions = assumptions(&noise_model, su.means_over);
     let Setup { sim, design, .. } = su;
     Ok(Outcome {
         sim,
@@ -739,21 +917,73 @@ pub fn diagnose(exp: &Experiment, opts: &Options) -> Result<Outcome> {
         chosen_pair: d.chosen_pair,
         effects: d.effects,
         remaining: rem,
+        ratios,
+        assumptions,
     })
 }
 
+/// What the confidence rests on that the data do not give: an assumed
+/// noise (the spread of means from a literature coefficient of
+/// variation, or the rig floor).
+fn assumptions(n: &noise::Noise, means_over: Option<u32>) -> Vec<String> {
+    let mut out = Vec::new();
+    for (c, what) in [(n.rotation, "rotations"), (n.translation, "translations")] {
+        let Some(c) = c else { continue };
+        match c.source {
+            noise::NoiseSource::AssumedSpread => {
+                let n = match means_over {
+                    Some(1) => "n_specimens not stated: the SD of one specimen is used, not that of a mean".to_string(),
+                    Some(n) => format!("divided by sqrt({n}) specimens"),
+                    None => String::new(),
+                };
+                out.push(format!(
+                    "the noise of the {what} is assumed, not stated: a between-specimen SD of {:.0}% of each mean ({}), {n}; the confidence rests on it (state sd_* columns to replace it)",
+                    100.0 * noise::SPECIMEN_CV,
+                    noise::SPECIMEN_CV_SOURCE
+                ));
+            }
+            noise::NoiseSource::Floor => out.push(format!(
+                "the noise of the {what} is the assumed rig repeatability floor {:.2} (Wilke et al. 1998), neither stated nor estimable from this design; the confidence rests on it",
+                c.sigma
+            )),
+            _ => {}
+        }
+    }
+    out
+}
+
 /// The pairs of the best earning effects, fitted and compared with the
-/// best single one (none with fewer than two earning effects).
+/// best single one (none with fewer than two earning effects). In a
+/// published table's design the trend and the shared asymmetry are always
+/// fitted together too (each may fail to predict a level alone when the
+/// table carries both), compared with the best single effect.
+#[allow(clippy::too_many_arguments)]
 fn pairs_of(
     ctx: &FitCtx,
     design: &Design,
     split: &Split,
     fitted: &Fits,
     stats: &[CandidateStats],
-    earning: &[usize],
+    (ranked, earning): (&[usize], &[usize]),
     w: Weights,
 ) -> Vec<PairFit> {
-    if earning.len() < 2 {
+    let mut pairs = mixed::earning_pairs(earning);
+    let best = |e: Effect| ranked.iter().copied().find(|&i| stats[i].effect == e);
+    if design.by_level {
+        let trend_asym = (
+            best(Effect::LevelDependentStiffness),
+            best(Effect::AsymmetricStiffness),
+        );
+        if let (Some(t), Some(a)) = trend_asym {
+            if !pairs.iter().any(|p| p.contains(&t) && p.contains(&a)) {
+                pairs.push([t, a]);
+            }
+        }
+    }
+    let Some(&top) = earning.first().or(ranked.first()) else {
+        return Vec::new();
+    };
+    if pairs.is_empty() {
         return Vec::new();
     }
     ctx.pb.set_message("pairs of effects");
@@ -762,9 +992,11 @@ fn pairs_of(
         split,
         w,
         stats,
-        top: earning[0],
+        top,
+        baseline: &fitted.baseline,
+        table: design.by_level,
     };
-    fit_pairs(ctx, design, fitted, &pc, earning)
+    fit_pairs(ctx, design, fitted, &pc, &pairs)
 }
 
 /// Probability that the criterion difference `delta` (twice a log-likelihood

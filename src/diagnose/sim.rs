@@ -9,7 +9,7 @@ use crate::calibrate::measure::{pair_increment, Convention};
 use crate::error::{Error, Result};
 use crate::solver::kinematics;
 use crate::solver::workspace::KinBuf;
-use crate::solver::{BushingModel, Load, LoadSet, StaticOptions, System, Workspace};
+use crate::solver::{BodyIndex, BushingModel, Load, LoadSet, StaticOptions, System, Workspace};
 use nalgebra::{DVector, Isometry3};
 
 /// One measured value: a (row, DoF) of `kinematics.csv`.
@@ -67,7 +67,26 @@ pub struct Sim {
     pub case_rows: Vec<Vec<usize>>,
     /// All measured cells, row by row, DoF order.
     pub cells: Vec<Cell>,
+    /// Each case's dominant moment axis (0 X, 1 Y, 2 Z) and its sign
+    /// (`None` without a moment).
+    pub case_dir: Vec<Option<(usize, i8)>>,
+    /// Each level's position along the spine: the number of joints between
+    /// it and the fixed body (0 for the level next to it).
+    pub position: Vec<f64>,
+    /// For each rotational axis (X, Y, Z of ground), the spread over the
+    /// levels of the angle (deg) between it and the level's own joint axis
+    /// at the unloaded default pose: a lordotic specimen tilts its levels'
+    /// X and Y axes differently about Z (see [`TILT_TOL_DEG`]).
+    pub tilt_spread: [f64; 3],
 }
+
+/// Tilt spread (deg) above which a level pattern of the primary rotations
+/// about a ground axis cannot be told from a coupling: a coupling between
+/// two of a level's own axes changes the compliance about a ground axis
+/// tilted by `a` from them by an amount proportional to `sin 2a`, so
+/// levels tilted differently show a level pattern with no level-dependent
+/// stiffness at all.
+pub const TILT_TOL_DEG: f64 = 5.0;
 
 /// Warm starts: the last equilibria (unloaded, and per case).
 #[derive(Debug, Clone)]
@@ -203,8 +222,21 @@ impl Sim {
             }
         }
         if cells.is_empty() {
-            return Err(Error::invalid(ctx, "kinematics.csv has no measured value"));
+            return Err(Error::invalid(
+                ctx,
+                "kinematics.csv has no measured value: every rx .. tz cell is empty",
+            ));
         }
+        let position = level_positions(&base, fixed, &levels);
+        let tilt_spread = axis_tilt_spread(&base, &levels);
+        let case_dir = exp
+            .cases
+            .iter()
+            .map(|c| {
+                let i = super::design::CaseInfo::of(c);
+                i.axis.map(|a| (a, i.sign))
+            })
+            .collect();
         Ok(Sim {
             base,
             levels,
@@ -216,7 +248,35 @@ impl Sim {
             row_bodies,
             case_rows,
             cells,
+            case_dir,
+            position,
+            tilt_spread,
         })
+    }
+
+    /// The rotational DoFs whose level pattern a table can attribute to a
+    /// stiffness trend: measured as a primary rotation, and the levels'
+    /// own axes about them not tilted differently ([`TILT_TOL_DEG`]).
+    pub fn trend_dofs(&self) -> Vec<usize> {
+        let pd = self.primary_dofs();
+        (0..3)
+            .filter(|&d| pd[d].0 && self.tilt_spread[d] <= TILT_TOL_DEG)
+            .collect()
+    }
+
+    /// The rotational DoFs (0 rx, 1 ry, 2 rz) measured as the primary
+    /// rotation of some case (the rotation about its load axis), and for
+    /// each whether both directions of the load were measured.
+    pub fn primary_dofs(&self) -> [(bool, bool); 3] {
+        let mut signs = [[false; 2]; 3];
+        for c in &self.cells {
+            if let Some(Some((a, s))) = self.case_dir.get(c.case) {
+                if *a == c.dof {
+                    signs[*a][usize::from(*s > 0)] = true;
+                }
+            }
+        }
+        signs.map(|s| (s[0] || s[1], s[0] && s[1]))
     }
 
     /// Fresh warm starts (default pose).
@@ -278,6 +338,66 @@ impl Sim {
         }
         Ok(out)
     }
+}
+
+/// Number of joints on the tree path between bodies `a` and `b`.
+fn tree_distance(sys: &System, a: BodyIndex, b: BodyIndex) -> usize {
+    let mut up_a = Vec::new();
+    let mut cur = Some(a);
+    while let Some(c) = cur {
+        up_a.push(c);
+        cur = sys.parent_of(c);
+    }
+    let mut cur = Some(b);
+    let mut db = 0;
+    while let Some(c) = cur {
+        if let Some(da) = up_a.iter().position(|x| *x == c) {
+            return da + db;
+        }
+        db += 1;
+        cur = sys.parent_of(c);
+    }
+    up_a.len() + db
+}
+
+/// The spread over the levels of the angle (deg) between each ground axis
+/// and the level's own joint axis at the default pose (the first bushing
+/// frame carried by its body).
+fn axis_tilt_spread(sys: &System, levels: &[Level]) -> [f64; 3] {
+    let mut kb = KinBuf::<f64>::new(sys);
+    let q = sys.default_q();
+    kb.q.copy_from_slice(q.as_slice());
+    kinematics::forward(sys, &mut kb);
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for l in levels {
+        let (Some((x1, _)), Some((Some(b1), _))) =
+            (sys.bushing_frames(l.bushing), sys.bushing_bodies(l.bushing))
+        else {
+            continue;
+        };
+        let Some(pose) = kb.x_gb.get(b1.0) else {
+            continue;
+        };
+        let r = pose.r * x1.rotation.to_rotation_matrix().into_inner();
+        for d in 0..3 {
+            let t = r[(d, d)].abs().min(1.0).acos().to_degrees();
+            lo[d] = lo[d].min(t);
+            hi[d] = hi[d].max(t);
+        }
+    }
+    std::array::from_fn(|d| if hi[d] >= lo[d] { hi[d] - lo[d] } else { 0.0 })
+}
+
+/// Each level's position along the spine from the fixed body (the joints
+/// between its nearer body and the fixed one).
+fn level_positions(sys: &System, fixed: BodyIndex, levels: &[Level]) -> Vec<f64> {
+    levels
+        .iter()
+        .map(|l| {
+            let d = tree_distance(sys, fixed, l.upper).min(tree_distance(sys, fixed, l.lower));
+            d as f64
+        })
+        .collect()
 }
 
 /// The loads of every case of `exp`, and the same resolved on `base`.

@@ -51,6 +51,9 @@ pub struct FitCtx<'a> {
     pub w: Weights,
     pub max_iterations: usize,
     pub pb: &'a indicatif::ProgressBar,
+    /// A published table's leave-one-level-out design: the effects it
+    /// cannot test (see [`kinds`]); `None` otherwise.
+    pub table: Option<&'a [String]>,
 }
 
 impl FitCtx<'_> {
@@ -75,6 +78,30 @@ impl FitCtx<'_> {
             .collect()
     }
 
+    /// Fit candidate families in parallel; a candidate whose fit fails
+    /// (parameters for which some case has no equilibrium at every step
+    /// the optimiser tried) is left out.
+    fn fit_some(&self, families: Vec<Family>) -> Vec<Fitted> {
+        families
+            .into_par_iter()
+            .map(|f| {
+                let r = fit(
+                    self.sim,
+                    f,
+                    &self.train_cells,
+                    &self.train_cases,
+                    self.w,
+                    self.max_iterations,
+                );
+                self.pb.inc(1);
+                r
+            })
+            .collect::<Vec<Result<Fitted>>>()
+            .into_iter()
+            .flatten()
+            .collect()
+    }
+
     /// The same data without the rows of fold `f`.
     fn without_fold(&self, design: &Design, f: usize) -> Self {
         let sim = self.sim;
@@ -91,6 +118,7 @@ impl FitCtx<'_> {
             w: self.w,
             max_iterations: self.max_iterations,
             pb: self.pb,
+            table: self.table,
         }
     }
 }
@@ -171,6 +199,11 @@ fn stage2_families(
 ) -> Result<Vec<Family>> {
     let find = |k: Kind| fits.iter().find(|f| f.family.kind == k);
     let mut out = Vec::new();
+    // a table's design: no per-level variant (a held-out level's own
+    // parameters are never seen)
+    if ctx.table.is_some() {
+        return Ok(out);
+    }
     if let Some(rot) = find(Kind::JointRotation) {
         out.push(local_pose_family(ctx, rot, g, offsets)?);
         if offsets {
@@ -194,13 +227,17 @@ fn fit_families(ctx: &FitCtx, offsets: bool) -> Result<(Fitted, Vec<Fitted>)> {
         .remove(0);
     ctx.pb.set_message("candidates");
     let g = [baseline.x[0], baseline.x[1], baseline.x[2]];
-    let first: Vec<Family> = kinds(ctx.has_follower)
+    // a table's design: the per-DoF kinds on every subset of their DoFs
+    let first: Vec<Family> = kinds(ctx.has_follower, ctx.table)
         .into_iter()
-        .map(|k| Family::new(k, sim, g))
+        .flat_map(|k| match ctx.table {
+            Some(_) => Family::dof_subsets(k, sim, g),
+            None => vec![Family::new(k, sim, g)],
+        })
         .collect();
-    let mut fits = ctx.fit_all(first)?;
+    let mut fits = ctx.fit_some(first);
     ctx.pb.set_message("pose offsets, local variants");
-    let more = ctx.fit_all(stage2_families(ctx, &fits, g, offsets)?)?;
+    let more = ctx.fit_some(stage2_families(ctx, &fits, g, offsets)?);
     fits.extend(more);
     Ok((baseline, fits))
 }
@@ -212,6 +249,9 @@ pub struct Fits {
     pub fits: Vec<Fitted>,
     /// Baseline and candidates of each fold (same order as `fits`).
     pub folds: Vec<(Fitted, Vec<Fitted>)>,
+    /// Candidates left out because a fit (on all the training cells or on
+    /// a fold) found no equilibrium.
+    pub dropped: Vec<String>,
 }
 
 /// Store fold `f`'s predictions of the rows it held out as `full`'s
@@ -232,12 +272,31 @@ fn merge_fold(sim: &Sim, design: &Design, f: usize, full: &mut Fitted, fold: &Fi
 pub fn fit_design(ctx: &FitCtx, design: &Design, offsets: bool) -> Result<Fits> {
     let (mut baseline, mut fits) = fit_families(ctx, offsets)?;
     // each fold: the same fits without its rows (folds in parallel)
-    let folds: Vec<(Fitted, Vec<Fitted>)> = (0..design.folds)
+    let mut folds: Vec<(Fitted, Vec<Fitted>)> = (0..design.folds)
         .into_par_iter()
         .map(|f| fit_families(&ctx.without_fold(design, f), offsets))
         .collect::<Vec<Result<_>>>()
         .into_iter()
         .collect::<Result<_>>()?;
+    // the candidates fitted everywhere, in the full fits' order
+    let everywhere = |l: &String| {
+        folds
+            .iter()
+            .all(|(_, fs)| fs.iter().any(|f| &f.family.label() == l))
+    };
+    let labels: Vec<String> = fits.iter().map(|f| f.family.label()).collect();
+    let dropped: Vec<String> = labels.iter().filter(|l| !everywhere(l)).cloned().collect();
+    fits.retain(|f| !dropped.contains(&f.family.label()));
+    for (_, fs) in folds.iter_mut() {
+        let mut kept = Vec::with_capacity(fits.len());
+        for f in &fits {
+            let label = f.family.label();
+            if let Some(i) = fs.iter().position(|x| x.family.label() == label) {
+                kept.push(fs.swap_remove(i));
+            }
+        }
+        *fs = kept;
+    }
     for (f, (b, fs)) in folds.iter().enumerate() {
         merge_fold(ctx.sim, design, f, &mut baseline, b);
         for (full, fold) in fits.iter_mut().zip(fs) {
@@ -248,6 +307,7 @@ pub fn fit_design(ctx: &FitCtx, design: &Design, offsets: bool) -> Result<Fits> 
         baseline,
         fits,
         folds,
+        dropped,
     })
 }
 

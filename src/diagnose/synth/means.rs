@@ -19,7 +19,9 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 /// A published-means experiment: the mean of `n_specimens` perturbed
-/// specimens that all carry the same effect (same form, size and levels;
+/// specimens that all carry the same effect(s) (the forms a published
+/// table shows: a stiffness trend along the spine, an asymmetry shared by
+/// the levels; same form, size and levels;
 /// each specimen its own joint frames and stiffness, the deviations
 /// centred so that the nominal model is the sample's mean one), one moment magnitude
 /// per direction, rotations only, rig noise per specimen; with `with_sd`
@@ -27,6 +29,8 @@ use std::path::Path;
 #[derive(Debug, Clone)]
 pub struct MeansSpec {
     pub effect: Effect,
+    /// A second effect (a trend with an asymmetry).
+    pub second: Option<Effect>,
     pub loaded_body: String,
     pub fixed_body: String,
     /// Effect size in [0, 1].
@@ -178,7 +182,8 @@ pub fn write_means(specimen: &Path, spec: &MeansSpec, dir: &Path) -> Result<Trut
         &dir.join("specimen.osim"),
         nominal.to_xml_string().as_bytes(),
     )?;
-    let follower = spec.effect == Effect::PreloadStiffening;
+    let follower =
+        spec.effect == Effect::PreloadStiffening || spec.second == Some(Effect::PreloadStiffening);
     let source = format!(
         "synthetic: mean of {} perturbed specimens",
         spec.n_specimens
@@ -203,7 +208,8 @@ pub fn write_means(specimen: &Path, spec: &MeansSpec, dir: &Path) -> Result<Trut
         translations: false,
         follower,
         perturb_specimen: true,
-        second: None,
+        table_forms: true,
+        second: spec.second,
         oov: None,
         seed: spec.seed,
     };
@@ -226,9 +232,26 @@ pub fn write_means(specimen: &Path, spec: &MeansSpec, dir: &Path) -> Result<Trut
     truth.ok_or_else(|| Error::invalid("synth", "no specimen"))
 }
 
-/// The published-means set: `per_label` experiments for each of the seven
-/// labels, half with `sd_*` columns, random size, level range and
-/// specimen seed, all from `seed`.
+/// The kinds of the published-means set: `none`, each effect, and a
+/// level trend with a shared asymmetry.
+pub fn means_kinds() -> Vec<(Effect, Option<Effect>)> {
+    let mut v: Vec<(Effect, Option<Effect>)> = std::iter::once(Effect::None)
+        .chain(Effect::CANDIDATES)
+        .map(|e| (e, None))
+        .collect();
+    v.insert(
+        3,
+        (
+            Effect::LevelDependentStiffness,
+            Some(Effect::AsymmetricStiffness),
+        ),
+    );
+    v
+}
+
+/// The published-means set: `per_label` experiments for each kind of
+/// [`means_kinds`], half with `sd_*` columns, random size, level range
+/// and specimen seed, all from `seed`.
 pub fn means_set(
     per_label: usize,
     seed: u64,
@@ -236,15 +259,15 @@ pub fn means_set(
     primary_only: bool,
 ) -> Vec<(usize, MeansSpec)> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let labels = std::iter::once(Effect::None).chain(Effect::CANDIDATES);
     let mut out = Vec::new();
-    for e in labels {
+    for (e, second) in means_kinds() {
         for k in 0..per_label {
             let (si, body) = super::sets::random_specimen(&mut rng, specimens);
             out.push((
                 si,
                 MeansSpec {
                     effect: e,
+                    second,
                     loaded_body: body,
                     fixed_body: "sacrum".into(),
                     size: rng.random_range(0.3..1.0),

@@ -18,10 +18,11 @@ mod oov;
 mod sets;
 mod truth;
 
-pub use means::{means_set, write_means, MeansSpec};
+pub use means::{means_kinds, means_set, write_means, MeansSpec};
 pub use oov::Oov;
 pub use sets::{
-    effect_pairs, oov_set, oov_summary, pair_set, pair_summary, score_summary, standard_set, Scored,
+    effect_pairs, means_summary, oov_set, oov_summary, pair_set, pair_summary, score_summary,
+    standard_set, Scored,
 };
 
 use super::family::Effect;
@@ -62,6 +63,11 @@ pub struct SynthSpec {
     pub follower: bool,
     /// Perturb the joint frames (another specimen) and the nominal stiffness.
     pub perturb_specimen: bool,
+    /// The forms a published table of means shows (see
+    /// `truth::TableDraws`): a level-dependent stiffness as a trend along
+    /// the spine in some DoFs, an asymmetry shared by every level in some
+    /// DoFs; the other effects as in the standard set.
+    pub table_forms: bool,
     /// Seed of every random choice.
     pub seed: u64,
 }

@@ -48,6 +48,7 @@ fn random_spec(
         translations: rng.random_bool(0.7),
         follower: rng.random_bool(0.4),
         perturb_specimen: rng.random_bool(0.6),
+        table_forms: false,
         seed: rng.random(),
     };
     (si, spec)
@@ -176,6 +177,55 @@ impl Scored {
     pub fn hit(&self) -> bool {
         self.verdict == Some(self.truth)
     }
+
+    /// The truth's effects (none for `none` and `other`).
+    fn truth_effects(&self) -> Vec<Effect> {
+        let mut v: Vec<Effect> = match self.truth {
+            Verdict::Effect(e) => vec![e],
+            _ => Vec::new(),
+        };
+        v.extend(self.second);
+        v
+    }
+
+    /// An effect named (verdict or `verdict.effects`) that the truth does
+    /// not carry.
+    pub fn names_wrong(&self) -> bool {
+        let t = self.truth_effects();
+        let named = match self.verdict {
+            Some(Verdict::Effect(e)) => vec![e],
+            _ => Vec::new(),
+        };
+        let listed = if matches!(self.verdict, Some(Verdict::Effect(_))) {
+            self.effects.clone()
+        } else {
+            Vec::new()
+        };
+        named.iter().chain(&listed).any(|e| !t.contains(e))
+    }
+
+    /// The published-means reading is right (see [`means_summary`]).
+    pub fn means_right(&self) -> bool {
+        let t = self.truth_effects();
+        match (self.truth, self.second) {
+            (Verdict::None, _) => !matches!(self.verdict, Some(Verdict::Effect(_))),
+            (
+                Verdict::Effect(
+                    Effect::NonlinearStiffness | Effect::CoupledStiffness | Effect::JointPoseError,
+                ),
+                None,
+            ) => matches!(self.verdict, Some(Verdict::Unidentifiable | Verdict::None)),
+            (Verdict::Effect(e), None) => {
+                self.verdict == Some(Verdict::Effect(e)) && !self.names_wrong()
+            }
+            (Verdict::Effect(_), Some(_)) => {
+                matches!(self.verdict, Some(Verdict::Effect(_)))
+                    && !self.names_wrong()
+                    && t.iter().all(|e| self.effects.contains(e))
+            }
+            _ => self.hit(),
+        }
+    }
 }
 
 /// The labels of the confusion matrix (rows and columns).
@@ -262,6 +312,66 @@ pub fn pair_summary(rows: &[Scored]) -> String {
         rows.len(),
         primary as f64 / n
     )
+}
+
+/// The published-means figures, per kind of truth (see
+/// [`super::means_kinds`]): how often the reading is right, and how often
+/// a wrong effect is named with confidence 0.9 or more. Right is:
+/// - `none`: no effect named;
+/// - a level trend, a shared asymmetry: that effect is `verdict.effect`
+///   and `verdict.effects` names no other;
+/// - both: `verdict.effects` names exactly the two;
+/// - nonlinear, coupled, joint pose (no signature in a table of primary
+///   rotations at one magnitude): `unidentifiable` or `none`;
+/// - preload stiffening: named.
+pub fn means_summary(rows: &[Scored]) -> String {
+    let mut out = String::new();
+    let kind = |r: &Scored| match (r.truth, r.second) {
+        (t, Some(e)) => format!("{}+{}", t.name(), e.name()),
+        (t, None) => t.name().to_string(),
+    };
+    let mut kinds: Vec<String> = Vec::new();
+    for r in rows {
+        if !kinds.contains(&kind(r)) {
+            kinds.push(kind(r));
+        }
+    }
+    for k in kinds {
+        let sub: Vec<&Scored> = rows.iter().filter(|r| kind(r) == k).collect();
+        let right = sub.iter().filter(|r| r.means_right()).count();
+        let wrong_sure = sub
+            .iter()
+            .filter(|r| r.names_wrong() && r.confidence >= 0.9)
+            .count();
+        let mut verdicts: Vec<String> = Vec::new();
+        for r in &sub {
+            let v = r.verdict.map(|v| v.name()).unwrap_or("error");
+            let mut e: Vec<&str> = r.effects.iter().map(|e| e.name()).collect();
+            e.sort_unstable();
+            let e = if e.len() > 1 {
+                format!("{v}[{}]", e.join("+"))
+            } else {
+                v.to_string()
+            };
+            verdicts.push(e);
+        }
+        verdicts.sort();
+        let mut hist: Vec<String> = Vec::new();
+        for v in verdicts.iter() {
+            if !hist.iter().any(|h| h.starts_with(&format!("{v} x"))) {
+                let n = verdicts.iter().filter(|w| *w == v).count();
+                hist.push(format!("{v} x{n}"));
+            }
+        }
+        let _ = writeln!(
+            out,
+            "{k:<48} right {right}/{} = {:.2}; wrong effect named at confidence >= 0.9: {wrong_sure}; verdicts: {}",
+            sub.len(),
+            right as f64 / sub.len().max(1) as f64,
+            hist.join(", ")
+        );
+    }
+    out
 }
 
 /// The out-of-vocabulary figures: `other` verdicts, and effect names given

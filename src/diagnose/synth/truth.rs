@@ -61,6 +61,48 @@ impl Draws {
     }
 }
 
+/// The draws of a published table's forms (`SynthSpec::table_forms`),
+/// drawn after the standard ones: a stiffness trend along the spine in
+/// some rotational DoFs (the first level against the last one x 1.4 ..
+/// 2.5, either way, as published ranges of motion differ along the lumbar
+/// spine) and a one-sided stiffening shared by every level in some DoFs
+/// (x 1.7 .. 2.5, as flexion and extension ranges differ).
+struct TableDraws {
+    /// Log-stiffness slope per unit of level position, per DoF (0: none).
+    trend: [f64; 3],
+    /// One-sided factor per DoF (`None`: symmetric) and the stiffer side.
+    asym: [Option<(f64, bool)>; 3],
+}
+
+impl TableDraws {
+    /// Draw them (size `s` in [0, 1]) for levels spanning `span` positions.
+    fn new(rng: &mut ChaCha8Rng, s: f64, span: f64) -> TableDraws {
+        let some = |rng: &mut ChaCha8Rng, p: f64| -> [bool; 3] {
+            let mut on: [bool; 3] = std::array::from_fn(|_| rng.random_bool(p));
+            if !on.iter().any(|x| *x) {
+                on[rng.random_range(0..3)] = true;
+            }
+            on
+        };
+        let on = some(rng, 0.7);
+        let trend = std::array::from_fn(|d| {
+            let ratio: f64 = 1.4 + 1.1 * s * rng.random_range(0.8..1.0);
+            if on[d] {
+                sign(rng) * ratio.ln() / span.max(1.0)
+            } else {
+                0.0
+            }
+        });
+        let on = some(rng, 0.5);
+        let asym = std::array::from_fn(|d| {
+            let r = 1.7 + 0.8 * s * rng.random_range(0.8..1.0);
+            let up = rng.random_bool(0.5);
+            on[d].then_some((r, up))
+        });
+        TableDraws { trend, asym }
+    }
+}
+
 /// A random subset of levels: all of them, one, or a contiguous run.
 pub(super) fn pick_levels(rng: &mut ChaCha8Rng, nl: usize) -> Vec<bool> {
     let mut m = vec![false; nl];
@@ -76,9 +118,23 @@ pub(super) fn pick_levels(rng: &mut ChaCha8Rng, nl: usize) -> Vec<bool> {
     m
 }
 
-/// The levels where `effect` acts.
-fn effect_mask(effect: Effect, d: &Draws, rng: &mut ChaCha8Rng, nl: usize) -> Vec<bool> {
+/// The levels where `effect` acts (a table's trend and shared asymmetry:
+/// all).
+fn effect_mask(
+    effect: Effect,
+    d: &Draws,
+    table: bool,
+    rng: &mut ChaCha8Rng,
+    nl: usize,
+) -> Vec<bool> {
     let mut mask = vec![false; nl];
+    let shared = matches!(
+        effect,
+        Effect::LevelDependentStiffness | Effect::AsymmetricStiffness
+    );
+    if table && shared {
+        return vec![true; nl];
+    }
     match effect {
         Effect::LevelDependentStiffness if d.lvl_mode == 0 => {
             let l = rng.random_range(0..nl);
@@ -102,6 +158,7 @@ struct LevelCtx<'a> {
     sim: &'a Sim,
     spec: &'a SynthSpec,
     d: &'a Draws,
+    table: Option<&'a TableDraws>,
     n: Normal<f64>,
     li: usize,
 }
@@ -131,6 +188,32 @@ fn add_effect(
 ) -> Option<Isometry3<f64>> {
     let s = c.spec.size.clamp(0.0, 1.0);
     let d = c.d;
+    match (effect, c.table) {
+        (Effect::LevelDependentStiffness, Some(t)) => {
+            // the trend at this level's position, 5% jitter per level
+            let z = c.sim.position[c.li] - crate::diagnose::family::mean_position(c.sim);
+            let mut f = [1.0; 3];
+            for (dof, fd) in f.iter_mut().enumerate() {
+                *fd = (t.trend[dof] * z + 0.05 * c.n.sample(rng)).exp();
+                p.k[dof] *= *fd;
+            }
+            let _ = write!(
+                notes,
+                "; {} x{:.3}/{:.3}/{:.3}",
+                c.sim.levels[c.li].name, f[0], f[1], f[2]
+            );
+            return None;
+        }
+        (Effect::AsymmetricStiffness, Some(t)) => {
+            for (dof, a) in t.asym.iter().enumerate() {
+                if let Some((r, up)) = a {
+                    one_sided_factor(p, dof, *up, *r);
+                }
+            }
+            return None;
+        }
+        _ => {}
+    }
     match effect {
         Effect::None => {}
         Effect::LevelDependentStiffness => {
@@ -177,6 +260,22 @@ fn add_nonlinear(d: &Draws, p: &mut LawParts) {
                 c: (d.ratio - 1.0) * k[i] / (3.0 * th * th),
             }
         });
+    }
+}
+
+/// One side of rotational DoF `i` stiffer by `r` (bilinear, or an added
+/// one-sided term on a curved law).
+fn one_sided_factor(p: &mut LawParts, i: usize, up: bool, r: f64) {
+    let k = p.k[i];
+    if p.rot[i].is_some() {
+        p.one_sided[i] = Some(OneSided {
+            positive: up,
+            threshold: 0.0,
+            factor: r,
+        });
+    } else {
+        let (k_neg, k_pos) = if up { (k, k * r) } else { (k * r, k) };
+        p.rot[i] = Some(Curve::Bilinear { k_neg, k_pos });
     }
 }
 
@@ -262,6 +361,32 @@ fn effect_notes(effect: Effect, d: &Draws, notes: &mut String) {
     }
 }
 
+/// The notes of a table form's shared draws.
+fn table_notes(effect: Effect, t: &TableDraws, notes: &mut String) {
+    match effect {
+        Effect::LevelDependentStiffness => {
+            let _ = write!(
+                notes,
+                "; trend log-slope per level {:.3}/{:.3}/{:.3}",
+                t.trend[0], t.trend[1], t.trend[2]
+            );
+        }
+        Effect::AsymmetricStiffness => {
+            for (d, a) in t.asym.iter().enumerate() {
+                if let Some((r, up)) = a {
+                    let side = if *up { "positive" } else { "negative" };
+                    let _ = write!(
+                        notes,
+                        "; {} {side} side x{r:.2} at every level",
+                        ["rx", "ry", "rz"][d]
+                    );
+                }
+            }
+        }
+        _ => {}
+    }
+}
+
 /// The truth system: global stiffness away from nominal plus the effects.
 pub(super) fn truth_system(
     sim: &Sim,
@@ -277,10 +402,15 @@ pub(super) fn truth_system(
         g[0], g[1], g[2]
     );
     let d = Draws::new(rng, spec.size.clamp(0.0, 1.0));
+    let span = sim.position.iter().fold(0.0f64, |m, v| m.max(*v))
+        - sim.position.iter().fold(f64::INFINITY, |m, v| m.min(*v));
+    let table = spec
+        .table_forms
+        .then(|| TableDraws::new(rng, spec.size.clamp(0.0, 1.0), span));
     let effects = effects_of(spec);
     let masks: Vec<Vec<bool>> = effects
         .iter()
-        .map(|&e| effect_mask(e, &d, rng, nl))
+        .map(|&e| effect_mask(e, &d, spec.table_forms, rng, nl))
         .collect();
     // level by level: the global factors, then each effect where it acts
     let mut sys = sim.base.clone();
@@ -294,6 +424,7 @@ pub(super) fn truth_system(
             sim,
             spec,
             d: &d,
+            table: table.as_ref(),
             n,
             li,
         };
@@ -311,7 +442,17 @@ pub(super) fn truth_system(
     }
     let _ = write!(notes, "; size {:.2}", spec.size.clamp(0.0, 1.0));
     for &e in &effects {
-        effect_notes(e, &d, &mut notes);
+        match &table {
+            Some(t)
+                if matches!(
+                    e,
+                    Effect::LevelDependentStiffness | Effect::AsymmetricStiffness
+                ) =>
+            {
+                table_notes(e, t, &mut notes)
+            }
+            _ => effect_notes(e, &d, &mut notes),
+        }
     }
     let levels = (0..nl)
         .filter(|&li| masks.iter().any(|m| m[li]))
