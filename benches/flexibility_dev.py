@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Score `osim-spine flexibility` on ../shared/bending-dev (issue acceptance).
+"""Score `osim-spine flexibility` on ../shared/bending-dev.
 
 usage: flexibility_dev.py PERSONALISED_DIR UNIFORM_DIR PATIENT
 

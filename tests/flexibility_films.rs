@@ -109,7 +109,7 @@ fn write_film(bm: &BendModel, loads: [f64; 3], seed: u64, film: &str, path: &Pat
 
 /// The neutral, left and right films in `dir`.
 fn films(dir: &Path) -> [PathBuf; 3] {
-    let doc = Document::read(&base_path()).unwrap();
+    let doc = Document::read(base_path()).unwrap();
     let bm = BendModel::new(&doc.model().unwrap()).unwrap();
     let paths = [
         dir.join("film_neutral.csv"),
@@ -153,7 +153,7 @@ fn the_neutral_film_alone_gives_no_stiffness_and_says_so() {
     assert!(!out.join("stiffness.toml").exists());
     // the same film with the model's own stiffness is a valid (uniform) run
     let r = flexibility::flexibility(
-        &Document::read(&base_path()).unwrap().model().unwrap(),
+        &Document::read(base_path()).unwrap().model().unwrap(),
         &[radiograph::read(&neutral).unwrap()],
         &[],
         &FlexibilityOptions {
@@ -169,7 +169,7 @@ fn the_neutral_film_alone_gives_no_stiffness_and_says_so() {
 fn one_bending_film_gives_wider_intervals_than_two() {
     let tmp = tempfile::tempdir().unwrap();
     let [neutral, left, right] = films(tmp.path());
-    let model = Document::read(&base_path()).unwrap().model().unwrap();
+    let model = Document::read(base_path()).unwrap().model().unwrap();
     let read = |p: &PathBuf| radiograph::read(p).unwrap();
     let widths = |films: &[PathBuf]| -> BTreeMap<String, f64> {
         let films: Vec<_> = films.iter().map(read).collect();
