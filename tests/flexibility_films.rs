@@ -302,3 +302,68 @@ fn stiffness_table_writes_the_estimated_bushings_opensim_loads() {
         "truth inside the 95% interval for {inside} of 17 joints"
     );
 }
+
+/// A film rewritten point by point: `edit` returns the new name and
+/// position, or None to drop the point.
+fn rewrite(
+    src: &Path,
+    dst: &Path,
+    edit: impl Fn(FilmPoint, Vector2<f64>) -> Option<(FilmPoint, Vector2<f64>)>,
+) {
+    let r = radiograph::read(src).unwrap();
+    let pts: BTreeMap<FilmPoint, Vector2<f64>> = r
+        .points
+        .iter()
+        .filter_map(|(p, (x, _))| edit(*p, *x))
+        .collect();
+    std::fs::write(
+        dst,
+        radiograph::write_csv(&pts, Projection::Orthographic, "edited", &[]),
+    )
+    .unwrap();
+}
+
+#[test]
+fn films_that_cannot_be_placed_or_contradict_the_model_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let [neutral, left, _] = films(tmp.path());
+    let model = Document::read(base_path()).unwrap().model().unwrap();
+    let run = |bad: &Path| -> String {
+        let films = [
+            radiograph::read(&neutral).unwrap(),
+            radiograph::read(bad).unwrap(),
+        ];
+        match flexibility::flexibility(&model, &films, &[], &options()) {
+            Ok(_) => panic!("{} accepted", bad.display()),
+            Err(e) => e.to_string(),
+        }
+    };
+    // no pelvic landmarks: nothing to place the film on
+    let p = tmp.path().join("no_pelvis.csv");
+    rewrite(&left, &p, |q, x| (!q.is_pelvic()).then_some((q, x)));
+    let e = run(&p);
+    assert!(e.contains("cannot place the film on the pelvis"), "{e}");
+    assert!(e.contains("no_pelvis.csv"), "{e}");
+    // left and right swapped (u mirrored)
+    let p = tmp.path().join("mirrored.csv");
+    rewrite(&left, &p, |q, x| Some((q, Vector2::new(-x.x, x.y))));
+    let e = run(&p);
+    assert!(e.contains("left and right are swapped"), "{e}");
+    // two vertebrae's labels exchanged: the spine contradicts the model
+    let p = tmp.path().join("swapped_levels.csv");
+    let swap = |l: Level| match l {
+        Level::T4 => Level::T10,
+        Level::T10 => Level::T4,
+        other => other,
+    };
+    rewrite(&left, &p, |q, x| match q {
+        FilmPoint::Landmark(id) => Some((
+            FilmPoint::Landmark(LandmarkId::new(swap(id.level), id.code)),
+            x,
+        )),
+        other => Some((other, x)),
+    });
+    let e = run(&p);
+    assert!(e.contains("contradicts the model"), "{e}");
+    assert!(e.contains("swapped_levels.csv"), "{e}");
+}
