@@ -326,7 +326,7 @@ impl<'a> Problem<'a> {
             hi[ns + PER_FILM * f + 2] = 0.0;
         }
         let opts = LmOptions {
-            max_iterations: 200,
+            max_iterations: 1000,
             gtol: 1e-10,
             xtol: 1e-10,
             ftol: 1e-12,
