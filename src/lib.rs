@@ -24,6 +24,7 @@
 //! | [`evaluate`] | model accuracy against patient truth (thesis metrics) |
 //! | [`personalise`] | intervertebral stiffness tables and forms written into models |
 //! | [`calibrate`] | experiments, stiffness calibration, sensitivity studies |
+//! | [`flexibility`] | the patient's own relative stiffness from frontal bending films |
 //! | [`diagnose`] | sim-to-real gap diagnosis |
 //! | [`cli`] | the command line |
 //!
@@ -88,6 +89,7 @@ pub mod diagnose;
 pub mod embedded;
 pub mod error;
 pub mod evaluate;
+pub mod flexibility;
 pub mod generate;
 pub mod landmarks;
 pub mod mesh;

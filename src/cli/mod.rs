@@ -9,6 +9,7 @@ pub mod check;
 pub mod convert;
 pub mod diagnose;
 pub mod evaluate;
+pub mod flexibility;
 pub mod generate;
 pub mod info;
 pub mod mean_shape;
@@ -72,6 +73,11 @@ pub enum Command {
     /// Accuracy of model(s) against truth vertebral centres: centre RMSE,
     /// per-axis errors, curve fits, Cobb angle, apex, lordosis; JSON + SVG.
     Evaluate(evaluate::Args),
+    /// The patient's relative intervertebral stiffness from frontal bending
+    /// films (neutral, left, right): the model bent into each film, stiffness
+    /// ratios with 95% intervals, curves' flexibility, predicted films;
+    /// flexibility.json, stiffness.toml, SVG per film.
+    Flexibility(flexibility::Args),
     /// Assign intervertebral stiffness from a table (uniform, per level,
     /// base x ratio; linear, non-linear per DoF, coupled 6x6), or --list the
     /// current stiffness in the same format.
@@ -139,6 +145,7 @@ pub fn main() -> i32 {
         Command::Evaluate(a) => evaluate::run(a),
         Command::Palpate(a) => palpate::run(a),
         Command::Stiffness(a) => stiffness::run(a),
+        Command::Flexibility(a) => flexibility::run(a),
     };
     match result {
         Ok(code) => code,

@@ -94,18 +94,18 @@ pub fn load(path: &Path) -> Result<LandmarkSet> {
 }
 
 /// Strip a UTF-8 byte-order mark (spreadsheet and Windows editors write one).
-fn strip_bom(text: &str) -> &str {
+pub(crate) fn strip_bom(text: &str) -> &str {
     text.strip_prefix('\u{feff}').unwrap_or(text)
 }
 
-fn strip_quotes(s: &str) -> &str {
+pub(crate) fn strip_quotes(s: &str) -> &str {
     let t = s.trim();
     t.strip_prefix('"')
         .and_then(|x| x.strip_suffix('"'))
         .unwrap_or(t)
 }
 
-fn parse_number(s: &str, path: &Path, line: usize, col: &str) -> Result<f64> {
+pub(crate) fn parse_number(s: &str, path: &Path, line: usize, col: &str) -> Result<f64> {
     let t = strip_quotes(s);
     let v: f64 = t.parse().map_err(|_| {
         Error::parse(
@@ -124,7 +124,7 @@ fn parse_number(s: &str, path: &Path, line: usize, col: &str) -> Result<f64> {
     Ok(v)
 }
 
-fn header_value<'a>(comment: &'a str, key: &str) -> Option<&'a str> {
+pub(crate) fn header_value<'a>(comment: &'a str, key: &str) -> Option<&'a str> {
     let c = comment.trim_start_matches('#').trim();
     let (k, v) = c.split_once(':')?;
     if k.trim().eq_ignore_ascii_case(key) {

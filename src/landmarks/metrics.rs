@@ -24,6 +24,10 @@
 //!   endplate of the upper end vertebra)`; the end vertebrae, when not
 //!   given, are the pair (upper at or above lower) with the largest
 //!   absolute difference. Positive: the curve is convex to the right.
+//!   The **secondary** curve is the largest of the opposite sign. A frontal
+//!   radiograph gives the same tilts from its endplate lines (`SR`-`SL`,
+//!   `IR`-`IL` on the film, [`frontal_tilt_of_line`]), so the films' Cobb
+//!   angles come from the same [`cobb_of_tilts`].
 //! * Sagittal tilt: `atan2(n.x, n.y)` (positive when the anterior end is
 //!   lower, i.e. the endplate faces anteriorly). **Lumbar lordosis** =
 //!   `tilt(L1 superior) - tilt(S1 superior)` (the sacral slope enters
@@ -124,37 +128,52 @@ pub struct Cobb {
     pub automatic: bool,
 }
 
+/// Frontal tilts (rad) of each level's superior and inferior endplate.
+pub type FrontalTilts = BTreeMap<Level, (Option<f64>, Option<f64>)>;
+
+/// Frontal tilt (rad) of an endplate line as a frontal radiograph shows it,
+/// from its right and left ends in film coordinates `(u, v)` (`u` towards
+/// the patient's left, `v` cranial): the tilt of [`tilts`] of the endplate
+/// whose trace is that line, `atan2(v_L - v_R, u_L - u_R)` (with `u = -z`,
+/// the normal of a line from R to L is `(n_z, n_y) = (dy, -dz)`), positive
+/// when the right end is lower.
+pub fn frontal_tilt_of_line(right: (f64, f64), left: (f64, f64)) -> Option<f64> {
+    let (du, dv) = (left.0 - right.0, left.1 - right.1);
+    (du.hypot(dv) > 1e-12 && du > 0.0).then(|| dv.atan2(du))
+}
+
+/// Frontal tilts of every vertebra of `set` (S1 excluded).
+pub fn frontal_tilts(set: &LandmarkSet) -> FrontalTilts {
+    set.levels()
+        .into_iter()
+        .filter(|l| !l.is_sacrum())
+        .map(|l| {
+            let (s, i) = endplate_tilts(set, l);
+            (l, (s.and_then(|t| t.0), i.and_then(|t| t.0)))
+        })
+        .collect()
+}
+
 /// Cobb angle from the endplates of the vertebrae in `set` (S1 excluded);
 /// `ends` fixes the end vertebrae (upper, lower).
 pub fn cobb(set: &LandmarkSet, ends: Option<(Level, Level)>) -> Option<Cobb> {
-    let levels: Vec<Level> = set
-        .levels()
-        .into_iter()
-        .filter(|l| !l.is_sacrum())
-        .collect();
-    let frontal: BTreeMap<Level, (Option<f64>, Option<f64>)> = levels
-        .iter()
-        .map(|l| {
-            let (s, i) = endplate_tilts(set, *l);
-            (*l, (s.and_then(|t| t.0), i.and_then(|t| t.0)))
-        })
-        .collect();
-    let angle =
-        |u: Level, w: Level| -> Option<f64> { Some(frontal.get(&w)?.1? - frontal.get(&u)?.0?) };
+    cobb_of_tilts(&frontal_tilts(set), ends)
+}
+
+/// The curve between `u` (superior endplate) and `w` (inferior endplate),
+/// rad.
+fn curve_angle(frontal: &FrontalTilts, u: Level, w: Level) -> Option<f64> {
+    Some(frontal.get(&w)?.1? - frontal.get(&u)?.0?)
+}
+
+/// Cobb angle from per-level frontal endplate tilts (a landmark set's, or
+/// a radiograph's endplate lines); `ends` fixes the end vertebrae (upper,
+/// lower), else the pair with the largest absolute angle.
+pub fn cobb_of_tilts(frontal: &FrontalTilts, ends: Option<(Level, Level)>) -> Option<Cobb> {
     let (u, w, a, auto) = match ends {
-        Some((u, w)) => (u, w, angle(u, w)?, false),
+        Some((u, w)) => (u, w, curve_angle(frontal, u, w)?, false),
         None => {
-            let mut best: Option<(Level, Level, f64)> = None;
-            for (i, u) in levels.iter().enumerate() {
-                for w in &levels[i..] {
-                    if let Some(a) = angle(*u, *w) {
-                        if best.map(|b| a.abs() > b.2.abs()).unwrap_or(true) {
-                            best = Some((*u, *w, a));
-                        }
-                    }
-                }
-            }
-            let (u, w, a) = best?;
+            let (u, w, a) = largest_curve(frontal, |_| true)?;
             (u, w, a, true)
         }
     };
@@ -163,6 +182,39 @@ pub fn cobb(set: &LandmarkSet, ends: Option<(Level, Level)>) -> Option<Cobb> {
         upper: u.to_string(),
         lower: w.to_string(),
         automatic: auto,
+    })
+}
+
+/// The curve of largest magnitude among those whose angle passes `keep`:
+/// (upper, lower, angle rad).
+fn largest_curve(
+    frontal: &FrontalTilts,
+    keep: impl Fn(f64) -> bool,
+) -> Option<(Level, Level, f64)> {
+    let levels: Vec<Level> = frontal.keys().copied().collect();
+    let mut best: Option<(Level, Level, f64)> = None;
+    for (i, u) in levels.iter().enumerate() {
+        for w in &levels[i..] {
+            if let Some(a) = curve_angle(frontal, *u, *w).filter(|a| keep(*a)) {
+                if best.map(|b| a.abs() > b.2.abs()).unwrap_or(true) {
+                    best = Some((*u, *w, a));
+                }
+            }
+        }
+    }
+    best
+}
+
+/// The secondary curve: the largest curve of the opposite sign to the main
+/// curve `main` (end vertebrae found the same way); `None` without one.
+pub fn secondary_of_tilts(frontal: &FrontalTilts, main: &Cobb) -> Option<Cobb> {
+    let sign = main.angle_deg.signum();
+    let (u, w, a) = largest_curve(frontal, |a| a * sign < 0.0)?;
+    Some(Cobb {
+        angle_deg: a.to_degrees(),
+        upper: u.to_string(),
+        lower: w.to_string(),
+        automatic: true,
     })
 }
 

@@ -13,6 +13,7 @@
 //! | [`check`] | `osim-spine check`: findings with stable `LM0xx` codes |
 //! | [`stats`] | ICC(2,1), Shapiro-Wilk, Friedman / Skillings-Mack, Nemenyi |
 //! | [`metrics`] | spine shape from a set: Cobb angle, lordosis, kyphosis, apex, curve fits |
+//! | [`radiograph`] | frontal radiograph landmarks (2-D endplate points, sacrum, femoral heads): reader and writer |
 //!
 //! Internally a set is in metres in the OpenSim frame (x anterior, y
 //! superior, z right); the source's declared and detected units/frame are
@@ -23,6 +24,7 @@ pub mod detect;
 pub mod frames;
 pub mod io;
 pub mod metrics;
+pub mod radiograph;
 pub mod raw;
 pub mod stats;
 pub mod synth;

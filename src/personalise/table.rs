@@ -854,19 +854,62 @@ fn nums(v: &[f64]) -> String {
 
 /// Write per-level laws as a TOML table (SI units), in the given order.
 pub fn write_toml(model_name: &str, levels: &[(String, LevelLaw)]) -> String {
+    let rows: Vec<(String, LevelLaw, Option<[f64; 6]>)> = levels
+        .iter()
+        .map(|(n, l)| (n.clone(), l.clone(), None))
+        .collect();
+    toml_text(
+        &[format!(
+            "Stiffness table listed by osim-spine from {model_name}"
+        )],
+        &rows,
+    )
+}
+
+/// Write per-level laws as a TOML table whose linear levels carry a ratio:
+/// the table gives `stiffness` (the law's) times `ratio` (written for the
+/// DoFs whose ratio is not 1; the `base x ratio` form of
+/// `docs/stiffness-table.md`). `comments` become the leading `#` lines.
+pub fn write_toml_ratios(comments: &[String], levels: &[(String, LevelLaw, [f64; 6])]) -> String {
+    let rows: Vec<(String, LevelLaw, Option<[f64; 6]>)> = levels
+        .iter()
+        .map(|(n, l, r)| (n.clone(), l.clone(), Some(*r)))
+        .collect();
+    toml_text(comments, &rows)
+}
+
+/// The `ratio = { .. }` line of the DoFs whose ratio is not 1 (empty when all are).
+fn ratio_line(r: &[f64; 6]) -> String {
+    let parts: Vec<String> = DOF_NAMES
+        .iter()
+        .zip(r)
+        .filter(|(_, x)| **x != 1.0)
+        .map(|(d, x)| format!("{d} = {}", num(*x)))
+        .collect();
+    if parts.is_empty() {
+        String::new()
+    } else {
+        format!("ratio = {{ {} }}\n", parts.join(", "))
+    }
+}
+
+fn toml_text(comments: &[String], levels: &[(String, LevelLaw, Option<[f64; 6]>)]) -> String {
     let mut s = String::new();
-    s.push_str(&format!(
-        "# Stiffness table listed by osim-spine from {model_name}\n"
-    ));
+    for c in comments {
+        s.push_str(&format!("# {}\n", c.replace('\n', " ")));
+    }
     s.push_str(&format!("format = {}\n\n", toml_str(FORMAT_TAG)));
     s.push_str("[units]\nrotational = \"N*m/rad\"\ntranslational = \"N/m\"\nrot_damping = \"N*m*s/rad\"\ntrans_damping = \"N*s/m\"\n");
-    for (name, law) in levels {
+    for (name, law, ratio) in levels {
         s.push_str("\n[[level]]\n");
         s.push_str(&format!("name = {}\n", toml_str(name)));
         s.push_str(&format!("form = \"{}\"\n", law.form().name()));
         match law {
             LevelLaw::Linear { k, c } => {
                 s.push_str(&dof_line("stiffness", k));
+                if let Some(r) = ratio {
+                    s.push_str(&ratio_line(r));
+                }
                 s.push_str(&dof_line("damping", c));
             }
             LevelLaw::Coupled { k, c } => {
