@@ -407,13 +407,24 @@ fn check_unnamed(
 }
 
 /// The polyline through the named centroids, extended by `reach` past
-/// either end along `u`.
+/// either end along the chain's own direction there (over its last two
+/// segments: a curved spine's continuation, which may lean 30 deg or more
+/// from the superior axis); along `u` when a single structure is named.
 fn extended_line(all: &[&Structure], u: &Vector3<f64>, reach: f64) -> Vec<Point3<f64>> {
     let mut line: Vec<Point3<f64>> = all.iter().map(|s| s.centroid).collect();
-    if let (Some(first), Some(last)) = (line.first().copied(), line.last().copied()) {
-        line.insert(0, first + u * reach);
-        line.push(last - u * reach);
+    let n = line.len();
+    if n == 0 {
+        return line;
     }
+    let k = 2.min(n - 1);
+    let towards = |from: Point3<f64>, to: Point3<f64>, fallback: Vector3<f64>| {
+        (to - from).try_normalize(1e-9).unwrap_or(fallback)
+    };
+    let up = towards(line[k], line[0], *u);
+    let down = towards(line[n - 1 - k], line[n - 1], -u);
+    let (first, last) = (line[0], line[n - 1]);
+    line.insert(0, first + up * reach);
+    line.push(last + down * reach);
     line
 }
 
