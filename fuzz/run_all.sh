@@ -1,5 +1,5 @@
 #!/bin/sh
-# The long fuzz pass (issue 19): every reader's target for SECONDS (default
+# The long fuzz pass: every reader's target for SECONDS (default
 # 300) with a 1 GB memory limit and a 2 s per-input timeout, so a hang or
 # an allocation blow-up is a finding. Run from the repo root after
 # `cargo install cargo-fuzz` and `sh fuzz/seed.sh`:
@@ -9,7 +9,7 @@
 set -u
 secs=${1:-300}
 [ $# -gt 0 ] && shift
-targets=${*:-osim_reader mesh_vtp mesh_stl mesh_obj mesh_ply landmarks experiment stiffness_table nifti_labels segmentation_level}
+targets=${*:-osim_reader mesh_vtp mesh_stl mesh_obj mesh_ply landmarks experiment stiffness_table nifti_labels nifti_geometry segmentation_level}
 cd fuzz
 cargo +nightly fuzz build || exit 1
 bin=target/x86_64-unknown-linux-gnu/release
