@@ -6,6 +6,8 @@
 
 mod common;
 
+#[path = "hostile_input/everyday.rs"]
+mod everyday;
 #[path = "hostile_input/nifti.rs"]
 mod label_maps;
 #[path = "hostile_input/model_files.rs"]

@@ -126,7 +126,7 @@ fn declared_sizes_are_checked_before_decompressing() {
 
 /// L4, L5 and the sacrum of the default base at its default pose, in
 /// millimetres (ground axes).
-fn lumbosacral() -> Vec<(Level, TriMesh)> {
+pub fn lumbosacral() -> Vec<(Level, TriMesh)> {
     let root = common::repo_root().join("base_model");
     let doc = Document::read(root.join("base.osim")).unwrap();
     let model = doc.model().unwrap();
