@@ -205,3 +205,17 @@ fn jobs_beyond_the_cores_are_capped() {
     assert_eq!(o.status.code(), Some(0), "{t}");
     assert!(t.contains("--jobs 100000 is more than the"), "{t}");
 }
+
+#[test]
+fn variability_refuses_the_same_palpation_twice() {
+    let d = tempfile::tempdir().unwrap();
+    let a = d.path().join("a.csv");
+    let b = d.path().join("b.csv");
+    std::fs::write(&a, example()).unwrap();
+    std::fs::write(&b, example()).unwrap();
+    let out = d.path().join("var");
+    let o = run(&["variability", s(&a), s(&b), "--no-models", "--out", s(&out)]);
+    assert_refused(&o, "b.csv", "the same content as");
+    assert!(text(&o).contains("a.csv"), "{}", text(&o));
+    assert!(!out.exists());
+}
