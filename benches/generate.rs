@@ -1,4 +1,4 @@
-//! `generate` and `evaluate` timing (issue 6, acceptance 5): a T1-S1
+//! `generate` and `evaluate` timing: a T1-S1
 //! landmark set (the default base model posed into the example scoliosis,
 //! all 17 vertebrae + S1, no noise) on the committed `base_model/`.
 //! `generate_full` is the CLI's work without file I/O: sacral registration,

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Timing of `osim-spine palpate` (issue 18): a folder of 18 level meshes
+# Timing of `osim-spine palpate`: a folder of 18 level meshes
 # (T1..L5 + sacrum) and a 512 x 512 x 400 label map with 18 labels, both
 # made from the default base model by examples/palpate_inputs.rs.
 # Usage: benches/palpate.sh [release|dev]   (default release)

@@ -1,6 +1,5 @@
 #!/bin/sh
-# Accuracy of generated models on ../shared/scoliosis-dev (issue 16,
-# acceptance 3): builds the cyclist base as that folder's README says
+# Accuracy of generated models on ../shared/scoliosis-dev: builds the cyclist base as that folder's README says
 # (no --palpation), then scores generate on all 30 sets with it and with
 # the repository's default base (base_model/). Run from the repository root.
 set -e

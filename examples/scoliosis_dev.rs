@@ -1,5 +1,4 @@
-//! Accuracy of generated models on `../shared/scoliosis-dev/` (issue 16,
-//! acceptance 3), scored as that folder's README says: for every set,
+//! Accuracy of generated models on `../shared/scoliosis-dev/`, scored as that folder's README says: for every set,
 //! `osim-spine generate --base BASE --landmarks SET --out OUT.osim`; the
 //! vertebral centres are the vertebral-body WrapSphere centres at the
 //! model's default pose, mapped into the set's frame by the least-squares

@@ -1,6 +1,5 @@
 #!/usr/bin/env bash
-# Writes the outputs that the restructuring must keep byte-identical (issue 21,
-# acceptance 4) into OUT, then lists their checksums in OUT/SHA256SUMS.
+# Writes the outputs that the restructuring must keep byte-identical into OUT, then lists their checksums in OUT/SHA256SUMS.
 # Usage: scripts/output_snapshot.sh OUT [BINARY]
 #   compare two snapshots with: diff OUT1/SHA256SUMS OUT2/SHA256SUMS
 # Needs ../shared/ (the diagnose-dev cases) beside the repository.

@@ -30,9 +30,83 @@ pub enum Error {
     /// inconsistent units, unknown names, ...).
     #[error("{context}: {message}")]
     Invalid { context: String, message: String },
-    /// A numerical procedure failed (no equilibrium, singular system, ...).
+    /// A numerical procedure failed (a fit that did not converge, a
+    /// degenerate geometry, ...).
     #[error("{context}: {message}")]
     Numerical { context: String, message: String },
+    /// The rigid-body solver failed in `context` (a case, a bushing, the
+    /// static equilibrium, the integrator); `error` says how, typed.
+    #[error("{context}: {error}")]
+    Solver { context: String, error: SolverError },
+}
+
+/// How the rigid-body solver failed: callers match on the kind (a
+/// calibration treats `GimbalLock` differently from `NoEquilibrium`), the
+/// message says what to change.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SolverError {
+    /// Newton's method used its iterations without reaching equilibrium.
+    #[error(
+        "no equilibrium found after {iterations} Newton iterations: the largest generalised force \
+         residual is {residual:.3e} (coordinate '{coordinate}'); the loads may be too large for the \
+         model to carry"
+    )]
+    NoEquilibrium {
+        iterations: usize,
+        residual: f64,
+        coordinate: String,
+    },
+    /// The line search could not lower the residual.
+    #[error(
+        "no equilibrium found: the line search stalled at iteration {iteration} with largest \
+         generalised force residual {residual:.3e} (the loads may be too large, or a bushing \
+         approaches gimbal lock)"
+    )]
+    LineSearchStalled { iteration: usize, residual: f64 },
+    /// A continuation corrector converged too far from its prediction.
+    #[error("the corrector moved {jump:.3} rad away from the predicted point")]
+    CorrectorJump { jump: f64 },
+    /// Load continuation carried the loads up to the factor `reached` (of
+    /// 1) and no further; `explanation` says why (limit point, last failure).
+    #[error("{explanation}")]
+    ContinuationStopped { reached: f64, explanation: String },
+    /// The tangent stiffness is singular (a free degree of freedom).
+    #[error(
+        "singular tangent stiffness at iteration {iteration}: a degree of freedom has no stiffness \
+         (add a bushing, lock the coordinate or fix a body)"
+    )]
+    SingularTangent { iteration: usize },
+    /// The Newton step has a NaN or infinite entry.
+    #[error("Newton step not finite at iteration {iteration}")]
+    NonFiniteStep { iteration: usize },
+    /// A bushing's middle (Y) deflection angle reached the X-Y-Z singularity.
+    #[error(
+        "gimbal lock: the middle (Y) deflection angle is {angle_deg:.3} deg, at or beyond \
+         +-{limit_deg:.0} deg where the X-Y-Z angles of OpenSim's BushingForce are singular"
+    )]
+    GimbalLock { angle_deg: f64, limit_deg: f64 },
+    /// A joint's second rotation angle is at +-90 deg: the angular velocity
+    /// does not determine the angle rates there.
+    #[error(
+        "joint '{joint}': its second rotation angle is {angle} rad (gimbal lock at +-90 degrees): \
+         the angular velocity does not determine the angle rates there"
+    )]
+    JointGimbalLock { joint: String, angle: f64 },
+    /// The mass matrix could not be factored.
+    #[error("mass matrix is not positive definite (a massless body on a free degree of freedom?)")]
+    MassMatrixNotPositiveDefinite,
+    /// The implicit integrator's stage coordinates diverged.
+    #[error(
+        "implicit step: the stage coordinates did not converge (angular velocity too large for the \
+         time step): reduce the step size"
+    )]
+    StageNotConverged,
+    /// The implicit integrator's Newton matrix is singular.
+    #[error("singular Newton matrix in the implicit integrator")]
+    SingularNewtonMatrix,
+    /// The implicit step did not converge at step size `dt` (s).
+    #[error("implicit step did not converge (dt = {dt} s): reduce the step size")]
+    StepNotConverged { dt: f64 },
 }
 
 impl Error {
@@ -60,6 +134,20 @@ impl Error {
         Error::Invalid {
             context: context.into(),
             message: message.into(),
+        }
+    }
+    /// Solver failure `error` in `context`.
+    pub fn solver(context: impl Into<String>, error: SolverError) -> Self {
+        Error::Solver {
+            context: context.into(),
+            error,
+        }
+    }
+    /// The solver failure this error carries, if it is one.
+    pub fn solver_error(&self) -> Option<&SolverError> {
+        match self {
+            Error::Solver { error, .. } => Some(error),
+            _ => None,
         }
     }
     /// Numerical failure in `context`.

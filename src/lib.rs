@@ -26,6 +26,55 @@
 //! | [`calibrate`] | experiments, stiffness calibration, sensitivity studies |
 //! | [`diagnose`] | sim-to-real gap diagnosis |
 //! | [`cli`] | the command line |
+//!
+//! # Examples
+//!
+//! A patient model from the example landmark set on the embedded default
+//! base model (what `osim-spine generate --landmarks ... --out ...` does,
+//! without writing files):
+//!
+//! ```
+//! use osim_spine::embedded::BaseModel;
+//! use osim_spine::generate::{generate, GenerateOptions};
+//! use std::path::Path;
+//!
+//! let base = BaseModel::locate(None)?.read()?;
+//! let set = osim_spine::landmarks::io::load(Path::new("fixtures/example-scoliosis.csv"))?;
+//! let opts = GenerateOptions { views: false, ..GenerateOptions::default() };
+//! let model = generate(&base, &set, "example-scoliosis.csv", &opts, None)?;
+//! // T9..L5 placed from the landmarks, the levels above from the base
+//! assert_eq!(model.report.levels_from_landmarks.len(), 9);
+//! assert!(model.report.levels_from_base.contains(&"T1".to_string()));
+//! # Ok::<(), osim_spine::Error>(())
+//! ```
+//!
+//! Static equilibrium of the base model (no gravity) under a 2 N*m moment
+//! on T1 about ground's Z axis (the sagittal bending axis: flexion), with
+//! the tool's own solver:
+//!
+//! ```
+//! use nalgebra::Vector3;
+//! use osim_spine::embedded::BaseModel;
+//! use osim_spine::solver::{Load, LoadFrame, StaticOptions, System, SystemSpec, Workspace};
+//!
+//! let model = BaseModel::locate(None)?.read()?.model()?;
+//! let mut spec = SystemSpec::from_model(&model)?;
+//! spec.gravity = Vector3::zeros();
+//! let sys = System::new(&spec)?;
+//! let mut ws = Workspace::new(&sys);
+//! let moment = Load::Moment {
+//!     body: "thoracic1".into(),
+//!     vec: Vector3::new(0.0, 0.0, 2.0),
+//!     frame: LoadFrame::Ground,
+//! };
+//! let loads = sys.prepare_loads(&[moment])?;
+//! let q0 = sys.default_q();
+//! let sol = sys.solve_static(&loads, q0.as_slice(), &mut ws, &StaticOptions::default())?;
+//! // In equilibrium the bushings carry the moment: every joint bent a little.
+//! assert!(sol.residual_norm < 1e-8);
+//! assert!((&sol.q - &q0).amax() > 1e-4);
+//! # Ok::<(), osim_spine::Error>(())
+//! ```
 
 // Module docs name the private named steps of each stage (they resolve with
 // `cargo doc --document-private-items`), so a reader sees the stage's order.

@@ -1,4 +1,4 @@
-//! `base --palpation FILE` and `--centres FILE` (issue 16, acceptance 4): a
+//! `base --palpation FILE` and `--centres FILE`: a
 //! modeller's own palpation of the generic model replaces exactly the
 //! markers (and sphere centres) it names; everything else stays the
 //! engine's. Files that do not say their units or frame are refused.

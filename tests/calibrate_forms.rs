@@ -25,7 +25,8 @@ use osim_spine::calibrate::forms::CurveForm;
 use osim_spine::calibrate::setup::{build_problem, Setup};
 use osim_spine::osim::Document;
 use osim_spine::solver::{
-    BushingModel, Curve, Load, LoadFrame, StaticOptions, System, SystemSpec, Workspace,
+    BushingIndex, BushingModel, Curve, Load, LoadFrame, StaticOptions, System, SystemSpec,
+    Workspace,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -71,7 +72,7 @@ fn synthesize(
     p: &[f64],
     sd_deg: f64,
     seed: u64,
-) -> (Experiment, Vec<(usize, BushingModel)>) {
+) -> (Experiment, Vec<(BushingIndex, BushingModel)>) {
     let (pb, fam) = problem(exp.clone(), params);
     let pred = pb.evaluator().predict(&pb, p).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -119,7 +120,7 @@ fn stiffening(c: &Curve, th_ref: f64) -> f64 {
 
 /// Truth parameter vector of `fam` (whose reference rotations may differ
 /// from the synthesis family's) from the truth laws (in `fam.levels` order).
-fn truth_params(fam: &StiffnessFamily, truth: &[(usize, BushingModel)]) -> Vec<f64> {
+fn truth_params(fam: &StiffnessFamily, truth: &[(BushingIndex, BushingModel)]) -> Vec<f64> {
     let th = fam.reference_rotations();
     let dof = |s: &str| ["rx", "ry", "rz"].iter().position(|x| s.starts_with(x));
     fam.params_info()

@@ -74,7 +74,7 @@ fn calibrate(
     )
     .unwrap();
     let k = fam.bushing_stiffness(&cal.best);
-    let bushings = fam.levels.iter().map(|l| l.bushing).collect();
+    let bushings = fam.levels.iter().map(|l| l.bushing.0).collect();
     (k, cal, bushings)
 }
 

@@ -1,4 +1,4 @@
-//! Determinism of the main jobs (issue 19, acceptance 4): `generate`,
+//! Determinism of the main jobs: `generate`,
 //! `diagnose` and `calibrate` give byte-identical output folders when rerun
 //! from another working directory, with the input folder at another path,
 //! and (diagnose, calibrate) with another `--jobs`. Every file of the output folder is

@@ -1,4 +1,4 @@
-//! Layout of every figure the tool writes (issue 17, acceptance 5): each
+//! Layout of every figure the tool writes: each
 //! SVG is laid out by usvg (resvg's parser) with the machine's fonts, and
 //! every text box must lie inside the canvas, and no two text boxes may
 //! overlap (titles, axis labels, tick labels and legends alike). The

@@ -685,7 +685,7 @@ fn generate_report(dir: &Path, name: &str, text: &str) -> (String, serde_json::V
     (err, rep)
 }
 
-/// Issue 17, item 10: one missing landmark does not refuse the set; the
+/// One missing landmark does not refuse the set; the
 /// level is fitted on the 13 others, flagged on the console and in the
 /// report, and lands where the complete set puts it.
 #[test]

@@ -1,5 +1,5 @@
 //! Acceptance tests of `osim-spine generate` and `evaluate` against ground
-//! truth made with the real OpenSim 4.6 (issue 6):
+//! truth made with the real OpenSim 4.6:
 //!
 //! 1. the base model (built from the cyclist model) is posed in OpenSim
 //!    into scoliotic shapes; the posed markers (the patient's landmarks)

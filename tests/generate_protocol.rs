@@ -1,5 +1,4 @@
-//! `generate` on a set palpated by another protocol (issue 16, acceptance
-//! 4): every `SP` of the README example moved 5 mm posterior is reported
+//! `generate` on a set palpated by another protocol: every `SP` of the README example moved 5 mm posterior is reported
 //! as a protocol mismatch of the code SP, with its offset, and compensated:
 //! the vertebrae are refitted with every SP marker moved by that offset,
 //! which leaves the SP residuals at the noise; the example as shipped has

@@ -1,5 +1,5 @@
 //! `info` gives the total mass and every coordinate's range as OpenSim 4.6
-//! does (issue 17, item 9), and lists only the first missing meshes.
+//! does, and lists only the first missing meshes.
 
 mod common;
 

@@ -1,6 +1,5 @@
 //! Every model the tool writes loads in the real OpenSim 4.6 with no
-//! warning, no error, no update notice and no parameter update (issue 17,
-//! acceptance 3): `convert` of the four legacy models and of the cyclist
+//! warning, no error, no update notice and no parameter update: `convert` of the four legacy models and of the cyclist
 //! model, `base` (procedural and cyclist), `generate`, `stiffness`,
 //! `calibrate` and `diagnose`, each written to a folder other than its
 //! input's. The legacy models' meshes exist nowhere here: `convert` keeps

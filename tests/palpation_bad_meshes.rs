@@ -1,5 +1,5 @@
 //! The palpation engine on meshes that are not a whole, upright vertebra
-//! (issue 16, acceptance 5): a box, a sphere, half a vertebra, an
+//!: a box, a sphere, half a vertebra, an
 //! upside-down or mirrored vertebra, a vertebra with a hole where its
 //! superior endplate is. Each gives a clear error or a finding naming the
 //! level (and the landmark where one is concerned), never a silent marker.

@@ -1,5 +1,4 @@
-//! The palpation engine on the three mesh families (issue 16, acceptance 1
-//! and 2): cyclist coarse meshes, dense Visible Human whole vertebrae (in
+//! The palpation engine on the three mesh families: cyclist coarse meshes, dense Visible Human whole vertebrae (in
 //! their own Z-up frame, and rigidly moved), procedural meshes.
 //!
 //! Protocol invariants checked on every vertebra: 14 distinct landmarks

@@ -20,15 +20,15 @@ mod common;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use osim_spine::solver::dynamics::Integrator;
-use osim_spine::solver::{LoadSet, StaticOptions, System, SystemSpec, Workspace};
+use osim_spine::solver::{DofIndex, LoadSet, StaticOptions, System, SystemSpec, Workspace};
 use serde_json::Value;
 
 fn by_name(sys: &System, map: &Value) -> Vec<f64> {
     (0..sys.n_dofs())
         .map(|i| {
-            map[sys.dof_name(i)]
+            map[sys.dof_name(DofIndex(i))]
                 .as_f64()
-                .unwrap_or_else(|| panic!("{} missing", sys.dof_name(i)))
+                .unwrap_or_else(|| panic!("{} missing", sys.dof_name(DofIndex(i))))
         })
         .collect()
 }
@@ -143,7 +143,7 @@ fn check_angular_velocity_speeds(sys: &System, m: &Value, file: &std::path::Path
         .map(|k| if matches!(*k, "free" | "ball") { 3 } else { 0 })
         .sum();
     let mapped = (0..sys.n_dofs())
-        .filter(|&i| sys.dof_speed_is_angular_velocity(i))
+        .filter(|&i| sys.dof_speed_is_angular_velocity(DofIndex(i)))
         .count();
     assert_eq!(mapped, want_mapped, "{}: {kinds:?}", file.display());
     mapped
@@ -175,7 +175,7 @@ fn check_state(
             rel < 1e-9,
             "{}: qdot {} = {} vs OpenSim {} (rel {rel:e})",
             file.display(),
-            sys.dof_name(i),
+            sys.dof_name(DofIndex(i)),
             qd[i],
             want_qd[i]
         );
@@ -198,7 +198,7 @@ fn check_state(
             rel < 1e-9,
             "{}: udot {} = {} vs OpenSim {} (rel {rel:e})",
             file.display(),
-            sys.dof_name(i),
+            sys.dof_name(DofIndex(i)),
             a[i],
             want[i]
         );
@@ -302,7 +302,7 @@ fn check_simulation(
             dq < 1e-7 && du < 1e-7,
             "{}: after {duration} s {}: q {xq} vs OpenSim {}, u {xu} vs OpenSim {}",
             file.display(),
-            sys.dof_name(i),
+            sys.dof_name(DofIndex(i)),
             want_q[i],
             want_u[i]
         );
@@ -349,7 +349,7 @@ fn check_statics(sc: &Value, file: &std::path::Path, worst: &mut Worst) {
             dq < 1e-8,
             "{}: equilibrium {} = {got} vs OpenSim {w}",
             file.display(),
-            sys.dof_name(i),
+            sys.dof_name(DofIndex(i)),
         );
     }
 }

@@ -11,7 +11,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use osim_spine::solver::examples::{spine_chain, thesis_bushing};
 use osim_spine::solver::{
-    BushingModel, Load, LoadFrame, StaticOptions, System, SystemSpec, Workspace,
+    BushingIndex, BushingModel, Load, LoadFrame, StaticOptions, System, SystemSpec, Workspace,
 };
 
 const N: usize = 8;
@@ -83,10 +83,11 @@ fn spec_with(levels: &[usize]) -> SystemSpec {
 fn variant_of(sys: &System, levels: &[usize]) -> System {
     let mut out = sys.clone();
     for &i in levels {
-        let (x1, x2) = out.bushing_frames(i).expect("bushing");
+        let b = BushingIndex(i);
+        let (x1, x2) = out.bushing_frames(b).expect("bushing");
         out = out
-            .with_bushing_model(i, law(i))
-            .and_then(|s| s.with_bushing_joint_frames(i, &(x1 * offset(i)), &(x2 * offset(i))))
+            .with_bushing_model(b, law(i))
+            .and_then(|s| s.with_bushing_joint_frames(b, &(x1 * offset(i)), &(x2 * offset(i))))
             .expect("variant");
     }
     out

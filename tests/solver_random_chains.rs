@@ -8,7 +8,9 @@
 mod common;
 
 use nalgebra::Vector3;
-use osim_spine::solver::{Load, LoadFrame, LoadSet, StaticOptions, System, SystemSpec, Workspace};
+use osim_spine::solver::{
+    DofIndex, Load, LoadFrame, LoadSet, StaticOptions, System, SystemSpec, Workspace,
+};
 use serde_json::Value;
 
 fn vec3(v: &Value) -> Vector3<f64> {
@@ -24,9 +26,9 @@ fn vec3(v: &Value) -> Vector3<f64> {
 fn by_name(sys: &System, map: &Value) -> Vec<f64> {
     (0..sys.n_dofs())
         .map(|i| {
-            map[sys.dof_name(i)]
+            map[sys.dof_name(DofIndex(i))]
                 .as_f64()
-                .unwrap_or_else(|| panic!("{} missing", sys.dof_name(i)))
+                .unwrap_or_else(|| panic!("{} missing", sys.dof_name(DofIndex(i))))
         })
         .collect()
 }
@@ -62,7 +64,7 @@ fn random_chains_match_opensim() {
                     rel < 1e-8,
                     "{}: udot {} = {} vs OpenSim {} (rel {rel:e})",
                     file.display(),
-                    sys.dof_name(i),
+                    sys.dof_name(DofIndex(i)),
                     a[i],
                     want[i]
                 );
@@ -118,7 +120,7 @@ fn random_chains_match_opensim() {
                     dq < 1e-8,
                     "{}: equilibrium {} = {} vs OpenSim {}",
                     file.display(),
-                    sys.dof_name(i),
+                    sys.dof_name(DofIndex(i)),
                     sol.q[i],
                     want[i]
                 );

@@ -67,6 +67,69 @@ pub struct Equilibrium {
     pub coordinates: std::collections::BTreeMap<String, f64>,
 }
 
+/// Above this displacement (m) under gravity a "stable" equilibrium is
+/// not the model's posture but where the spine sagged to.
+pub const SAGGED_M: f64 = 0.02;
+
+impl Equilibrium {
+    /// The stability verdict in words, the one wording every command prints.
+    pub fn verdict(&self) -> &'static str {
+        match self.stable {
+            Some(true) if self.max_displacement > SAGGED_M => "stable only after the spine sagged this far from its default posture (a ligamentous spine without muscles does not hold its posture under body weight)",
+            Some(true) => "stable",
+            Some(false) => "unstable (a ligamentous spine without muscles buckles under body weight)",
+            None => "stability not assessed",
+        }
+    }
+}
+
+impl SelfCheck {
+    /// The warnings of the self-check (muscles through bone), one line each.
+    pub fn warnings(&self) -> Vec<String> {
+        let through = &self.muscle_segments_through_vertebrae;
+        if through.is_empty() {
+            return Vec::new();
+        }
+        let deepest = through.iter().fold(0.0f64, |m, t| m.max(t.depth_mm));
+        let first: Vec<String> = through
+            .iter()
+            .take(5)
+            .map(|t| format!("{} in {} ({:.1} mm)", t.muscle, t.vertebra, t.depth_mm))
+            .collect();
+        vec![format!(
+            "{} muscle segment(s) pass through a vertebra, up to {deepest:.1} mm deep: {}{}",
+            through.len(),
+            first.join(", "),
+            if through.len() > 5 { ", ..." } else { "" }
+        )]
+    }
+}
+
+/// Every result of the self-check, as the console prints it.
+impl std::fmt::Display for SelfCheck {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let eq = &self.equilibrium;
+        write!(
+            f,
+            "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {:.1} mm ({}), {}",
+            self.bushing_max_rotation,
+            self.bushing_max_translation,
+            self.muscle_segments_through_vertebrae.len(),
+            eq.max_displacement * 1e3,
+            eq.max_displacement_body,
+            eq.verdict()
+        )?;
+        if !self.spheres_without_muscles.is_empty() {
+            write!(
+                f,
+                "\nself-check: {} wrap sphere(s) with no muscle over them",
+                self.spheres_without_muscles.len()
+            )?;
+        }
+        Ok(())
+    }
+}
+
 /// Static equilibrium of `model` under gravity from its default pose.
 pub fn equilibrium(model: &Model) -> Result<Equilibrium> {
     use crate::solver::{StaticOptions, System, SystemSpec, Workspace};

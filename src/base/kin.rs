@@ -7,7 +7,7 @@
 use crate::error::{Error, Result};
 use crate::osim::model::{Muscle, PathPointKind};
 use crate::osim::Model;
-use crate::solver::{System, SystemSpec};
+use crate::solver::{DofIndex, System, SystemSpec};
 use nalgebra::{Isometry3, Point3};
 use std::collections::BTreeMap;
 
@@ -57,7 +57,7 @@ impl<'a> Kinematics<'a> {
     fn dofs(&self, q: &Values) -> Result<Vec<f64>> {
         (0..self.sys.n_dofs())
             .map(|i| {
-                let name = self.sys.dof_name(i);
+                let name = self.sys.dof_name(DofIndex(i));
                 q.get(name).copied().ok_or_else(|| {
                     Error::invalid(
                         self.model.file.display().to_string(),

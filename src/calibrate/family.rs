@@ -26,7 +26,7 @@ use super::forms::{self, CurveForm};
 use crate::calibrate::experiment::DOF_NAMES;
 use crate::error::{Error, Result};
 use crate::solver::scalar::Scalar;
-use crate::solver::{BodyIndex, BushingModel, Curve, System, Workspace};
+use crate::solver::{BodyIndex, BushingIndex, BushingModel, Curve, System, Workspace};
 use nalgebra::DMatrix;
 use num_dual::Dual64;
 use serde::Serialize;
@@ -202,7 +202,7 @@ pub struct Level {
     /// Level name: the bushing name without a `_bushing` suffix (e.g. `L4_L5`).
     pub name: String,
     /// Bushing index in the system.
-    pub bushing: usize,
+    pub bushing: BushingIndex,
     /// Cranial body.
     pub upper: BodyIndex,
     /// Caudal body.
@@ -253,7 +253,7 @@ pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<
     let names: Vec<&str> = sys.body_names().collect();
     let mut out = Vec::new();
     for (i, bname) in sys.bushing_names().enumerate() {
-        let Some((Some(b1), Some(b2))) = sys.bushing_bodies(i) else {
+        let Some((Some(b1), Some(b2))) = sys.bushing_bodies(BushingIndex(i)) else {
             continue;
         };
         let (upper, lower) = if sys.parent_of(b2) == Some(b1) {
@@ -269,7 +269,7 @@ pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<
         let name = bname.strip_suffix("_bushing").unwrap_or(bname).to_string();
         out.push(Level {
             name,
-            bushing: i,
+            bushing: BushingIndex(i),
             upper,
             lower,
             upper_name: names.get(upper.0).copied().unwrap_or("").to_string(),
@@ -395,7 +395,7 @@ fn linear_params(
     match linear_kind {
         Parameterisation::Uniform => {
             for &d in dofs {
-                let vals: Vec<f64> = levels.iter().map(|l| nominal[l.bushing][d]).collect();
+                let vals: Vec<f64> = levels.iter().map(|l| nominal[l.bushing.0][d]).collect();
                 params.push(ParamInfo::log(
                     DOF_NAMES[d].to_string(),
                     stiffness_unit(d),
@@ -403,7 +403,7 @@ fn linear_params(
                     LITERATURE_BOUNDS[d].1,
                     geomean(&vals),
                 ));
-                map.push(levels.iter().map(|l| (l.bushing, d, 1.0)).collect());
+                map.push(levels.iter().map(|l| (l.bushing.0, d, 1.0)).collect());
             }
         }
         Parameterisation::Ratio(table) => {
@@ -414,7 +414,7 @@ fn linear_params(
                 let base: Vec<f64> = levels
                     .iter()
                     .zip(&factors)
-                    .map(|(l, f)| nominal[l.bushing][d] / f)
+                    .map(|(l, f)| nominal[l.bushing.0][d] / f)
                     .collect();
                 params.push(ParamInfo::log(
                     format!("{}_base", DOF_NAMES[d]),
@@ -427,7 +427,7 @@ fn linear_params(
                     levels
                         .iter()
                         .zip(&factors)
-                        .map(|(l, f)| (l.bushing, d, *f))
+                        .map(|(l, f)| (l.bushing.0, d, *f))
                         .collect(),
                 );
             }
@@ -442,9 +442,9 @@ fn linear_params(
                         stiffness_unit(d),
                         LITERATURE_BOUNDS[d].0,
                         LITERATURE_BOUNDS[d].1,
-                        nominal[l.bushing][d],
+                        nominal[l.bushing.0][d],
                     ));
-                    map.push(vec![(l.bushing, d, 1.0)]);
+                    map.push(vec![(l.bushing.0, d, 1.0)]);
                 }
             }
         }
@@ -576,7 +576,7 @@ impl NominalLaws {
             n_cols: 0,
         };
         for i in 0..sys.bushing_names().count() {
-            let Some(m) = sys.bushing_model(i) else {
+            let Some(m) = sys.bushing_model(BushingIndex(i)) else {
                 continue;
             };
             let p = m.stiffness_params();
@@ -598,7 +598,7 @@ impl NominalLaws {
     /// in each DoF of `dofs`.
     fn check_levels(&self, levels: &[Level], dofs: &[usize]) -> Result<()> {
         for l in levels {
-            if !self.linear.get(l.bushing).copied().unwrap_or(false) {
+            if !self.linear.get(l.bushing.0).copied().unwrap_or(false) {
                 return Err(Error::invalid(
                     format!("level {}", l.name),
                     "its bushing is not a linear BushingForce: calibration starts from a linear nominal model (the non-linear and coupled forms are chosen with --params; write linear values first with `osim-spine stiffness --table`)",
@@ -606,7 +606,7 @@ impl NominalLaws {
             }
         }
         for l in levels {
-            let k = self.nominal.get(l.bushing).copied().unwrap_or([0.0; 6]);
+            let k = self.nominal.get(l.bushing.0).copied().unwrap_or([0.0; 6]);
             for &d in dofs {
                 if k[d].is_nan() || k[d] <= 0.0 {
                     return Err(Error::invalid(
@@ -787,12 +787,12 @@ impl StiffnessFamily {
 
     /// The law of every level for parameters `p`: `(bushing index, law)`,
     /// in the order of [`Self::levels`] (damping nominal).
-    pub fn level_models(&self, p: &[f64]) -> Vec<(usize, BushingModel)> {
+    pub fn level_models(&self, p: &[f64]) -> Vec<(BushingIndex, BushingModel)> {
         self.levels
             .iter()
             .map(|l| {
-                let (vals, layout) = self.law_values(l.bushing, p);
-                (l.bushing, self.model_of(l.bushing, &vals, layout))
+                let (vals, layout) = self.law_values(l.bushing.0, p);
+                (l.bushing, self.model_of(l.bushing.0, &vals, layout))
             })
             .collect()
     }
@@ -852,7 +852,7 @@ impl StiffnessFamily {
         for i in 0..sys.bushing_names().count() {
             offset.push(col);
             col += sys
-                .bushing_model(i)
+                .bushing_model(BushingIndex(i))
                 .map(|m| m.stiffness_params().len())
                 .unwrap_or(0);
         }
@@ -861,7 +861,7 @@ impl StiffnessFamily {
         out.fill(0.0);
         let mut pd: Vec<Dual64> = p.iter().map(|v| Dual64::from(*v)).collect();
         for l in &self.levels {
-            let b = l.bushing;
+            let b = l.bushing.0;
             let mut js: Vec<usize> = self
                 .by_bushing
                 .get(b)
@@ -920,7 +920,12 @@ impl ModelFamily for StiffnessFamily {
         let models = touched
             .into_iter()
             .filter_map(|b| k.get(b).map(|kb| (b, *kb)))
-            .map(|(b, kb)| Ok((b, sys.linear_with_stiffness(b, kb)?)))
+            .map(|(b, kb)| {
+                Ok((
+                    BushingIndex(b),
+                    sys.linear_with_stiffness(BushingIndex(b), kb)?,
+                ))
+            })
             .collect::<Result<Vec<_>>>()?;
         sys.with_bushing_models(models)
     }
@@ -1124,7 +1129,7 @@ mod tests {
         let mut a = DMatrix::zeros(sys.n_dofs(), pv.len());
         fam.dtau_dp(&pv, &sys, &q, &loads, &mut ws, &mut a).unwrap();
         let rz = sys.dof_of("L3_L4_rz").unwrap();
-        q[rz] += 2.0 * std::f64::consts::PI;
+        q[rz.0] += 2.0 * std::f64::consts::PI;
         let mut b = DMatrix::zeros(sys.n_dofs(), pv.len());
         fam.dtau_dp(&pv, &sys, &q, &loads, &mut ws, &mut b).unwrap();
         assert!((&a - &b).amax() < 1e-12, "{}", (&a - &b).amax());

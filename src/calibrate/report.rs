@@ -308,7 +308,7 @@ pub fn calibrated_document(
     let stiff = fam.bushing_stiffness(p);
     let mut laws = Vec::new();
     for (b, model) in fam.level_models(p) {
-        let bushing = names.get(b).copied().unwrap_or("");
+        let bushing = names.get(b.0).copied().unwrap_or("");
         let Some(level) = levels.iter().find(|l| l.bushing == bushing) else {
             return Err(Error::invalid(
                 path.display().to_string(),
@@ -323,7 +323,7 @@ pub fn calibrated_document(
                 ));
             };
             let c = personalise::read_law(e, &path)?.damping();
-            let k = stiff.get(b).copied().unwrap_or([f64::NAN; 6]);
+            let k = stiff.get(b.0).copied().unwrap_or([f64::NAN; 6]);
             LevelLaw::Linear { k, c }
         } else {
             personalise::law_of_model(&model, None)?

@@ -563,7 +563,7 @@ pub fn run(
         bushings: fam0
             .levels
             .iter()
-            .map(|l| names.get(l.bushing).cloned().unwrap_or_default())
+            .map(|l| names.get(l.bushing.0).cloned().unwrap_or_default())
             .collect(),
         reference_best: reference.best.clone(),
         nominal: fam0.params_nominal(),

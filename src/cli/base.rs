@@ -265,18 +265,10 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
 /// The self-check and every guard result, as the report has them.
 fn print_self_check(r: &crate::base::BaseReport) {
     let sc = &r.self_check;
-    let eq = &sc.equilibrium;
-    crate::outln!(
-        "self-check: largest displacement under gravity {:.2} mm ({}), stable: {}, {} muscle segments through vertebrae",
-        eq.max_displacement * 1e3,
-        eq.max_displacement_body,
-        match eq.stable {
-            Some(true) => "yes",
-            Some(false) => "NO",
-            None => "not determined",
-        },
-        sc.muscle_segments_through_vertebrae.len()
-    );
+    crate::outln!("{sc}");
+    for w in sc.warnings() {
+        crate::errln!("warning: {w}");
+    }
     for g in &r.guards_checked {
         let fails: Vec<_> = r.guard_failures.iter().filter(|f| f.guard == *g).collect();
         let verdict = if fails.is_empty() {

@@ -242,13 +242,13 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     let level_values: Vec<(String, [f64; 6])> = fam
         .levels
         .iter()
-        .filter_map(|l| Some((names.get(l.bushing)?.clone(), *stiff.get(l.bushing)?)))
+        .filter_map(|l| Some((names.get(l.bushing.0)?.clone(), *stiff.get(l.bushing.0)?)))
         .collect();
     let doc = report::calibrated_document(&exp, &fam, pb.system(), &cal.best)?;
     let laws: BTreeMap<String, serde_json::Value> = fam
         .level_models(&cal.best)
         .iter()
-        .filter_map(|(b, m)| Some((names.get(*b)?.clone(), law_json(m))))
+        .filter_map(|(b, m)| Some((names.get(b.0)?.clone(), law_json(m))))
         .collect();
     let rep = Report {
         tool: concat!("osim-spine ", env!("CARGO_PKG_VERSION")),

@@ -399,47 +399,11 @@ fn print_shape(s: &crate::landmarks::metrics::Shape) {
     );
 }
 
-/// Above this displacement (m) under gravity a "stable" equilibrium is
-/// not the model's posture but where the spine sagged to.
-const SAGGED_M: f64 = 0.02;
-
 /// The self-check, every result stated; muscles through bone are warned.
 fn print_self_check(sc: &crate::base::check::SelfCheck) {
-    let eq = &sc.equilibrium;
-    let disp = eq.max_displacement * 1e3;
-    let verdict = match eq.stable {
-        Some(true) if eq.max_displacement > SAGGED_M => "stable only after the spine sagged this far from its default posture (a ligamentous spine without muscles does not hold its posture under body weight)",
-        Some(true) => "stable",
-        Some(false) => "unstable (a ligamentous spine without muscles buckles under body weight)",
-        None => "stability not assessed",
-    };
-    crate::outln!(
-        "self-check: bushing deflection at default {:.1e} rad / {:.1e} m; {} muscle segments through vertebrae; equilibrium under gravity (muscles off): largest displacement {disp:.1} mm ({}), {verdict}",
-        sc.bushing_max_rotation,
-        sc.bushing_max_translation,
-        sc.muscle_segments_through_vertebrae.len(),
-        eq.max_displacement_body,
-    );
-    let through = &sc.muscle_segments_through_vertebrae;
-    if !through.is_empty() {
-        let deepest = through.iter().fold(0.0f64, |m, t| m.max(t.depth_mm));
-        let first: Vec<String> = through
-            .iter()
-            .take(5)
-            .map(|t| format!("{} in {} ({:.1} mm)", t.muscle, t.vertebra, t.depth_mm))
-            .collect();
-        crate::errln!(
-            "warning: {} muscle segment(s) pass through a vertebra, up to {deepest:.1} mm deep: {}{}",
-            through.len(),
-            first.join(", "),
-            if through.len() > 5 { ", ..." } else { "" }
-        );
-    }
-    if !sc.spheres_without_muscles.is_empty() {
-        crate::outln!(
-            "self-check: {} wrap sphere(s) with no muscle over them",
-            sc.spheres_without_muscles.len()
-        );
+    crate::outln!("{sc}");
+    for w in sc.warnings() {
+        crate::errln!("warning: {w}");
     }
 }
 

@@ -18,7 +18,7 @@ use crate::osim::Document;
 use crate::solver::dynamics::Integrator;
 use crate::solver::from_model::ignored_forces;
 use crate::solver::output::{sto_string, BodyPose, BushingRecord};
-use crate::solver::{BodyIndex, StaticOptions, System, SystemSpec, Workspace};
+use crate::solver::{BodyIndex, DofIndex, StaticOptions, System, SystemSpec, Workspace};
 use anyhow::{bail, Context};
 use clap::Args as ClapArgs;
 use serde::Serialize;
@@ -314,7 +314,7 @@ fn case_record(
     let coordinates = st.names.iter().cloned().zip(full.iter().copied()).collect();
     let speeds = out.u.as_ref().map(|u| {
         (0..sys.n_dofs())
-            .map(|i| (sys.dof_name(i).to_string(), u[i]))
+            .map(|i| (sys.dof_name(DofIndex(i)).to_string(), u[i]))
             .collect()
     });
     let clamped_range_violations = sys

@@ -387,7 +387,7 @@ pub fn improved_model(sim: &Sim, exp: &Experiment, v: &Variant) -> Result<Docume
         let bname = sim
             .base
             .bushing_names()
-            .nth(l.bushing)
+            .nth(l.bushing.0)
             .unwrap_or("")
             .to_string();
         let Some(pl) = levels.iter().find(|x| x.bushing == bname) else {

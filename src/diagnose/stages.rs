@@ -37,14 +37,7 @@ impl Split {
 
 /// The progress bar (hidden without `opts.progress`).
 pub fn progress_bar(opts: &Options, len: u64) -> indicatif::ProgressBar {
-    if !opts.progress {
-        return indicatif::ProgressBar::hidden();
-    }
-    let pb = indicatif::ProgressBar::new(len);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template("diagnose {bar:30} {pos}/{len} fits {msg}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let pb = crate::util::progress::bar("diagnose", len, "fits", opts.progress);
     pb.set_message("baseline");
     pb
 }

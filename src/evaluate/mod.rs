@@ -38,6 +38,7 @@
 //! and lordosis (Table 5.8).
 
 pub use crate::landmarks::metrics;
+pub mod palpations;
 pub mod plot;
 pub mod propagation;
 pub mod variability;

@@ -36,7 +36,7 @@
 //! generated in parallel (rayon, the caller's thread pool) and collected in
 //! palpation order, so the report is deterministic.
 
-use super::variability::PalpationSet;
+use super::palpations::PalpationSet;
 use super::{
     centre_definition, evaluate_model, mean_sd, med_iqr, metrics, summarise, truth_transform,
     Align, CentreDef, LevelSummary, MeanSd, MedIqr, ModelMetrics, ModelShape, Truth,

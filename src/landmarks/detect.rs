@@ -19,7 +19,7 @@
 //! A declared header that contradicts the detection is reported (and is an
 //! error for [`super::RawLandmarks::to_set`]).
 
-use super::io::RawLandmarks;
+use super::raw::RawLandmarks;
 use super::{Code, Frame, LandmarkId, Level, Units};
 use crate::anatomy::DimensionTable;
 use nalgebra::Vector3;

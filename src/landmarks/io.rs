@@ -27,64 +27,15 @@
 //!   cells may be quoted and rows may end with empty cells (trailing commas).
 //! - Files larger than [`MAX_FILE_BYTES`] are refused before reading.
 
-use super::detect::{self, Detection};
+pub use super::raw::{FileFormat, Palpation, RawLandmarks, RawPoint};
 use super::{Frame, LandmarkId, LandmarkSet, Units};
 use crate::error::{Error, Result};
 use crate::util::{fmt_f64, write_atomic};
-use nalgebra::{Point3, Vector3};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Largest landmark file accepted (a 17-level set is ~10 kB; a 1000-palpation
 /// study ~10 MB).
 pub const MAX_FILE_BYTES: u64 = 32 * 1024 * 1024;
-
-/// File formats.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FileFormat {
-    Csv,
-    Trc,
-    Json,
-}
-
-/// One point as written in the file.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RawPoint {
-    /// Name as spelled in the file.
-    pub name: String,
-    /// Parsed id, `None` when the name is not `<LEVEL>_<CODE>`.
-    pub id: Option<LandmarkId>,
-    /// `true` when the name is spelled exactly as the format says.
-    pub canonical: bool,
-    /// Coordinates in file units and file frame.
-    pub xyz: [f64; 3],
-    /// 1-based line in the file, when known.
-    pub line: Option<usize>,
-    /// The body whose frame the coordinates are in (CSV `body` column:
-    /// a modeller's palpation of a model, `base --palpation`); `None`:
-    /// the file's frame.
-    pub body: Option<String>,
-}
-
-/// A landmark file's content before validation.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RawLandmarks {
-    pub path: PathBuf,
-    pub format: FileFormat,
-    pub declared_units: Option<Units>,
-    pub declared_frame: Option<Frame>,
-    pub points: Vec<RawPoint>,
-    /// Reader remarks (e.g. "TRC: mean of 3 frames").
-    pub notes: Vec<String>,
-}
-
-/// One palpation of a repeated-palpation study.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Palpation {
-    pub operator: String,
-    pub repetition: u32,
-    pub raw: RawLandmarks,
-}
 
 fn format_of(path: &Path) -> Result<FileFormat> {
     let ext = path
@@ -757,92 +708,6 @@ pub fn parse_json(text: &str, path: &Path) -> Result<Vec<Palpation>> {
             notes,
         },
     }])
-}
-
-impl RawLandmarks {
-    /// Units/frame detection for this content.
-    pub fn detect(&self) -> Detection {
-        detect::detect(self)
-    }
-
-    /// Build the set with the given detection's units and frame, leniently:
-    /// the first of duplicated names wins, unknown names are skipped. For
-    /// the checker, which reports those problems itself.
-    pub fn build_set(&self, det: &Detection) -> LandmarkSet {
-        let scale = det.units.map(|u| u.to_metres()).unwrap_or(1e-3);
-        let rot = det.frame.unwrap_or(Frame::OpenSim).to_opensim();
-        let mut set = LandmarkSet::new();
-        for p in &self.points {
-            if let Some(id) = p.id {
-                if !id.level.allowed(id.code) {
-                    continue;
-                }
-                set.points
-                    .entry(id)
-                    .or_insert_with(|| Point3::from(rot * Vector3::from(p.xyz) * scale));
-            }
-        }
-        set.detection = Some(det.clone());
-        set
-    }
-
-    /// Validate strictly and build the set: every name must be
-    /// `<LEVEL>_<CODE>` valid at its level, no duplicates, units and frame
-    /// declared-and-consistent or detectable without doubt.
-    pub fn to_set(&self) -> Result<LandmarkSet> {
-        let mut seen: std::collections::BTreeMap<LandmarkId, Option<usize>> = Default::default();
-        for p in &self.points {
-            let loc = p
-                .line
-                .map(|l| format!("line {l}"))
-                .unwrap_or_else(|| format!("landmark `{}`", p.name));
-            if let Some(b) = &p.body {
-                return Err(Error::parse(
-                    &self.path,
-                    loc,
-                    format!(
-                        "`{}` is given in the frame of body `{b}` (a `body` column): that is a palpation of a model for `base --palpation`, not a patient's landmark set",
-                        p.name
-                    ),
-                ));
-            }
-            let Some(id) = p.id else {
-                return Err(Error::parse(
-                    &self.path,
-                    loc,
-                    format!(
-                        "unknown landmark name `{}`: expected <LEVEL>_<CODE> (LEVEL T1..T12, L1..L5, S1; CODE SEC, IEC, PTR, PTL, PBR, PBL, SA, SP, SR, SL, IA, IP, IR, IL)",
-                        crate::util::messages::shown(&p.name)
-                    ),
-                ));
-            };
-            if !id.level.allowed(id.code) {
-                return Err(Error::parse(
-                    &self.path,
-                    loc,
-                    format!(
-                        "`{}` is not a sacral landmark (S1 has SEC, SA, SP, SR, SL, PTR, PTL)",
-                        p.name
-                    ),
-                ));
-            }
-            if let Some(prev) = seen.insert(id, p.line) {
-                let prev = prev
-                    .map(|l| format!(" (first at line {l})"))
-                    .unwrap_or_default();
-                return Err(Error::parse(
-                    &self.path,
-                    loc,
-                    format!("duplicate landmark `{id}`{prev}"),
-                ));
-            }
-        }
-        let det = self.detect();
-        if let Some(msg) = det.problems().into_iter().next() {
-            return Err(Error::invalid(self.path.display().to_string(), msg));
-        }
-        Ok(self.build_set(&det))
-    }
 }
 
 /// Render a set as CSV text in the given units and frame (the project's own

@@ -23,8 +23,10 @@ pub mod detect;
 pub mod frames;
 pub mod io;
 pub mod metrics;
+pub mod raw;
 pub mod stats;
 pub mod synth;
+pub mod validate;
 
 use nalgebra::{Matrix3, Point3, Vector3};
 use std::collections::BTreeMap;

@@ -182,7 +182,7 @@ pub(crate) fn find_endplate(lm: &LocalMesh, w: &Walls, superior: bool) -> Option
 /// Depth of the lateral rim, as a fraction of the region's half-width: the
 /// part of the region within it of the most lateral point is the rim,
 /// whose middle (along X) is where the landmark is taken. On the label
-/// maps of issue 18's test, 0.1-0.2 give worst 2.3-2.6 mm; 0.05 lets T1's
+/// dev label maps, 0.1-0.2 give worst 2.3-2.6 mm; 0.05 lets T1's
 /// landmark slide 7 mm along a flat voxel rim.
 const LATERAL_BAND: f64 = 0.15;
 

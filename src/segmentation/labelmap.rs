@@ -205,14 +205,7 @@ fn only_inferior_cut(map: &LabelMap, b: &LabelStats) -> bool {
     })
 }
 
-/// A progress bar on stderr (hidden when not wanted or not a terminal).
+/// The surfaces' progress bar (hidden when not wanted or not a terminal).
 fn progress_bar(n: usize, show: bool) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
-    }
-    let b = indicatif::ProgressBar::new(n as u64);
-    if let Ok(st) = indicatif::ProgressStyle::with_template("surfaces {bar:30} {pos}/{len} {msg}") {
-        b.set_style(st);
-    }
-    b
+    crate::util::progress::bar("surfaces", n as u64, "labels", show)
 }

@@ -17,7 +17,7 @@ use super::linalg::{cholesky_in_place, cholesky_solve, DenseLu};
 use super::scalar::Scalar;
 use super::system::{BodyIndex, System};
 use super::workspace::{SpatialInertia, Workspace};
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, SolverError};
 use nalgebra::{DVector, Matrix3, Vector3};
 use num_dual::Dual64;
 
@@ -215,7 +215,10 @@ impl System {
         }
         self.mass_matrix_from_comp(ws);
         if !cholesky_in_place(&mut ws.mass) {
-            return Err(Error::numerical("dynamics", "mass matrix is not positive definite (a massless body on a free degree of freedom?)"));
+            return Err(Error::solver(
+                "dynamics",
+                SolverError::MassMatrixNotPositiveDefinite,
+            ));
         }
         cholesky_solve(&ws.mass, &mut ws.rhs);
         udot.copy_from_slice(&ws.rhs);
@@ -379,11 +382,7 @@ impl Integrator {
                 break;
             }
         }
-        Err(Error::numerical(
-            "dynamics",
-            "implicit step: the stage coordinates did not converge (angular velocity too large \
-             for the time step): reduce the step size",
-        ))
+        Err(Error::solver("dynamics", SolverError::StageNotConverged))
     }
 
     /// Newton matrix `I - (h/2) [(h/2) A_q + A_u]` at the midpoint guess.
@@ -411,10 +410,7 @@ impl Integrator {
             }
         }
         if !self.lu.factor() {
-            return Err(Error::numerical(
-                "dynamics",
-                "singular Newton matrix in the implicit integrator",
-            ));
+            return Err(Error::solver("dynamics", SolverError::SingularNewtonMatrix));
         }
         self.have_jac = true;
         Ok(())
@@ -475,12 +471,9 @@ impl Integrator {
             }
             if !dmax.is_finite() || it > 12 {
                 if refreshed {
-                    return Err(Error::numerical(
+                    return Err(Error::solver(
                         "dynamics",
-                        format!(
-                            "implicit step did not converge (dt = {} s): reduce the step size",
-                            self.dt
-                        ),
+                        SolverError::StepNotConverged { dt: self.dt },
                     ));
                 }
                 // refresh the Jacobian and restart from the explicit guess

@@ -8,7 +8,7 @@ use super::scalar::{body_xyz, v3, Scalar};
 use super::spec::{Load, LoadFrame};
 use super::system::{BodyIndex, Bushing, Pose, System};
 use super::workspace::KinBuf;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, SolverError};
 use nalgebra::{Matrix3, Vector3};
 
 /// Largest |middle angle| of a bushing's X-Y-Z deflection accepted (rad):
@@ -29,14 +29,12 @@ impl GimbalLock {
             .get(self.bushing)
             .map(|b| b.name.as_str())
             .unwrap_or("?");
-        Error::numerical(
+        Error::solver(
             format!("bushing '{name}'"),
-            format!(
-                "gimbal lock: the middle (Y) deflection angle is {:.3} deg, at or beyond +-{:.0} deg where \
-                 the X-Y-Z angles of OpenSim's BushingForce are singular",
-                self.angle.to_degrees(),
-                GIMBAL_LIMIT.to_degrees()
-            ),
+            SolverError::GimbalLock {
+                angle_deg: self.angle.to_degrees(),
+                limit_deg: GIMBAL_LIMIT.to_degrees(),
+            },
         )
     }
 }

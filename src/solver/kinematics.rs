@@ -18,9 +18,9 @@
 //! between the two.
 
 use super::scalar::{rot_axis, v3, Scalar};
-use super::system::{AxisSource, Joint, Pose, System};
+use super::system::{AxisSource, DofIndex, Joint, Pose, System};
 use super::workspace::KinBuf;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, SolverError};
 use nalgebra::{Isometry3, Matrix3, Matrix6, Rotation3, Translation3, UnitQuaternion, Vector3};
 use num_dual::Dual64;
 
@@ -328,7 +328,7 @@ impl System {
 
     /// True when free dof `i` is a rotational FreeJoint/BallJoint dof whose
     /// speed is an angular-velocity component rather than its rate.
-    pub fn dof_speed_is_angular_velocity(&self, i: usize) -> bool {
+    pub fn dof_speed_is_angular_velocity(&self, DofIndex(i): DofIndex) -> bool {
         self.dof_body
             .get(i)
             .and_then(|&b| self.bodies.get(b.0))
@@ -347,13 +347,12 @@ impl System {
     }
 
     fn gimbal_error(&self, j: &Joint, q1: f64) -> Error {
-        Error::numerical(
+        Error::solver(
             "solver",
-            format!(
-                "joint '{}': its second rotation angle is {q1} rad (gimbal lock at +-90 degrees): \
-                 the angular velocity does not determine the angle rates there",
-                j.name
-            ),
+            SolverError::JointGimbalLock {
+                joint: j.name.clone(),
+                angle: q1,
+            },
         )
     }
 

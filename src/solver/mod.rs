@@ -36,13 +36,14 @@ pub mod system;
 pub mod tree;
 pub mod workspace;
 
+pub use crate::error::SolverError;
 pub use forces::{LoadSet, GIMBAL_LIMIT};
 pub use spec::{
     BodySpec, BushingModel, BushingSpec, CoordinateSpec, Curve, Expr, FrameSpec, Function,
     JointKind, JointSpec, Load, LoadFrame, SystemSpec, TransformAxis,
 };
 pub use statics::{StaticOptions, StaticSolution};
-pub use system::{BodyIndex, DofIndex, Pose, System, SystemId};
+pub use system::{BodyIndex, BushingIndex, DofIndex, Pose, System, SystemId};
 pub use tree::TangentMethod;
 pub use workspace::Workspace;
 

@@ -54,10 +54,10 @@ use super::forces::{self, GimbalLock, LoadSet, Resolved};
 use super::kinematics;
 use super::scalar::{d6_eps, d6_var, Scalar, D6};
 use super::spec::LoadFrame;
-use super::system::System;
+use super::system::{DofIndex, System};
 use super::tree::TangentMethod;
 use super::workspace::{Factored, KinBuf, Workspace};
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, SolverError};
 use nalgebra::{DMatrix, DVector, Vector3};
 use num_dual::Dual64;
 
@@ -332,9 +332,9 @@ impl<'a> Continuation<'a> {
                         }
                         return Step::Accepted;
                     }
-                    last = Some(Error::numerical(
+                    last = Some(Error::solver(
                         "static equilibrium",
-                        format!("the corrector moved {jump:.3} rad away from the predicted point"),
+                        SolverError::CorrectorJump { jump },
                     ));
                 }
                 Ok(Newton::Failed {
@@ -408,7 +408,13 @@ impl<'a> Continuation<'a> {
                  positive definite)"
             ));
         }
-        Error::numerical("static equilibrium", msg)
+        Error::solver(
+            "static equilibrium",
+            SolverError::ContinuationStopped {
+                reached: s,
+                explanation: msg,
+            },
+        )
     }
 }
 
@@ -504,7 +510,7 @@ impl System {
         if let Some(i) = q.iter().position(|v| !v.is_finite()) {
             return Err(Error::invalid(
                 "solver",
-                format!("coordinate '{}' is not finite", self.dof_name(i)),
+                format!("coordinate '{}' is not finite", self.dof_name(DofIndex(i))),
             ));
         }
         Ok(())
@@ -698,13 +704,13 @@ impl System {
                     }
                 });
                 return Ok(Newton::Failed {
-                    error: Error::numerical(
+                    error: Error::solver(
                         ctx,
-                        format!(
-                            "no equilibrium found after {it} Newton iterations: the largest generalised force \
-                             residual is {val:.3e} (coordinate '{}'); the loads may be too large for the model to carry",
-                            self.dof_name(worst)
-                        ),
+                        SolverError::NoEquilibrium {
+                            iterations: it,
+                            residual: val,
+                            coordinate: self.dof_name(DofIndex(worst)).to_string(),
+                        },
                     ),
                     recoverable: true,
                     iterations: it,
@@ -717,10 +723,7 @@ impl System {
                 .map_err(|g| g.to_error(self))?;
             if ws.factored == Factored::None {
                 return Ok(Newton::Failed {
-                    error: Error::numerical(
-                        ctx,
-                        format!("singular tangent stiffness at iteration {it}: a degree of freedom has no stiffness (add a bushing, lock the coordinate or fix a body)"),
-                    ),
+                    error: Error::solver(ctx, SolverError::SingularTangent { iteration: it }),
                     // singular at the start: no stiffness, nothing to continue;
                     // later: a singular point of the path, continuation may pass it
                     recoverable: it > 0,
@@ -729,10 +732,7 @@ impl System {
             }
             if ws.dq.iter().any(|v| !v.is_finite()) {
                 return Ok(Newton::Failed {
-                    error: Error::numerical(
-                        ctx,
-                        format!("Newton step not finite at iteration {it}"),
-                    ),
+                    error: Error::solver(ctx, SolverError::NonFiniteStep { iteration: it }),
                     recoverable: it > 0,
                     iterations: it,
                 });
@@ -798,13 +798,12 @@ impl System {
                         return Err(g.to_error(self));
                     }
                     return Ok(Newton::Failed {
-                        error: Error::numerical(
+                        error: Error::solver(
                             ctx,
-                            format!(
-                                "no equilibrium found: the line search stalled at iteration {it} with largest \
-                                 generalised force residual {r_inf:.3e} (the loads may be too large, or a bushing \
-                                 approaches gimbal lock)"
-                            ),
+                            SolverError::LineSearchStalled {
+                                iteration: it,
+                                residual: r_inf,
+                            },
                         ),
                         recoverable: true,
                         iterations: it,

@@ -92,6 +92,12 @@ pub struct BodyIndex(pub usize);
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct DofIndex(pub usize);
 
+/// Index of a bushing in the order of [`System::bushing_names`] (the order
+/// of the spec's bushings).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
+#[serde(transparent)]
+pub struct BushingIndex(pub usize);
+
 /// Where an axis' value comes from.
 #[derive(Debug, Clone)]
 pub(crate) enum AxisSource {
@@ -735,12 +741,12 @@ impl System {
             .map(BodyIndex)
     }
     /// The force law of bushing `i`.
-    pub fn bushing_model(&self, i: usize) -> Option<&BushingModel> {
-        self.bushings.get(i).map(|b| &b.model)
+    pub fn bushing_model(&self, i: BushingIndex) -> Option<&BushingModel> {
+        self.bushings.get(i.0).map(|b| &b.model)
     }
     /// Body moved by free dof `i`.
-    pub fn dof_body(&self, i: usize) -> Option<BodyIndex> {
-        self.dof_body.get(i).copied()
+    pub fn dof_body(&self, i: DofIndex) -> Option<BodyIndex> {
+        self.dof_body.get(i.0).copied()
     }
     /// True when body `i` hangs on ground through a joint without free dofs.
     pub fn is_welded_to_ground(&self, i: BodyIndex) -> bool {
@@ -748,6 +754,13 @@ impl System {
             .get(i.0)
             .map(|b| b.parent.is_none() && b.joint.dof_count == 0)
             .unwrap_or(false)
+    }
+    /// Index of a bushing by name.
+    pub fn bushing_index(&self, name: &str) -> Option<BushingIndex> {
+        self.bushings
+            .iter()
+            .position(|b| b.name == name)
+            .map(BushingIndex)
     }
     /// Bushing names in order.
     pub fn bushing_names(&self) -> impl Iterator<Item = &str> {
@@ -758,17 +771,17 @@ impl System {
         &self.coords
     }
     /// Name of free dof `i`.
-    pub fn dof_name(&self, i: usize) -> &str {
+    pub fn dof_name(&self, i: DofIndex) -> &str {
         self.dof_coord
-            .get(i)
+            .get(i.0)
             .and_then(|&c| self.coords.get(c))
             .map(|c| c.name.as_str())
             .unwrap_or("")
     }
     /// Free dof index of a coordinate by name (None when locked/unknown).
-    pub fn dof_of(&self, coord_name: &str) -> Option<usize> {
+    pub fn dof_of(&self, coord_name: &str) -> Option<DofIndex> {
         let c = self.coords.iter().position(|c| c.name == coord_name)?;
-        self.coord_dof.get(c).copied().flatten().map(|d| d.0)
+        self.coord_dof.get(c).copied().flatten()
     }
     /// Gravity vector.
     pub fn gravity(&self) -> Vector3<f64> {
@@ -861,7 +874,7 @@ impl System {
     /// (calibration makes thousands of such variants; the structure is
     /// shared, so workspaces and loads stay valid). The law is validated;
     /// frames and the fast path are unchanged.
-    pub fn with_bushing_model(&self, i: usize, model: BushingModel) -> Result<System> {
+    pub fn with_bushing_model(&self, i: BushingIndex, model: BushingModel) -> Result<System> {
         let mut out = self.clone();
         out.set_bushing_model(i, model)?;
         out.id.laws = fresh_id();
@@ -870,7 +883,11 @@ impl System {
 
     /// Replace a bushing law in place (only on a system under construction
     /// by one of the `with_*` methods).
-    fn set_bushing_model(&mut self, i: usize, model: BushingModel) -> Result<()> {
+    fn set_bushing_model(
+        &mut self,
+        BushingIndex(i): BushingIndex,
+        model: BushingModel,
+    ) -> Result<()> {
         let n = self.bushings.len();
         let Some(b) = self.bushings.get_mut(i) else {
             return Err(Error::invalid(
@@ -890,7 +907,7 @@ impl System {
     /// The same system with the diagonal stiffness `(rx, ry, rz, tx, ty,
     /// tz)` of linear bushing `i` replaced (an error for other laws),
     /// keeping its damping.
-    pub fn with_bushing_stiffness(&self, i: usize, k: [f64; 6]) -> Result<System> {
+    pub fn with_bushing_stiffness(&self, i: BushingIndex, k: [f64; 6]) -> Result<System> {
         let model = self.linear_with_stiffness(i, k)?;
         self.with_bushing_model(i, model)
     }
@@ -899,7 +916,7 @@ impl System {
     /// copy for all of them).
     pub fn with_bushing_models(
         &self,
-        models: impl IntoIterator<Item = (usize, BushingModel)>,
+        models: impl IntoIterator<Item = (BushingIndex, BushingModel)>,
     ) -> Result<System> {
         let mut out = self.clone();
         for (i, model) in models {
@@ -910,7 +927,11 @@ impl System {
     }
 
     /// The linear law of bushing `i` with its stiffness replaced by `k`.
-    pub fn linear_with_stiffness(&self, i: usize, k: [f64; 6]) -> Result<BushingModel> {
+    pub fn linear_with_stiffness(
+        &self,
+        BushingIndex(i): BushingIndex,
+        k: [f64; 6],
+    ) -> Result<BushingModel> {
         let Some(b) = self.bushings.get(i) else {
             return Err(Error::invalid(
                 "solver",
@@ -938,16 +959,16 @@ impl System {
     }
 
     /// Poses `(X_B1F, X_B2M)` of bushing `i`'s two frames in their bodies.
-    pub fn bushing_frames(&self, i: usize) -> Option<(Isometry3<f64>, Isometry3<f64>)> {
-        let b = self.bushings.get(i)?;
+    pub fn bushing_frames(&self, i: BushingIndex) -> Option<(Isometry3<f64>, Isometry3<f64>)> {
+        let b = self.bushings.get(i.0)?;
         Some((pose_to_isometry(&b.x_b1), pose_to_isometry(&b.x_b2)))
     }
 
     /// True when bushing `i` sits on the two offset frames of the joint of
     /// its second body, with the joint's axes the identity functions of its
     /// six dofs (the intervertebral layout; see `Bushing::fast`).
-    pub fn bushing_on_joint_frames(&self, i: usize) -> bool {
-        self.bushings.get(i).is_some_and(|b| b.fast.is_some())
+    pub fn bushing_on_joint_frames(&self, i: BushingIndex) -> bool {
+        self.bushings.get(i.0).is_some_and(|b| b.fast.is_some())
     }
 
     /// The same system with bushing `i`'s two frames moved: `x1` in the
@@ -958,7 +979,7 @@ impl System {
     /// their points on the bodies (see [`super::LoadSet`]).
     pub fn with_bushing_joint_frames(
         &self,
-        i: usize,
+        BushingIndex(i): BushingIndex,
         x1: &Isometry3<f64>,
         x2: &Isometry3<f64>,
     ) -> Result<System> {
@@ -1015,8 +1036,11 @@ impl System {
     }
 
     /// The two bodies (None = ground) a bushing connects.
-    pub fn bushing_bodies(&self, i: usize) -> Option<(Option<BodyIndex>, Option<BodyIndex>)> {
-        self.bushings.get(i).map(|b| (b.body1, b.body2))
+    pub fn bushing_bodies(
+        &self,
+        i: BushingIndex,
+    ) -> Option<(Option<BodyIndex>, Option<BodyIndex>)> {
+        self.bushings.get(i.0).map(|b| (b.body1, b.body2))
     }
 
     /// Parent body of body `i` (None = ground or out of range).

@@ -380,9 +380,9 @@ fn free_and_ball_speeds_are_angular_velocities() {
     let sys = System::new(&free_ball_chain(true)).unwrap();
     assert_eq!(sys.n_dofs(), 15);
     assert!(sys.has_angular_velocity_speeds());
-    assert!(sys.bushing_on_joint_frames(0));
+    assert!(sys.bushing_on_joint_frames(BushingIndex(0)));
     let mapped: Vec<usize> = (0..15)
-        .filter(|&i| sys.dof_speed_is_angular_velocity(i))
+        .filter(|&i| sys.dof_speed_is_angular_velocity(DofIndex(i)))
         .collect();
     assert_eq!(mapped, vec![0, 1, 2, 6, 7, 8, 9, 10, 11]);
     let (q, u) = free_ball_state(15, 0);

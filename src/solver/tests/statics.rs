@@ -178,7 +178,7 @@ fn mirror_symmetric_model_and_load_give_mirror_answers() {
             assert!(
                 (a.q[i] - sign * b.q[i]).abs() < 1e-12,
                 "dof {} {} vs {}",
-                sys.dof_name(i),
+                sys.dof_name(DofIndex(i)),
                 a.q[i],
                 b.q[i]
             );
@@ -210,7 +210,13 @@ fn unknown_body_and_gimbal_lock_are_errors() {
             &StaticOptions::default(),
         )
         .unwrap_err();
-    assert!(err.to_string().contains("gimbal"), "{err}");
+    assert!(
+        matches!(
+            err.solver_error(),
+            Some(crate::solver::SolverError::GimbalLock { .. })
+        ),
+        "{err}"
+    );
 }
 
 #[test]
@@ -232,7 +238,14 @@ fn too_large_load_is_an_error() {
             &StaticOptions::default(),
         )
         .unwrap_err();
-    assert!(matches!(err, crate::Error::Numerical { .. }), "{err}");
+    assert!(
+        matches!(
+            err.solver_error(),
+            // the load continuation stopped short of the full load
+            Some(crate::solver::SolverError::ContinuationStopped { reached, .. }) if *reached < 1.0
+        ),
+        "{err}"
+    );
 }
 
 #[test]

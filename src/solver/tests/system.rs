@@ -32,12 +32,18 @@ fn spec_indices_are_mapped_to_system_order() {
     assert_eq!(sys.parent_of(child), Some(parent));
     assert_eq!(sys.parent_of(parent), None);
     // bushing 0 ("upper") joins the parent (frame 1) to the child (frame 2)
-    assert_eq!(sys.bushing_bodies(0), Some((Some(parent), Some(child))));
-    assert_eq!(sys.bushing_bodies(1), Some((None, Some(parent))));
+    assert_eq!(
+        sys.bushing_bodies(BushingIndex(0)),
+        Some((Some(parent), Some(child)))
+    );
+    assert_eq!(
+        sys.bushing_bodies(BushingIndex(1)),
+        Some((None, Some(parent)))
+    );
     // dofs are numbered joint by joint in system order: the parent's first
-    assert_eq!(sys.dof_of("lower_rx"), Some(0));
-    assert_eq!(sys.dof_of("upper_rx"), Some(6));
-    assert_eq!(sys.dof_body(0), Some(parent));
-    assert_eq!(sys.dof_body(6), Some(child));
-    assert_eq!(sys.dof_name(6), "upper_rx");
+    assert_eq!(sys.dof_of("lower_rx"), Some(DofIndex(0)));
+    assert_eq!(sys.dof_of("upper_rx"), Some(DofIndex(6)));
+    assert_eq!(sys.dof_body(DofIndex(0)), Some(parent));
+    assert_eq!(sys.dof_body(DofIndex(6)), Some(child));
+    assert_eq!(sys.dof_name(DofIndex(6)), "upper_rx");
 }

@@ -1,0 +1,55 @@
+//! A landmark file's content as read, before validation: the names as
+//! spelled, the coordinates in the file's units and frame, where each came
+//! from. Readers ([`super::io`]) produce it; detection ([`super::detect`])
+//! and validation ([`super::validate`]) consume it.
+
+use super::{Frame, LandmarkId, Units};
+use std::path::PathBuf;
+
+/// File formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FileFormat {
+    Csv,
+    Trc,
+    Json,
+}
+
+/// One point as written in the file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawPoint {
+    /// Name as spelled in the file.
+    pub name: String,
+    /// Parsed id, `None` when the name is not `<LEVEL>_<CODE>`.
+    pub id: Option<LandmarkId>,
+    /// `true` when the name is spelled exactly as the format says.
+    pub canonical: bool,
+    /// Coordinates in file units and file frame.
+    pub xyz: [f64; 3],
+    /// 1-based line in the file, when known.
+    pub line: Option<usize>,
+    /// The body whose frame the coordinates are in (CSV `body` column:
+    /// a modeller's palpation of a model, `base --palpation`); `None`:
+    /// the file's frame.
+    pub body: Option<String>,
+}
+
+/// A landmark file's content before validation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawLandmarks {
+    pub path: PathBuf,
+    pub format: FileFormat,
+    pub declared_units: Option<Units>,
+    pub declared_frame: Option<Frame>,
+    pub points: Vec<RawPoint>,
+    /// Reader remarks (e.g. "TRC: mean of 3 frames").
+    pub notes: Vec<String>,
+}
+
+/// One palpation of a repeated-palpation study.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Palpation {
+    pub operator: String,
+    pub repetition: u32,
+    pub raw: RawLandmarks,
+}
