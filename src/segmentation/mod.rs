@@ -364,11 +364,15 @@ pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
     assemble::assemble(loaded, world, results, opts)
 }
 
-/// The point the levels are palpated about: the centre of their bounding
-/// box, in whole millimetres. Far from the coordinates' origin (a scanner's
-/// offsets, a world kilometres away) volumes and inside tests lose their
-/// precision; about this point the landmarks do not depend on where the
-/// origin is.
+/// Distance from the coordinates' origin (m) beyond which a segmentation
+/// is palpated about a local origin: nearer, the coordinates are kept as
+/// they are (a scanner's offsets of up to a few metres cost no precision).
+const FAR_FROM_ORIGIN: f64 = 10.0;
+
+/// The point the levels are palpated about: far from the coordinates'
+/// origin ([`FAR_FROM_ORIGIN`]; a world kilometres away) volumes and inside
+/// tests lose their precision, so the centre of their bounding box, in
+/// whole metres; else the origin itself.
 fn local_origin(levels: &[LevelInput]) -> nalgebra::Vector3<f64> {
     use nalgebra::Vector3;
     let mut lo = Vector3::repeat(f64::INFINITY);
@@ -377,10 +381,11 @@ fn local_origin(levels: &[LevelInput]) -> nalgebra::Vector3<f64> {
         lo = lo.inf(&v.coords);
         hi = hi.sup(&v.coords);
     }
-    if lo.x > hi.x {
+    let centre = (lo + hi) * 0.5;
+    if lo.x > hi.x || centre.amax() < FAR_FROM_ORIGIN {
         return Vector3::zeros();
     }
-    ((lo + hi) * 500.0).map(f64::round) / 1000.0
+    centre.map(f64::round)
 }
 
 /// Move a mesh by `by` (metres).
