@@ -9,7 +9,7 @@
 set -u
 secs=${1:-300}
 [ $# -gt 0 ] && shift
-targets=${*:-osim_reader mesh_vtp mesh_stl mesh_obj mesh_ply landmarks experiment stiffness_table nifti_labels segmentation_level}
+targets=${*:-osim_reader mesh_vtp mesh_stl mesh_obj mesh_ply landmarks experiment stiffness_table nifti_labels nifti_geometry segmentation_level}
 cd fuzz
 cargo +nightly fuzz build || exit 1
 bin=target/x86_64-unknown-linux-gnu/release

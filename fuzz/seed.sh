@@ -4,7 +4,7 @@
 # checked in.
 set -e
 c=fuzz/corpus
-mkdir -p $c/osim_reader $c/mesh_vtp $c/mesh_stl $c/mesh_obj $c/mesh_ply $c/landmarks $c/experiment $c/stiffness_table $c/nifti_labels $c/segmentation_level
+mkdir -p $c/osim_reader $c/mesh_vtp $c/mesh_stl $c/mesh_obj $c/mesh_ply $c/landmarks $c/experiment $c/stiffness_table $c/nifti_labels $c/nifti_geometry $c/segmentation_level
 cp tests/corpus/osim/*.osim base_model/*.osim $c/osim_reader/
 for e in vtp stl obj ply; do
   cp tests/corpus/mesh/*.$e $c/mesh_$e/ 2>/dev/null || true
@@ -55,6 +55,8 @@ n = 6 * 5 * 4
 nii(sys.argv[1] + '/u8_sform.nii', (6, 5, 4), 2, 1, True, [(i * 7) % 30 for i in range(n)])
 nii(sys.argv[1] + '/i16_qform.nii', (6, 5, 4), 4, 2, False, [(i % 3) * 22 for i in range(n)])
 PY
+# NIfTI-1 headers: the label maps' first 348 bytes.
+for f in $c/nifti_labels/*.nii; do head -c 348 "$f" > $c/nifti_geometry/$(basename "$f" .nii).hdr; done
 # One segmentation level: a format byte (0 STL, 1 OBJ, 2 PLY, 3 VTP),
 # then a closed vertebra surface (the embedded base's small ones, so one
 # palpation stays well under the 2 s timeout).

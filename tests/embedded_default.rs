@@ -112,10 +112,32 @@ fn base_overrides_the_embedded_default() {
 #[test]
 fn variability_runs_outside_the_repository_without_base() {
     let d = tempfile::tempdir().unwrap();
-    let ex = example();
+    // Three palpations of the example differing in one coordinate (the
+    // same file twice is refused).
+    let text = std::fs::read_to_string(example()).unwrap();
+    let sets: Vec<String> = (1..=3)
+        .map(|k| {
+            let p = d.path().join(format!("p{k}.csv"));
+            std::fs::write(
+                &p,
+                text.replacen("T9_SEC,-11.90", &format!("T9_SEC,-11.9{k}"), 1),
+            )
+            .unwrap();
+            p.display().to_string()
+        })
+        .collect();
     let o = run_in(
         d.path(),
-        &["variability", &ex, &ex, &ex, "--out", "var", "--jobs", "1"],
+        &[
+            "variability",
+            &sets[0],
+            &sets[1],
+            &sets[2],
+            "--out",
+            "var",
+            "--jobs",
+            "1",
+        ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(d.path().join("var/variability.json").is_file());

@@ -6,6 +6,10 @@
 
 mod common;
 
+#[path = "hostile_input/everyday.rs"]
+mod everyday;
+#[path = "hostile_input/nifti.rs"]
+mod label_maps;
 #[path = "hostile_input/model_files.rs"]
 mod model_files;
 #[path = "hostile_input/outputs.rs"]

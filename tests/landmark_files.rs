@@ -102,7 +102,7 @@ fn bad_files_give_clear_errors() {
         (
             "binary.csv",
             String::from_utf8_lossy(&[0xff, 0xfe, 0x00, 0x41]).into_owned(),
-            "expected the header",
+            "line 1: file holds a NUL byte: not UTF-8 or UTF-16 text",
         ),
         (
             "bad.json",

@@ -152,3 +152,38 @@ fn mutated_corpora_never_panic_any_reader() {
     }
     eprintln!("{n} mutants of {} files", files.len());
 }
+
+#[test]
+fn mutated_nifti_headers_never_panic_the_label_map_reader() {
+    use nalgebra::Matrix4;
+    use osim_spine::segmentation::{nifti, voxelise};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(19);
+    // A small map, its header written as an oblique qform and as an sform.
+    let turn = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 0.5).to_homogeneous();
+    let map = nifti::LabelMap {
+        dims: [4, 3, 2],
+        labels: (0..24).map(|i| (i % 3) as u16 * 20).collect(),
+        affine: turn * Matrix4::new_nonuniform_scaling(&nalgebra::Vector3::new(0.8, 0.8, 2.5)),
+        transform: "sform",
+        notes: Vec::new(),
+    };
+    let p = Path::new("mutant.nii");
+    let mut n = 0;
+    for how in [
+        voxelise::HeaderTransform::Qform,
+        voxelise::HeaderTransform::Sform,
+    ] {
+        let seed = voxelise::nifti_bytes(&map, how);
+        assert!(nifti::parse(&seed, p).is_ok());
+        for _ in 0..20 * ROUNDS {
+            // Mutations of the header only (the volume stays as long).
+            let mut m = mutate(&seed[..348], &mut rng);
+            m.resize(348, 0);
+            m.extend_from_slice(&seed[348..]);
+            let r = std::panic::catch_unwind(|| nifti::parse(&m, p).map(|l| l.affine));
+            assert!(r.is_ok(), "panicked on header {m:?}");
+            n += 1;
+        }
+    }
+    eprintln!("{n} mutated NIfTI headers");
+}

@@ -157,13 +157,17 @@ fn cli_writes_json_and_svg_and_refuses_bad_input() {
         .unwrap();
     assert!(o.status.success());
     assert_eq!(first, std::fs::read(out.join("variability.json")).unwrap());
-    // Same operator/repetition twice: refused, nothing written.
+    // Same operator/repetition twice (in two files: the same file twice
+    // is refused by its content): refused, nothing written.
     let out2 = d.path().join("out2");
+    let again = d.path().join("again.csv");
+    let copy = std::fs::read_to_string(&files[0]).unwrap() + "# a copy\n";
+    std::fs::write(&again, copy).unwrap();
     let o = std::process::Command::new(common::bin())
         .args([
             "variability",
             &files[0].display().to_string(),
-            &files[0].display().to_string(),
+            &again.display().to_string(),
             "--out",
             &out2.display().to_string(),
         ])

@@ -535,8 +535,9 @@ impl Experiment {
             }
         })?;
         let mut warnings = Vec::new();
+        let measured: BTreeSet<usize> = rows.iter().map(|r| r.case).collect();
         for (i, c) in raw.cases.iter().enumerate() {
-            if !rows.iter().any(|r| r.case == i) {
+            if !measured.contains(&i) {
                 warnings.push(format!(
                     "case '{}' has no row in kinematics.csv: it is not used",
                     c.id
@@ -637,7 +638,8 @@ pub fn parse_kinematics(
     // `#` comment lines blanked here: the csv crate would not count them in
     // its line numbers.
     let text = crate::util::blank_comment_lines(text);
-    let line_at = |p: &csv::Position| crate::util::csv_line(&text, p);
+    let lines = crate::util::CsvLines::new(&text);
+    let line_at = |p: &csv::Position| lines.line(p);
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(true)
         .flexible(true)

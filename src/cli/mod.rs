@@ -110,9 +110,9 @@ pub fn warn_missing_meshes(out: &std::path::Path, missing: &[String], kept: bool
     );
 }
 
-/// Run `f` on a pool of `jobs` worker threads (`None`: one per core).
-/// Results do not depend on the count: parallel work is collected in input
-/// order.
+/// Run `f` on a pool of `jobs` worker threads (`None`: one per core; more
+/// than the cores: the cores, with a note on stderr). Results do not
+/// depend on the count: parallel work is collected in input order.
 pub fn with_jobs<T>(
     jobs: Option<usize>,
     f: impl FnOnce() -> anyhow::Result<T> + Send,
@@ -121,6 +121,14 @@ where
     T: Send,
 {
     use anyhow::Context;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let jobs = match jobs {
+        Some(n) if n > cores => {
+            eprintln!("note: --jobs {n} is more than the {cores} cores: {cores} used");
+            Some(cores)
+        }
+        other => other,
+    };
     rayon::ThreadPoolBuilder::new()
         .num_threads(jobs.unwrap_or(0))
         .build()

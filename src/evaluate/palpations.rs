@@ -21,6 +21,24 @@ pub struct PalpationSet {
 /// palpation is operator "1", repetition 1), the files are taken as
 /// repetitions 1, 2, ... of one operator in the order given.
 pub fn load_palpations(paths: &[PathBuf]) -> Result<Vec<PalpationSet>> {
+    // The same file (by content) twice would be a perfect repeatability.
+    let mut contents: BTreeMap<Vec<u8>, &PathBuf> = BTreeMap::new();
+    for p in paths {
+        let bytes = crate::util::read_bytes_capped(
+            p,
+            crate::landmarks::io::MAX_FILE_BYTES,
+            "landmark files",
+        )?;
+        if let Some(first) = contents.insert(bytes, p) {
+            return Err(Error::invalid(
+                p.display().to_string(),
+                format!(
+                    "the same content as {}: a palpation given twice would show a perfect agreement (ICC 1) that was never measured",
+                    first.display()
+                ),
+            ));
+        }
+    }
     let mut out = Vec::new();
     for p in paths {
         for pal in crate::landmarks::io::read_palpations(p)? {

@@ -74,6 +74,7 @@ use super::io::{read_path, RawLandmarks};
 use super::synth::local_position;
 use super::{Code, LandmarkId, LandmarkSet, Level};
 use crate::anatomy::DimensionTable;
+use crate::util::messages::shown;
 use nalgebra::{DMatrix, Point3, Vector3};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -272,7 +273,7 @@ fn name_findings(raw: &RawLandmarks) -> (Vec<Finding>, BTreeMap<LandmarkId, usiz
                 landmarks: vec![p.name.clone()],
                 message: format!(
                     "unknown landmark name `{}` (expected <LEVEL>_<CODE>, e.g. L3_SEC); ignored",
-                    p.name
+                    shown(&p.name)
                 ),
                 line: p.line,
             }),
@@ -1019,7 +1020,13 @@ fn check_outliers(cx: &mut Ctx, table: &DimensionTable, levels: &[Level]) {
 pub fn format_text(reports: &[CheckReport]) -> String {
     let mut s = String::new();
     for r in reports {
+        let mut per_code: BTreeMap<&str, usize> = BTreeMap::new();
         for f in &r.findings {
+            let n = per_code.entry(f.code.as_str()).or_default();
+            *n += 1;
+            if *n > MAX_LINES_PER_KIND {
+                continue;
+            }
             let sev = match f.severity {
                 Severity::Error => "error",
                 Severity::Warning => "warning",
@@ -1029,12 +1036,22 @@ pub fn format_text(reports: &[CheckReport]) -> String {
             let lm = if f.landmarks.is_empty() {
                 String::new()
             } else {
-                format!(" [{}]", f.landmarks.join(", "))
+                let names: Vec<String> = f.landmarks.iter().map(|n| shown(n)).collect();
+                format!(" [{}]", names.join(", "))
             };
             s.push_str(&format!(
                 "{}{loc}: {sev} {}{lm}: {}\n",
                 r.file, f.code, f.message
             ));
+        }
+        for (code, n) in per_code {
+            if n > MAX_LINES_PER_KIND {
+                s.push_str(&format!(
+                    "{}: ... and {} more {code} like this (all in --format json)\n",
+                    r.file,
+                    n - MAX_LINES_PER_KIND
+                ));
+            }
         }
         if let Some(d) = &r.detection {
             s.push_str(&format!("{}: {}\n", r.file, d.summary()));
@@ -1049,6 +1066,10 @@ pub fn format_text(reports: &[CheckReport]) -> String {
     }
     s
 }
+
+/// Most lines of one finding code per file in the text report; the rest
+/// are counted.
+pub const MAX_LINES_PER_KIND: usize = 20;
 
 /// JSON report (array of per-file reports).
 pub fn format_json(reports: &[CheckReport]) -> String {

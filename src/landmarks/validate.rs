@@ -62,7 +62,7 @@ impl RawLandmarks {
                     loc,
                     format!(
                         "unknown landmark name `{}`: expected <LEVEL>_<CODE> (LEVEL T1..T12, L1..L5, S1; CODE SEC, IEC, PTR, PTL, PBR, PBL, SA, SP, SR, SL, IA, IP, IR, IL)",
-                        p.name
+                        crate::util::messages::shown(&p.name)
                     ),
                 ));
             };

@@ -472,10 +472,17 @@ impl TriMesh {
                 boundary[comp[list[0]]] = true;
             }
         }
+        // Volumes about a vertex of the mesh: about the coordinates' origin
+        // a mesh far from it (a scanner's world) loses the sign to rounding.
+        let o = self
+            .vertices
+            .first()
+            .copied()
+            .unwrap_or_else(Point3::origin);
         let mut vol = vec![0.0; n_comp];
         let mut area_c = vec![(Vector3::zeros(), 0.0); n_comp];
         for (i, [a, b, c]) in self.triangle_corners().enumerate() {
-            vol[comp[i]] += a.coords.dot(&b.coords.cross(&c.coords));
+            vol[comp[i]] += (a - o).dot(&(b - o).cross(&(c - o)));
             let w = 0.5 * (b - a).cross(&(c - a)).norm();
             area_c[comp[i]].0 += w * (a.coords + b.coords + c.coords) / 3.0;
             area_c[comp[i]].1 += w;

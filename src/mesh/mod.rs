@@ -213,6 +213,21 @@ pub fn read_file_bytes(path: &Path) -> Result<Vec<u8>> {
     crate::util::read_bytes_capped(path, MAX_MESH_BYTES, "mesh files")
 }
 
+/// Most triangles a mesh may have: a vertebra's surface needs tens of
+/// thousands; a binary STL declaring more is refused before it is read.
+pub const MAX_MESH_TRIANGLES: usize = 2_000_000;
+
+/// The refusal of a mesh of `n` triangles (over [`MAX_MESH_TRIANGLES`]).
+pub fn too_many_triangles(name: &Path, n: u64) -> Error {
+    Error::parse(
+        name,
+        "triangles",
+        format!(
+            "{n} triangles: meshes are limited to {MAX_MESH_TRIANGLES}; decimate it first (e.g. MeshLab's Quadric Edge Collapse Decimation to 100,000 faces)"
+        ),
+    )
+}
+
 /// Parse in-memory bytes in `format`; `name` is used in error messages.
 pub fn read_bytes(format: Format, bytes: &[u8], name: &Path) -> Result<TriMesh> {
     let mesh = match format {
@@ -221,6 +236,9 @@ pub fn read_bytes(format: Format, bytes: &[u8], name: &Path) -> Result<TriMesh> 
         Format::Obj => obj::read_bytes(bytes, name),
         Format::Ply => ply::read_bytes(bytes, name),
     }?;
+    if mesh.triangles.len() > MAX_MESH_TRIANGLES {
+        return Err(too_many_triangles(name, mesh.triangles.len() as u64));
+    }
     check_coordinates(&mesh, name)?;
     Ok(mesh)
 }

@@ -30,6 +30,9 @@ pub fn read_bytes(bytes: &[u8], name: &Path) -> Result<TriMesh> {
         let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as u64;
         let need = 84 + 50 * n;
         if need == bytes.len() as u64 {
+            if n > super::MAX_MESH_TRIANGLES as u64 {
+                return Err(super::too_many_triangles(name, n));
+            }
             return read_binary(bytes, name);
         }
         if !starts_with_solid(bytes) {

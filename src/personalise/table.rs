@@ -583,7 +583,8 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
     // `#` comment lines blanked here: the csv crate would not count them in
     // its line numbers.
     let text = crate::util::blank_comment_lines(text);
-    let line_at = |p: &csv::Position| crate::util::csv_line(&text, p);
+    let lines = crate::util::CsvLines::new(&text);
+    let line_at = |p: &csv::Position| lines.line(p);
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(false)
         .flexible(false)

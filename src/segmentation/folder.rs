@@ -31,6 +31,7 @@ pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<Str
     let mut by_level: BTreeMap<Level, Vec<PathBuf>> = BTreeMap::new();
     let mut notes = Vec::new();
     let mut masks = Vec::new();
+    let mut others = Vec::new();
     for p in paths {
         if let Some(stem) = super::nifti_stem(&p).filter(|_| p.is_file()) {
             if matches!(class_of_name(&stem), LabelClass::Level(_)) {
@@ -40,12 +41,20 @@ pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<Str
         }
         let Some(stem) = mesh_stem(&p) else { continue };
         match class_of_name(&stem) {
-            LabelClass::Level(l) => by_level.entry(l).or_default().push(p),
-            _ => notes.push(format!(
-                "{}: not a T1..L5 vertebra or the sacrum: ignored",
-                p.display()
+            LabelClass::Level(l) if !p.is_file() => notes.push(format!(
+                "{}: named as {l}'s mesh but {}: not read",
+                p.display(),
+                not_a_file(&p)
             )),
+            LabelClass::Level(l) => by_level.entry(l).or_default().push(p),
+            _ => others.push(p.display().to_string()),
         }
+    }
+    if !others.is_empty() {
+        notes.push(format!(
+            "not a T1..L5 vertebra or the sacrum, ignored: {}",
+            crate::util::messages::bounded_list(&others, 5)
+        ));
     }
     for (level, files) in &by_level {
         if files.len() > 1 && !is_ts_sacrum_pair(*level, files) {
@@ -77,14 +86,27 @@ pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<Str
     Ok((by_level, notes))
 }
 
-/// The stem of a mesh file (`vertebrae_L3` of `vertebrae_L3.stl`), `None`
-/// for other files.
+/// The stem of a mesh file name (`vertebrae_L3` of `vertebrae_L3.stl`),
+/// `None` for other names.
 fn mesh_stem(p: &Path) -> Option<String> {
     let ext = p.extension()?.to_str()?.to_ascii_lowercase();
-    if !p.is_file() || !EXTENSIONS.contains(&ext.as_str()) {
+    if !EXTENSIONS.contains(&ext.as_str()) {
         return None;
     }
     Some(p.file_stem()?.to_str()?.to_string())
+}
+
+/// What a path that is not a regular file is (a folder, a device, a FIFO,
+/// a broken link), in words.
+fn not_a_file(p: &Path) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    match std::fs::metadata(p) {
+        Err(_) => "a broken link (or unreadable)",
+        Ok(m) if m.is_dir() => "a folder",
+        Ok(m) if m.file_type().is_block_device() || m.file_type().is_char_device() => "a device",
+        Ok(m) if m.file_type().is_fifo() => "a FIFO",
+        Ok(_) => "not a regular file",
+    }
 }
 
 /// TotalSegmentator's `sacrum.*` + `vertebrae_S1.*`.
@@ -101,8 +123,11 @@ fn is_ts_sacrum_pair(level: Level, files: &[PathBuf]) -> bool {
 
 /// Read one level's mesh (file units times `to_metres` -> metres),
 /// merging TotalSegmentator's sacrum pair; refuses empty and open meshes.
-pub fn read_level(files: &[PathBuf], to_metres: f64) -> Result<TriMesh> {
+/// Also returns the number of triangles whose winding was turned to make
+/// the surface consistent and outward.
+pub fn read_level(files: &[PathBuf], to_metres: f64) -> Result<(TriMesh, usize)> {
     let mut parts = Vec::new();
+    let mut flipped = 0;
     for f in files {
         let len = std::fs::metadata(f).map_err(|e| Error::io(f, e))?.len();
         if len > MAX_MESH_BYTES {
@@ -113,15 +138,19 @@ pub fn read_level(files: &[PathBuf], to_metres: f64) -> Result<TriMesh> {
         }
         let m = mesh::read(f)?;
         let m = m.scaled(&nalgebra::Vector3::repeat(to_metres));
-        parts.push(closed(m, f)?);
+        let (m, k) = closed(m, f)?;
+        flipped += k;
+        parts.push(m);
     }
     let refs: Vec<&TriMesh> = parts.iter().collect();
-    TriMesh::merge(&refs)
+    Ok((TriMesh::merge(&refs)?, flipped))
 }
 
 /// The mesh welded (coincident vertices of STL-like files joined) and
-/// checked: triangles present, no boundary edge.
-pub fn closed(m: TriMesh, f: &Path) -> Result<TriMesh> {
+/// checked: triangles present, no boundary edge; its winding made
+/// consistent and outward before any volume is taken (mixed windings are
+/// common in exported surfaces). Also returns the triangles turned.
+pub fn closed(m: TriMesh, f: &Path) -> Result<(TriMesh, usize)> {
     let what = f.display().to_string();
     if m.triangles.is_empty() || m.vertices.is_empty() {
         return Err(Error::invalid(what, "the mesh is empty (no triangles)"));
@@ -138,12 +167,7 @@ pub fn closed(m: TriMesh, f: &Path) -> Result<TriMesh> {
             ),
         ));
     }
-    if w.signed_volume() < 0.0 {
-        let mut w = w;
-        for t in w.triangles.iter_mut() {
-            t.swap(1, 2);
-        }
-        return Ok(w);
-    }
-    Ok(w)
+    let mut w = w;
+    let flipped = w.orient_consistently();
+    Ok((w, flipped))
 }

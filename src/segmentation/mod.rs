@@ -197,7 +197,19 @@ fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
         .collect();
     let mut levels = Vec::new();
     for (level, paths) in files {
-        let mesh = folder::read_level(&paths, units.to_metres())?;
+        let (mesh, flipped) = folder::read_level(&paths, units.to_metres())?;
+        // A whole-mesh turn (an inward surface) is routine; a mixed winding
+        // is worth a word.
+        if flipped > 0 && flipped < mesh.triangles.len() {
+            findings.push(Finding::new(
+                Some(level),
+                Severity::Info,
+                format!(
+                    "the mesh's triangle winding was mixed: {flipped} of {} triangles turned to make it consistent and outward",
+                    mesh.triangles.len()
+                ),
+            ));
+        }
         if paths.len() > 1 {
             findings.push(Finding::new(
                 Some(level),
@@ -326,6 +338,11 @@ fn counts(p: &VertebraPalpation) -> (usize, usize) {
 /// Read, screen, palpate and assemble (see the module documentation).
 pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
     let mut loaded = load(path, opts)?;
+    // Palpated about a local origin, moved back before assembling.
+    let local = local_origin(&loaded.levels);
+    for l in loaded.levels.iter_mut() {
+        shift_mesh(&mut l.mesh, -local);
+    }
     assemble::select_levels(&mut loaded, opts.levels)?;
     assemble::screen(&mut loaded);
     assemble::check_naming(&mut loaded)?;
@@ -337,6 +354,55 @@ pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
             .push(Finding::new(None, Severity::Warning, n));
     }
     let world = assemble::world_frame(&mut loaded, &hints)?;
-    let results = palpate_levels(&loaded.levels, &hints);
+    let mut results = palpate_levels(&loaded.levels, &hints);
+    for l in loaded.levels.iter_mut() {
+        shift_mesh(&mut l.mesh, local);
+    }
+    for p in results.iter_mut().filter_map(|(_, r)| r.as_mut().ok()) {
+        shift_palpation(p, local);
+    }
     assemble::assemble(loaded, world, results, opts)
+}
+
+/// Distance from the coordinates' origin (m) beyond which a segmentation
+/// is palpated about a local origin: nearer, the coordinates are kept as
+/// they are (a scanner's offsets of up to a few metres cost no precision).
+const FAR_FROM_ORIGIN: f64 = 10.0;
+
+/// The point the levels are palpated about: far from the coordinates'
+/// origin ([`FAR_FROM_ORIGIN`]; a world kilometres away) volumes and inside
+/// tests lose their precision, so the centre of their bounding box, in
+/// whole metres; else the origin itself.
+fn local_origin(levels: &[LevelInput]) -> nalgebra::Vector3<f64> {
+    use nalgebra::Vector3;
+    let mut lo = Vector3::repeat(f64::INFINITY);
+    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+    for v in levels.iter().flat_map(|l| &l.mesh.vertices) {
+        lo = lo.inf(&v.coords);
+        hi = hi.sup(&v.coords);
+    }
+    let centre = (lo + hi) * 0.5;
+    if lo.x > hi.x || centre.amax() < FAR_FROM_ORIGIN {
+        return Vector3::zeros();
+    }
+    centre.map(f64::round)
+}
+
+/// Move a mesh by `by` (metres).
+fn shift_mesh(m: &mut TriMesh, by: nalgebra::Vector3<f64>) {
+    for v in m.vertices.iter_mut() {
+        *v += by;
+    }
+}
+
+/// Move a level's palpation (every point it holds) by `by` (metres).
+fn shift_palpation(p: &mut VertebraPalpation, by: nalgebra::Vector3<f64>) {
+    p.frame.translation.vector += by;
+    for lm in p.landmarks.values_mut() {
+        lm.point += by;
+    }
+    p.centre += by;
+    for q in p.furthest.values_mut() {
+        *q += by;
+    }
 }

@@ -13,7 +13,8 @@
 
 use crate::error::{Error, Result};
 use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
-use nifti::{NiftiHeader, NiftiObject, NiftiType};
+pub use nifti::NiftiHeader;
+use nifti::NiftiType;
 use std::path::Path;
 
 /// Largest label map read (voxels): 2^29 (e.g. 1024 x 1024 x 512), about
@@ -46,6 +47,11 @@ impl LabelMap {
         Point3::from_homogeneous(self.affine * ijk.to_homogeneous()).unwrap_or(*ijk)
     }
 
+    /// World (RAS mm) position of voxel (0, 0, 0).
+    pub fn origin(&self) -> Vector3<f64> {
+        self.affine.fixed_view::<3, 1>(0, 3).into_owned()
+    }
+
     /// Voxel edge lengths along i, j, k (mm).
     pub fn spacing(&self) -> Vector3<f64> {
         let m = self.affine.fixed_view::<3, 3>(0, 0);
@@ -58,56 +64,87 @@ impl LabelMap {
 pub const MAX_FILE_BYTES: u64 = 4 * MAX_VOXELS + (1 << 20);
 
 /// Read and check a label map: the bytes come through the input gate
-/// ([`crate::util::input`]), a `.nii.gz` is decompressed with the same cap
-/// on the bytes it yields, then [`parse`].
+/// ([`crate::util::input`]), then [`parse`]; a `.nii.gz` is decompressed
+/// as a stream, never whole.
 pub fn read(path: &Path) -> Result<LabelMap> {
     let raw = crate::util::input::read_bytes_capped(path, MAX_FILE_BYTES, "label maps")?;
-    let bytes = if raw.starts_with(&[0x1f, 0x8b]) {
-        gunzip_capped(&raw, path)?
+    if raw.starts_with(&[0x1f, 0x8b]) {
+        let gz = || flate2::read::MultiGzDecoder::new(&raw[..]);
+        read_from(gz, true, path)
     } else {
-        raw
-    };
-    parse(&bytes, path)
-}
-
-/// Decompress gzip bytes, refusing more than [`MAX_FILE_BYTES`] of output
-/// (a gzip bomb is refused, not expanded).
-fn gunzip_capped(raw: &[u8], path: &Path) -> Result<Vec<u8>> {
-    use std::io::Read;
-    let mut out = Vec::new();
-    flate2::read::MultiGzDecoder::new(raw)
-        .take(MAX_FILE_BYTES + 1)
-        .read_to_end(&mut out)
-        .map_err(|e| Error::parse(path, "gzip", format!("not a readable gzip stream ({e})")))?;
-    if out.len() as u64 > MAX_FILE_BYTES {
-        return Err(Error::parse(
-            path,
-            "gzip",
-            format!("decompresses to more than {MAX_FILE_BYTES} bytes: refusing to expand it"),
-        ));
+        parse(&raw, path)
     }
-    Ok(out)
 }
 
 /// Check and read a single-file NIfTI-1 image (`.nii` bytes, already
 /// decompressed); `path` names the file in errors.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<LabelMap> {
-    let header = NiftiHeader::from_reader(bytes).map_err(|e| nifti_error(path, "header", e))?;
+    read_from(|| bytes, false, path)
+}
+
+/// Read a label map from the byte stream `open()` gives (called once per
+/// pass): the header checked (dimensions, datatype, geometry, the volume's
+/// declared size) before anything is allocated; then the volume streamed
+/// twice, first to check every label and find the labelled voxels, then to
+/// keep only their box (with a voxel's margin, so a structure touches the
+/// box's edge only where it touches the map's). A `stream` (gzip) must end
+/// where its header says: one that holds more is refused, not expanded.
+fn read_from<R: std::io::Read>(
+    open: impl Fn() -> R,
+    stream: bool,
+    path: &Path,
+) -> Result<LabelMap> {
+    // The header, from its first 348 bytes.
+    let mut head = [0u8; 348];
+    let got = fill(&mut open(), &mut head, path)?;
+    if got < head.len() {
+        return Err(Error::parse(
+            path,
+            "header",
+            format!("truncated: {got} bytes, a NIfTI-1 header has 348"),
+        ));
+    }
+    let header = NiftiHeader::from_reader(&head[..]).map_err(|e| nifti_error(path, "header", e))?;
     let dims = check_dims(&header, path)?;
     let dtype = check_datatype(&header, path)?;
-    check_length(&header, dims, dtype, bytes.len(), path)?;
-    let (affine, transform, mut notes) = header_affine(&header, path)?;
-    // The header is sound: now the volume. Extensions are not used, and the
-    // crate would allocate what their size fields claim: the reader sees
-    // the extender bytes as 0 (no extensions) and the volume right after
-    // (`check_length` put vox_offset within the file, at 352 or more).
-    use std::io::Read;
-    let volume_at = header.vox_offset as usize;
-    let no_ext = bytes[..348].chain(&[0u8; 4][..]).chain(&bytes[volume_at..]);
-    let obj =
-        nifti::InMemNiftiObject::from_reader(no_ext).map_err(|e| nifti_error(path, "volume", e))?;
-    let volume = obj.into_volume();
-    let labels = to_labels(volume, dtype, path)?;
+    let Geometry {
+        mut affine,
+        transform,
+        mut notes,
+    } = geometry(&header, path)?;
+    let volume = check_volume_offset(&header, path)?;
+    let voxels = Voxels {
+        dims,
+        dtype,
+        big_endian: header.endianness == nifti::Endianness::Big,
+        offset: volume,
+        stream,
+    };
+    // Pass 1: every value a label; the box of the labelled voxels.
+    let mut lo = dims;
+    let mut hi = [0usize; 3];
+    voxels.each(&mut open(), path, |ijk, _| {
+        for k in 0..3 {
+            lo[k] = lo[k].min(ijk[k]);
+            hi[k] = hi[k].max(ijk[k]);
+        }
+    })?;
+    // The kept box: the labelled voxels and a voxel around them (the
+    // first voxel when none is labelled).
+    if lo[0] > hi[0] {
+        (lo, hi) = ([0; 3], [0; 3]);
+    }
+    let lo = [0, 1, 2].map(|k| lo[k].saturating_sub(1));
+    let hi = [0, 1, 2].map(|k| (hi[k] + 1).min(dims[k] - 1));
+    let kept = [0, 1, 2].map(|k| hi[k] - lo[k] + 1);
+    // Pass 2: the box's labels.
+    let mut labels = vec![0u16; kept.iter().product()];
+    voxels.each(&mut open(), path, |ijk, label| {
+        let [i, j, k] = [0, 1, 2].map(|k| ijk[k] - lo[k]);
+        labels[i + kept[0] * (j + kept[1] * k)] = label;
+    })?;
+    let corner = affine * Point3::from(lo.map(|x| x as f64)).to_homogeneous();
+    affine.set_column(3, &corner);
     if header.scl_slope != 0.0 && (header.scl_slope != 1.0 || header.scl_inter != 0.0) {
         notes.push(format!(
             "intensity scaling (scl_slope {}, scl_inter {}) ignored: labels are the stored integers",
@@ -115,7 +152,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LabelMap> {
         ));
     }
     Ok(LabelMap {
-        dims,
+        dims: kept,
         labels,
         affine,
         transform,
@@ -123,15 +160,29 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<LabelMap> {
     })
 }
 
-/// The file holds the whole volume the header announces (checked before
-/// the volume is allocated): `vox_offset` plus voxels x bytes per voxel.
-fn check_length(
-    h: &NiftiHeader,
-    dims: [usize; 3],
-    t: NiftiType,
-    len: usize,
-    path: &Path,
-) -> Result<()> {
+/// Read into `buf` until it is full or the stream ends: the bytes read.
+fn fill(r: &mut impl std::io::Read, buf: &mut [u8], path: &Path) -> Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => {
+                return Err(Error::parse(
+                    path,
+                    "gzip",
+                    format!("not a readable gzip stream ({e})"),
+                ))
+            }
+        }
+    }
+    Ok(n)
+}
+
+/// The volume's byte offset, `vox_offset`: within the file's cap and after
+/// the header (extensions are not used).
+fn check_volume_offset(h: &NiftiHeader, path: &Path) -> Result<u64> {
     let offset = h.vox_offset;
     if !offset.is_finite() || offset < 352.0 || offset > MAX_FILE_BYTES as f32 {
         return Err(Error::parse(
@@ -140,19 +191,124 @@ fn check_length(
             format!("{offset}: expected the byte offset of the volume (352 or more)"),
         ));
     }
-    let voxels = dims.iter().map(|&d| d as u64).product::<u64>();
-    let need = offset as u64 + voxels * t.size_of() as u64;
-    if (len as u64) < need {
-        return Err(Error::parse(
-            path,
-            "volume",
-            format!(
-                "the file has {len} bytes but its header announces {need} ({}x{}x{} voxels of {} bytes from offset {offset})",
-                dims[0], dims[1], dims[2], t.size_of()
-            ),
-        ));
+    Ok(offset as u64)
+}
+
+/// Where and how a header says its voxels are stored.
+struct Voxels {
+    dims: [usize; 3],
+    dtype: NiftiType,
+    big_endian: bool,
+    /// Byte offset of the first voxel.
+    offset: u64,
+    /// A decompressed stream, which must end with the volume.
+    stream: bool,
+}
+
+impl Voxels {
+    /// Call `f` with each labelled voxel's (i, j, k) and label, in file
+    /// order (i fastest), reading `r` a slab at a time; the first value that is not
+    /// a label, a volume shorter than announced, or (for a stream) more
+    /// bytes after it, is an error.
+    fn each(
+        &self,
+        r: &mut impl std::io::Read,
+        path: &Path,
+        mut f: impl FnMut([usize; 3], u16),
+    ) -> Result<()> {
+        let size = self.dtype.size_of();
+        let total = self.dims.iter().product::<usize>();
+        let need = self.offset + (total * size) as u64;
+        let short = |have: u64| {
+            let [x, y, z] = self.dims;
+            Error::parse(
+                path,
+                "volume",
+                format!(
+                    "truncated: the file has {have} bytes but its header announces {need} ({x}x{y}x{z} voxels of {size} bytes from offset {})",
+                    self.offset
+                ),
+            )
+        };
+        // Skip the header and extensions.
+        let mut skip = vec![0u8; 1 << 16];
+        let mut at = 0u64;
+        while at < self.offset {
+            let want = (self.offset - at).min(skip.len() as u64) as usize;
+            let n = fill(r, &mut skip[..want], path)?;
+            at += n as u64;
+            if n < want {
+                return Err(short(at));
+            }
+        }
+        // The voxels, a slab of up to 64 Ki at a time; an all-zero slab
+        // (background) at once.
+        let per = 1usize << 16;
+        let mut buf = vec![0u8; per * size];
+        let mut i = 0usize;
+        while i < total {
+            let n = (total - i).min(per);
+            let slab = &mut buf[..n * size];
+            let got = fill(r, slab, path)?;
+            if got < n * size {
+                return Err(short(at + got as u64));
+            }
+            at += got as u64;
+            if slab.iter().all(|&b| b == 0) {
+                i += n;
+                continue;
+            }
+            for v in slab.chunks_exact(size) {
+                let x = self.value(v);
+                if !(0.0..=65535.0).contains(&x) || x.fract() != 0.0 {
+                    return Err(Error::parse(
+                        path,
+                        format!("voxel {i}"),
+                        format!("value {x} is not a label (an integer 0..65535)"),
+                    ));
+                }
+                if x != 0.0 {
+                    let [nx, ny, _] = self.dims;
+                    f([i % nx, (i / nx) % ny, i / (nx * ny)], x as u16);
+                }
+                i += 1;
+            }
+        }
+        if self.stream && fill(r, &mut skip[..1], path)? > 0 {
+            return Err(Error::parse(
+                path,
+                "gzip",
+                format!("the stream holds more than the {need} bytes its header announces: refusing to expand it"),
+            ));
+        }
+        Ok(())
     }
-    Ok(())
+
+    /// One stored value (`bytes` of the datatype's size), as a number.
+    fn value(&self, bytes: &[u8]) -> f64 {
+        macro_rules! num {
+            ($ty:ty) => {{
+                let a = bytes.try_into().unwrap_or_default();
+                if self.big_endian {
+                    <$ty>::from_be_bytes(a) as f64
+                } else {
+                    <$ty>::from_le_bytes(a) as f64
+                }
+            }};
+        }
+        match self.dtype {
+            NiftiType::Uint8 => f64::from(bytes[0]),
+            NiftiType::Int8 => f64::from(bytes[0] as i8),
+            NiftiType::Uint16 => num!(u16),
+            NiftiType::Int16 => num!(i16),
+            NiftiType::Uint32 => num!(u32),
+            NiftiType::Int32 => num!(i32),
+            NiftiType::Uint64 => num!(u64),
+            NiftiType::Int64 => num!(i64),
+            NiftiType::Float32 => num!(f32),
+            _ => num!(f64),
+        }
+    }
 }
 
 /// An error of the `nifti` crate with the file and stage named.
@@ -248,17 +404,43 @@ fn check_datatype(h: &NiftiHeader, path: &Path) -> Result<NiftiType> {
     }
 }
 
-/// Voxel -> world RAS mm from the sform (preferred) or the qform; refuses a
-/// missing, non-finite, zero or singular transform.
-fn header_affine(
-    h: &NiftiHeader,
-    path: &Path,
-) -> Result<(Matrix4<f64>, &'static str, Vec<String>)> {
+/// A header's voxel-to-world transform, as the NIfTI-1 reference
+/// (`nifti1_io.c`) and nibabel read it.
+#[derive(Debug, Clone)]
+pub struct Geometry {
+    /// Voxel index (i, j, k) -> world RAS millimetres.
+    pub affine: Matrix4<f64>,
+    /// Which transform gave it (`sform`, `qform`).
+    pub transform: &'static str,
+    /// Repairs made on the way (a voxel size's sign, a quaternion's norm,
+    /// units assumed), each said once.
+    pub notes: Vec<String>,
+}
+
+/// The header's voxel-to-world transform in millimetres: the sform when
+/// `sform_code > 0`, else the qform when `qform_code > 0`, as
+/// `nifti_convert_nhdr2nim` chooses. The qform follows
+/// `nifti_quatern_to_mat44`: a quaternion (b, c, d) of norm 1 or more is
+/// normalised (a half turn), the handedness is `qfac = pixdim[0]`'s alone,
+/// a zero voxel size is taken as 1 and a negative one by its magnitude
+/// (nibabel's repair; never a mirror). Refused: neither code set, a
+/// negative code or a negative `qfac` other than -1 (the two readers
+/// differ on them), a non-finite or singular transform.
+pub fn geometry(h: &NiftiHeader, path: &Path) -> Result<Geometry> {
     let mut notes = Vec::new();
+    for (field, code) in [("sform_code", h.sform_code), ("qform_code", h.qform_code)] {
+        if code < 0 {
+            return Err(Error::parse(
+                path,
+                format!("header {field}"),
+                format!("{code}: a transform code is 0 (unset) or positive; readers disagree on a negative one"),
+            ));
+        }
+    }
     let (mut a, which) = if h.sform_code > 0 {
         (sform(h), "sform")
     } else if h.qform_code > 0 {
-        (qform(h), "qform")
+        (qform(h, path, &mut notes)?, "qform")
     } else {
         return Err(Error::parse(
             path,
@@ -277,7 +459,11 @@ fn header_affine(
     };
     a.fixed_view_mut::<3, 4>(0, 0).scale_mut(scale);
     check_affine(&a, which, path)?;
-    Ok((a, which, notes))
+    Ok(Geometry {
+        affine: a,
+        transform: which,
+        notes,
+    })
 }
 
 /// The sform rows.
@@ -292,10 +478,19 @@ fn sform(h: &NiftiHeader) -> Matrix4<f64> {
     m
 }
 
-/// The qform: rotation from the quaternion (b, c, d), voxel sizes
-/// `pixdim[1..3]`, `qfac = pixdim[0]` (-1 flips k), offsets.
-fn qform(h: &NiftiHeader) -> Matrix4<f64> {
-    let (b, c, d) = (h.quatern_b as f64, h.quatern_c as f64, h.quatern_d as f64);
+/// The qform (`nifti_quatern_to_mat44`): rotation from the quaternion
+/// (b, c, d), voxel sizes `pixdim[1..3]`, `qfac = pixdim[0]` (-1 flips k),
+/// offsets.
+fn qform(h: &NiftiHeader, path: &Path, notes: &mut Vec<String>) -> Result<Matrix4<f64>> {
+    let qfac = h.pixdim[0];
+    if qfac < 0.0 && qfac != -1.0 {
+        return Err(Error::parse(
+            path,
+            "header pixdim[0]",
+            format!("qfac {qfac}: expected 1 or -1 (nifti1_io reads it as -1, a mirrored k axis, nibabel as 1): the patient's handedness is ambiguous"),
+        ));
+    }
+    let (b, c, d) = unit_quaternion(h, notes);
     let a = (1.0 - (b * b + c * c + d * d)).max(0.0).sqrt();
     #[rustfmt::skip]
     let r = Matrix3::new(
@@ -303,19 +498,56 @@ fn qform(h: &NiftiHeader) -> Matrix4<f64> {
         2.0 * (b * c + a * d), a * a + c * c - b * b - d * d, 2.0 * (c * d - a * b),
         2.0 * (b * d - a * c), 2.0 * (c * d + a * b), a * a + d * d - c * c - b * b,
     );
-    let qfac = if h.pixdim[0] < 0.0 { -1.0 } else { 1.0 };
-    let s = Vector3::new(
-        h.pixdim[1] as f64,
-        h.pixdim[2] as f64,
-        qfac * h.pixdim[3] as f64,
-    );
+    let mut s = Vector3::zeros();
+    for k in 0..3 {
+        s[k] = voxel_size(h.pixdim[k + 1], k + 1, notes);
+    }
+    if qfac < 0.0 {
+        s.z = -s.z;
+    }
     let mut m = Matrix4::identity();
     m.fixed_view_mut::<3, 3>(0, 0)
         .copy_from(&(r * Matrix3::from_diagonal(&s)));
     m[(0, 3)] = h.quatern_x as f64;
     m[(1, 3)] = h.quatern_y as f64;
     m[(2, 3)] = h.quatern_z as f64;
-    m
+    Ok(m)
+}
+
+/// The quaternion's (b, c, d); of norm 1 or more (a = 0 within 1e-7, as
+/// nifti1_io decides), scaled to norm 1, with a note when it was above 1.
+fn unit_quaternion(h: &NiftiHeader, notes: &mut Vec<String>) -> (f64, f64, f64) {
+    let (b, c, d) = (h.quatern_b as f64, h.quatern_c as f64, h.quatern_d as f64);
+    let n2 = b * b + c * c + d * d;
+    if 1.0 - n2 >= 1e-7 {
+        return (b, c, d);
+    }
+    if n2 > 1.0 + 1e-6 {
+        notes.push(format!(
+            "qform quaternion (b, c, d) = ({b}, {c}, {d}) has norm {:.4} > 1: normalised to a half turn, as the NIfTI-1 reference does",
+            n2.sqrt()
+        ));
+    }
+    let n = n2.sqrt();
+    (b / n, c / n, d / n)
+}
+
+/// A qform voxel size: a zero (or non-finite) one taken as 1 mm-unit, a
+/// negative one by its magnitude, each with a note; never a mirror.
+fn voxel_size(x: f32, k: usize, notes: &mut Vec<String>) -> f64 {
+    if x > 0.0 {
+        x as f64
+    } else if x < 0.0 {
+        notes.push(format!(
+            "pixdim[{k}] {x} is negative: its magnitude used (the handedness is qfac's, pixdim[0])"
+        ));
+        -(x as f64)
+    } else {
+        notes.push(format!(
+            "pixdim[{k}] {x} is not a voxel size: 1 used, as the NIfTI-1 reference does"
+        ));
+        1.0
+    }
 }
 
 /// Finite, every voxel edge non-zero, and not singular (the three edges
@@ -336,59 +568,6 @@ fn check_affine(a: &Matrix4<f64>, which: &str, path: &Path) -> Result<()> {
         ));
     }
     Ok(())
-}
-
-/// The volume's values as 16-bit labels: integer, 0..=65535.
-fn to_labels(v: nifti::InMemNiftiVolume, t: NiftiType, path: &Path) -> Result<Vec<u16>> {
-    macro_rules! conv {
-        ($ty:ty) => {{
-            let data: Vec<$ty> = v
-                .into_nifti_typed_data()
-                .map_err(|e| nifti_error(path, "volume", e))?;
-            labels_from(data.into_iter().map(|x| x as f64), path)
-        }};
-    }
-    match t {
-        NiftiType::Uint8 => {
-            let data: Vec<u8> = v
-                .into_nifti_typed_data()
-                .map_err(|e| nifti_error(path, "volume", e))?;
-            Ok(data.into_iter().map(u16::from).collect())
-        }
-        NiftiType::Uint16 => v
-            .into_nifti_typed_data()
-            .map_err(|e| nifti_error(path, "volume", e)),
-        NiftiType::Int8 => conv!(i8),
-        NiftiType::Int16 => conv!(i16),
-        NiftiType::Uint32 => conv!(u32),
-        NiftiType::Int32 => conv!(i32),
-        NiftiType::Uint64 => conv!(u64),
-        NiftiType::Int64 => conv!(i64),
-        NiftiType::Float32 => conv!(f32),
-        NiftiType::Float64 => conv!(f64),
-        other => Err(Error::parse(
-            path,
-            "header datatype",
-            format!("datatype {other:?} is not supported for a label map"),
-        )),
-    }
-}
-
-/// Values as labels; the first negative, non-integer or too large value is
-/// an error naming its voxel.
-fn labels_from(values: impl Iterator<Item = f64>, path: &Path) -> Result<Vec<u16>> {
-    let mut out = Vec::with_capacity(values.size_hint().0);
-    for (i, x) in values.enumerate() {
-        if !(0.0..=65535.0).contains(&x) || x.fract() != 0.0 {
-            return Err(Error::parse(
-                path,
-                format!("voxel {i}"),
-                format!("value {x} is not a label (an integer 0..65535)"),
-            ));
-        }
-        out.push(x as u16);
-    }
-    Ok(out)
 }
 
 #[cfg(test)]

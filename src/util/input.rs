@@ -7,8 +7,9 @@
 //! - The size cap is enforced on the bytes actually read (`take(cap + 1)`),
 //!   not on the metadata, which is 0 for devices and may change while the
 //!   file is read.
-//! - Text files must be UTF-8 (a UTF-8 byte-order mark is allowed and
-//!   dropped; UTF-16 is named as such).
+//! - Text files are UTF-8 (a UTF-8 byte-order mark is allowed and
+//!   dropped) or UTF-16 (with or without a byte-order mark), decoded; CR-only
+//!   line ends read as line ends.
 
 use crate::error::{Error, Result};
 use std::fs::File;
@@ -131,24 +132,98 @@ pub fn read_text_capped(path: &Path, cap: u64, what: &str) -> Result<String> {
     decode_utf8(path, bytes)
 }
 
-/// `bytes` as UTF-8 text, or an error naming the line of the first bad byte
-/// (and UTF-16 by its byte-order mark).
+/// `bytes` as text: UTF-8 (a byte-order mark dropped), or UTF-16 (by its
+/// byte-order mark, or without one by the NUL bytes between ASCII
+/// characters, as spreadsheets' "Unicode text" writes it) decoded; classic
+/// Mac line ends (CR only) read as line ends. An error names the line of
+/// the first byte that is not text (a NUL is not).
 pub fn decode_utf8(path: &Path, mut bytes: Vec<u8>) -> Result<String> {
-    if bytes.starts_with(&[0xFF, 0xFE]) || bytes.starts_with(&[0xFE, 0xFF]) {
-        return Err(Error::parse(
-            path,
-            "line 1",
-            "file is UTF-16 text; save it as UTF-8",
-        ));
+    if let Some(big_endian) = utf16_order(&bytes) {
+        return decode_utf16(path, &bytes, big_endian).map(mac_line_ends);
     }
     if bytes.starts_with(&[0xEF, 0xBB, 0xBF]) {
         bytes.drain(..3);
     }
-    String::from_utf8(bytes).map_err(|e| {
+    if let Some(at) = bytes.iter().position(|&b| b == 0) {
+        let line = 1 + bytes[..at].iter().filter(|&&b| b == b'\n').count();
+        return Err(Error::parse(
+            path,
+            format!("line {line}"),
+            "file holds a NUL byte: not UTF-8 or UTF-16 text",
+        ));
+    }
+    String::from_utf8(bytes).map(mac_line_ends).map_err(|e| {
         let at = e.utf8_error().valid_up_to();
         let line = 1 + e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count();
         Error::parse(path, format!("line {line}"), "file is not valid UTF-8 text")
     })
+}
+
+/// UTF-16 and its byte order (`true`: big-endian): a byte-order mark, or
+/// no mark and a NUL in every other byte of the first characters.
+fn utf16_order(bytes: &[u8]) -> Option<bool> {
+    if bytes.starts_with(&[0xFF, 0xFE]) {
+        return Some(false);
+    }
+    if bytes.starts_with(&[0xFE, 0xFF]) {
+        return Some(true);
+    }
+    let head = &bytes[..bytes.len().min(64) & !1];
+    if head.len() < 4 || bytes.len() % 2 != 0 {
+        return None;
+    }
+    let nul_at = |k: usize| head.chunks_exact(2).all(|c| c[k] == 0 && c[1 - k] != 0);
+    if nul_at(1) {
+        Some(false)
+    } else if nul_at(0) {
+        Some(true)
+    } else {
+        None
+    }
+}
+
+/// UTF-16 bytes (a byte-order mark dropped) as a string; an unpaired
+/// surrogate is an error naming its line.
+fn decode_utf16(path: &Path, bytes: &[u8], big_endian: bool) -> Result<String> {
+    if bytes.len() % 2 != 0 {
+        return Err(Error::parse(
+            path,
+            "file",
+            "UTF-16 text of an odd number of bytes: truncated",
+        ));
+    }
+    let units = bytes.chunks_exact(2).map(|c| {
+        if big_endian {
+            u16::from_be_bytes([c[0], c[1]])
+        } else {
+            u16::from_le_bytes([c[0], c[1]])
+        }
+    });
+    let mut text = String::with_capacity(bytes.len() / 2);
+    for c in char::decode_utf16(units) {
+        match c {
+            Ok('\u{FEFF}') if text.is_empty() => {}
+            Ok('\0') | Err(_) => {
+                let line = 1 + text.matches('\n').count();
+                return Err(Error::parse(
+                    path,
+                    format!("line {line}"),
+                    "file is not valid UTF-16 text",
+                ));
+            }
+            Ok(c) => text.push(c),
+        }
+    }
+    Ok(text)
+}
+
+/// Text whose lines end in CR alone (no LF anywhere) with LF line ends.
+fn mac_line_ends(text: String) -> String {
+    if text.contains('\r') && !text.contains('\n') {
+        text.replace('\r', "\n")
+    } else {
+        text
+    }
 }
 
 #[cfg(test)]
@@ -181,6 +256,19 @@ mod tests {
         assert_eq!(decode_utf8(p, b"\xEF\xBB\xBFa,b".to_vec()).unwrap(), "a,b");
         let e = decode_utf8(p, b"a\nb\xFF".to_vec()).unwrap_err();
         assert!(e.to_string().contains("line 2"), "{e}");
-        assert!(decode_utf8(p, b"\xFF\xFEa\0".to_vec()).is_err());
+        assert_eq!(decode_utf8(p, b"\xFF\xFEa\0,\0".to_vec()).unwrap(), "a,");
+        assert_eq!(decode_utf8(p, b"\0a\0,\0b\0\n".to_vec()).unwrap(), "a,b\n");
+        assert_eq!(
+            decode_utf8(p, b"a,b\rc,d\r".to_vec()).unwrap(),
+            "a,b\nc,d\n"
+        );
+        assert_eq!(decode_utf8(p, b"a\r\nb".to_vec()).unwrap(), "a\r\nb");
+        let e = decode_utf8(p, b"ab\ncd\0".to_vec())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 2") && e.contains("NUL") && !e.contains('\0'),
+            "{e}"
+        );
     }
 }

@@ -54,6 +54,18 @@ pub fn shared(rel: &str) -> Option<PathBuf> {
 /// then `.venv/bin/python` in the repository. `None` with a printed reason.
 /// Under CI (`CI=true`) a missing OpenSim is a failure, not a skip.
 pub fn opensim_python() -> Option<PathBuf> {
+    python_with("opensim")
+}
+
+/// A Python interpreter that can `import nibabel` (the NIfTI reference
+/// reader), found and skipped as [`opensim_python`].
+pub fn nibabel_python() -> Option<PathBuf> {
+    python_with("nibabel")
+}
+
+/// `$OSIM_SPINE_PYTHON`, then `.venv/bin/python`, the first that can
+/// import `module`.
+fn python_with(module: &str) -> Option<PathBuf> {
     let mut candidates = Vec::new();
     if let Ok(p) = std::env::var("OSIM_SPINE_PYTHON") {
         candidates.push(PathBuf::from(p));
@@ -62,7 +74,7 @@ pub fn opensim_python() -> Option<PathBuf> {
     for c in candidates {
         if c.exists() {
             let ok = Command::new(&c)
-                .args(["-c", "import opensim"])
+                .args(["-c", &format!("import {module}")])
                 .output()
                 .map(|o| o.status.success())
                 .unwrap_or(false);
@@ -72,9 +84,11 @@ pub fn opensim_python() -> Option<PathBuf> {
         }
     }
     if std::env::var("CI").map(|v| v == "true").unwrap_or(false) {
-        panic!("CI=true but no Python with opensim found (set OSIM_SPINE_PYTHON or run .ci/run)");
+        panic!("CI=true but no Python with {module} found (set OSIM_SPINE_PYTHON or run .ci/run)");
     }
-    eprintln!("SKIP: no Python with `opensim` (set OSIM_SPINE_PYTHON or create .venv: see README)");
+    eprintln!(
+        "SKIP: no Python with `{module}` (set OSIM_SPINE_PYTHON or create .venv: see README)"
+    );
     None
 }
 
