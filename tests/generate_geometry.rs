@@ -277,3 +277,93 @@ fn posed_base_round_trip_gives_back_its_meshes_and_joints() {
         sc.muscle_segments_through_vertebrae
     );
 }
+
+/// Copy a folder tree (files and folders only).
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let dst = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_tree(&e.path(), &dst);
+        } else {
+            std::fs::copy(e.path(), dst).unwrap();
+        }
+    }
+}
+
+/// A patient model from a scoliotic patient's mesh folder
+/// (`../shared/scoliosis-dev/D03_double`, on the embedded base), copied to
+/// another folder and the original removed: OpenSim 4.6 loads the copy
+/// with no line but "Loaded model", every mesh it wears has at most
+/// 5,000 triangles and OpenSim's own wrapped muscle paths at the default
+/// pose pass through no vertebra (its meshes the patient's).
+#[test]
+fn patient_model_is_self_contained_and_loads_cleanly_in_opensim() {
+    let Some(seg) = common::shared("scoliosis-dev/D03_double/segmentation/meshes") else {
+        return;
+    };
+    let Some(py) = common::opensim_python() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let made = tmp.path().join("made");
+    let model = made.join("patient.osim");
+    common::run_ok(&[
+        "generate".as_ref(),
+        "--segmentation".as_ref(),
+        seg.as_os_str(),
+        "--geometry".as_ref(),
+        "patient".as_ref(),
+        "--out".as_ref(),
+        model.as_os_str(),
+    ]);
+    let moved = tmp.path().join("elsewhere");
+    copy_tree(&made, &moved);
+    std::fs::remove_dir_all(&made).unwrap();
+    let model = moved.join("patient.osim");
+    // Every mesh written: within the triangle budget; 18 of them the
+    // patient's (T1-L5 and the sacrum).
+    let mut patient_meshes = 0;
+    for e in std::fs::read_dir(moved.join("Geometry")).unwrap() {
+        let p = e.unwrap().path();
+        let m = osim_spine::mesh::read(&p).unwrap();
+        assert!(
+            m.triangles.len() <= MAX_TRIANGLES,
+            "{}: {} triangles",
+            p.display(),
+            m.triangles.len()
+        );
+        if p.file_name()
+            .unwrap()
+            .to_string_lossy()
+            .starts_with("patient_")
+        {
+            patient_meshes += 1;
+        }
+    }
+    assert_eq!(patient_meshes, 18);
+    // OpenSim's log of loading the copy.
+    let result = tmp.path().join("log.json");
+    let o = std::process::Command::new(&py)
+        .arg(common::repo_root().join("tests/py/load_log.py"))
+        .arg(&result)
+        .arg(&model)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let logs: serde_json::Value = serde_json::from_slice(&std::fs::read(&result).unwrap()).unwrap();
+    let lines = logs[model.to_str().unwrap()].as_array().unwrap();
+    assert!(!lines.is_empty(), "no log captured");
+    for l in lines.iter().map(|l| l.as_str().unwrap()) {
+        assert!(l.starts_with("[info] Loaded model"), "OpenSim: {l}");
+    }
+    // OpenSim's wrapped paths against the patient's vertebrae.
+    let (crossings, worst) = common::opensim_path_crossings(&py, &model);
+    println!(
+        "patient model: {patient_meshes} patient meshes, OpenSim log clean, {} crossings, path lengths within {:.2e} m of OpenSim's",
+        crossings.len(),
+        worst
+    );
+    assert!(crossings.is_empty(), "{crossings:?}");
+}
