@@ -16,9 +16,16 @@
 //! 1. each patient level's body wears its mesh, expressed in the body's
 //!    frame through the sacral registration and the body's default pose
 //!    (scale factors 1), and its markers are the palpated landmarks;
-//! 2. the vertebral-body wrap sphere is the palpation engine's vertebral
-//!    centre (the protocol's least-squares sphere through the anterior
-//!    body surface) with its radius, before the wrap rules shrink it;
+//! 2. the vertebral-body wrap sphere's centre is the base's vertebral
+//!    centre carried onto the patient's bone by an affine surface fit of
+//!    the scaled base mesh ([`crate::mesh::register::affine_icp`]: the
+//!    bone's proportions as well as its place, so the centre keeps its
+//!    anatomical place inside a body that is deeper, taller or wider than
+//!    the landmarks measured), or the palpation engine's centre (the
+//!    protocol's least-squares sphere through the patient's anterior body
+//!    surface) where the fit moves it more than [`SURFACE_FIT_LIMIT`] or
+//!    the base mesh is missing; its radius is the engine's, before the
+//!    wrap rules shrink it;
 //! 3. each intervertebral joint between two patient levels is at the
 //!    patient's disc: the base's joint centre carried into the patient by
 //!    each of its two vertebrae (the landmark fit, as the chain fit places
@@ -120,20 +127,29 @@ impl PatientGeometry {
     /// The palpated levels' surfaces, prepared (module documentation);
     /// `prefix` names the mesh files.
     pub fn from_palpated(p: &Palpated, prefix: &str) -> PatientGeometry {
+        use rayon::prelude::*;
         let to_os = p.world.to_opensim();
+        // Each level on its own (in parallel, in order).
+        let prepared: Vec<_> = p
+            .levels
+            .par_iter()
+            .map(|r| {
+                let world = TriMesh {
+                    vertices: r
+                        .mesh
+                        .vertices
+                        .iter()
+                        .map(|v| Point3::from(to_os * v.coords))
+                        .collect(),
+                    triangles: r.mesh.triangles.clone(),
+                };
+                (r, prepare(world, p.kind))
+            })
+            .collect();
         let mut levels = BTreeMap::new();
         let mut refused = Vec::new();
-        for r in &p.levels {
-            let world = TriMesh {
-                vertices: r
-                    .mesh
-                    .vertices
-                    .iter()
-                    .map(|v| Point3::from(to_os * v.coords))
-                    .collect(),
-                triangles: r.mesh.triangles.clone(),
-            };
-            match prepare(world, p.kind) {
+        for (r, result) in prepared {
+            match result {
                 Ok((mesh, prepared)) => {
                     levels.insert(
                         r.level,
@@ -253,11 +269,25 @@ pub struct MeshRow {
     /// frame (m) and radius before the wrap rules (m); none for the sacrum.
     pub sphere_centre: Option<[f64; 3]>,
     pub sphere_radius: Option<f64>,
+    /// Where the sphere's centre comes from.
+    pub sphere_centre_rule: Option<CentreRule>,
     /// The scaled base mesh registered onto the patient's (rigid ICP from
     /// the landmark fit): how far it moved (mm at the mesh's extent) and
     /// its trimmed RMS (mm); `None` when the base mesh is missing.
     pub surface_fit_mm: Option<f64>,
     pub surface_rms_mm: Option<f64>,
+}
+
+/// Where a patient vertebra's sphere centre comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CentreRule {
+    /// The base's vertebral centre carried by an affine fit of the scaled
+    /// base mesh onto the patient's bone.
+    CarriedFromBase,
+    /// The palpation engine's sphere through the patient's anterior body
+    /// surface (the base mesh is missing or does not fit).
+    Palpated,
 }
 
 /// A muscle attachment moved out of a patient bone.
@@ -437,13 +467,15 @@ fn wear(
         set_numbers(el, "inertia", &i);
     }
     let mut sphere = None;
+    let mut centre_rule = None;
     if let Some(w) = b
         .wrap_objects
         .iter()
         .find(|w| matches!(w.shape, WrapShape::Sphere { .. }) && !l.is_sacrum())
     {
-        let c = to_body * pl.centre;
+        let (c, rule) = sphere_centre(&w.translation, base_mesh.as_ref(), &mesh, &to_body, pl);
         set_sphere_centre(el, &w.name, &c);
+        centre_rule = Some(rule);
         out.sphere_radii.insert(w.name.clone(), pl.radius);
         sphere = Some(c);
     }
@@ -462,9 +494,34 @@ fn wear(
         base_mass_kg: b.mass,
         sphere_centre: sphere.map(|c| [c.x, c.y, c.z]),
         sphere_radius: sphere.map(|_| pl.radius),
+        sphere_centre_rule: centre_rule,
         surface_fit_mm: surface.as_ref().map(|(_, d, _)| d * 1e3),
         surface_rms_mm: surface.as_ref().map(|(_, _, r)| r * 1e3),
     })
+}
+
+/// The vertebral centre in the body frame: the (scaled) base's centre
+/// carried onto the patient's bone by an affine surface fit of the scaled
+/// base mesh (its proportions as well as its place), when the fit is
+/// sound and moves it less than [`SURFACE_FIT_LIMIT`]; else the palpation
+/// engine's centre of the patient's own body. Also says which.
+fn sphere_centre(
+    base_centre: &Vector3<f64>,
+    base_mesh: Option<&TriMesh>,
+    patient: &TriMesh,
+    to_body: &Isometry3<f64>,
+    pl: &PatientLevel,
+) -> (Point3<f64>, CentreRule) {
+    let c0 = Point3::from(*base_centre);
+    let carried = base_mesh.and_then(|m| {
+        let q = MeshQuery::new(patient).ok()?;
+        let fit = crate::mesh::register::affine_icp(&m.vertices, &q, 0.9, 50).ok()?;
+        Some(fit.apply(&c0))
+    });
+    match carried {
+        Some(c) if (c - c0).norm() <= SURFACE_FIT_LIMIT => (c, CentreRule::CarriedFromBase),
+        _ => (to_body * pl.centre, CentreRule::Palpated),
+    }
 }
 
 /// The rigid motion (body frame) taking the scaled base mesh onto the

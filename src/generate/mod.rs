@@ -540,16 +540,14 @@ pub fn generate_with_geometry(
     let mut radii = sphere_radii(&model);
     let applied = match patient_geometry {
         Some(pg) => {
-            let a = wear_patient_geometry(
-                &mut doc,
-                pg,
-                &input,
-                &fits,
-                &smoothing,
-                &registration,
-                &patient,
-                meshes,
-            )?;
+            let placement = PatientPlacement {
+                fits: &fits,
+                input: &input,
+                smoothing: &smoothing,
+                registration: registration.isometry(),
+                patient: &patient,
+            };
+            let a = wear_patient_geometry(&mut doc, pg, &placement, meshes)?;
             radii.extend(a.sphere_radii.iter().map(|(n, r)| (n.clone(), *r)));
             for b in &a.bodies {
                 scales.remove(b);
@@ -647,6 +645,39 @@ pub fn generate_with_geometry(
     })
 }
 
+/// What step 4c needs from the generic steps.
+struct PatientPlacement<'a> {
+    fits: &'a BTreeMap<Level, pose::VertebraFit>,
+    input: &'a FitInput<'a>,
+    smoothing: &'a SmoothingReport,
+    registration: Isometry3<f64>,
+    patient: &'a BTreeMap<Level, Points>,
+}
+
+/// Step 4c: the patient's own vertebrae ([`geometry::apply`]), with the
+/// base's joint centres carried by the fits as the chain places them.
+fn wear_patient_geometry(
+    doc: &mut Document,
+    pg: &PatientGeometry,
+    p: &PatientPlacement,
+    meshes: Option<&dyn MeshSource>,
+) -> Result<geometry::Applied> {
+    let placed: Vec<Level> = p.fits.keys().copied().chain([Level::S1]).collect();
+    let joint_geometry = JointGeometry {
+        joint_centres: &p.input.joint_centres,
+        centres: &p.input.body_centres,
+    };
+    let scaling = p.smoothing.joint_scaling.unwrap_or(JointScaling::WithBody);
+    let at = geometry::Placement {
+        registration: p.registration,
+        landmarks: p.patient,
+        placed,
+        joints: carried_joints(p.fits, &joint_geometry, scaling),
+        base_meshes: meshes,
+    };
+    geometry::apply(doc, pg, &at)
+}
+
 /// The set's landmarks grouped by level.
 fn landmarks_per_level(set: &LandmarkSet) -> BTreeMap<Level, Points> {
     let mut patient: BTreeMap<Level, Points> = BTreeMap::new();
@@ -654,35 +685,6 @@ fn landmarks_per_level(set: &LandmarkSet) -> BTreeMap<Level, Points> {
         patient.entry(id.level).or_default().insert(id.code, *p);
     }
     patient
-}
-
-/// Step 4c: the patient's own meshes on the placed levels ([`geometry`]),
-/// joints carried at the discs as the chain placed them.
-#[allow(clippy::too_many_arguments)]
-fn wear_patient_geometry(
-    doc: &mut Document,
-    pg: &PatientGeometry,
-    input: &FitInput,
-    fits: &BTreeMap<Level, pose::VertebraFit>,
-    smoothing: &SmoothingReport,
-    registration: &Registration,
-    patient: &BTreeMap<Level, Points>,
-    meshes: Option<&dyn MeshSource>,
-) -> Result<geometry::Applied> {
-    let placed: Vec<Level> = fits.keys().copied().chain([Level::S1]).collect();
-    let joint_geometry = JointGeometry {
-        joint_centres: &input.joint_centres,
-        centres: &input.body_centres,
-    };
-    let scaling = smoothing.joint_scaling.unwrap_or(JointScaling::WithBody);
-    let at = geometry::Placement {
-        registration: registration.isometry(),
-        landmarks: patient,
-        placed,
-        joints: carried_joints(fits, &joint_geometry, scaling),
-        base_meshes: meshes,
-    };
-    geometry::apply(doc, pg, &at)
 }
 
 /// Radius of every wrap sphere of the base model, by name.

@@ -10,6 +10,9 @@
 //!   linearised point-to-plane problem plus a lightly weighted point-to-point
 //!   term, rejecting the worst pairs (trimmed ICP) so that partial overlap
 //!   works.
+//! * [`affine_icp`]: iterative closest point with a general affine map
+//!   (rotation, anisotropic scale, shear), from a given start: carries a
+//!   template's points onto a patient's differently proportioned bone.
 //! * [`Residuals`]: surface-distance statistics (RMS, max, percentiles).
 //! * [`gpa`] / [`gpa_meshes`]: generalised Procrustes analysis of shapes in
 //!   vertex correspondence, giving the mean shape.
@@ -475,6 +478,101 @@ fn refine(
     (t, rms, iters)
 }
 
+/// An affine map `p -> a p + b`, and the trimmed RMS of the last step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AffineFit {
+    pub a: Matrix3<f64>,
+    pub b: Vector3<f64>,
+    pub trimmed_rms: f64,
+}
+
+impl AffineFit {
+    pub fn apply(&self, p: &Point3<f64>) -> Point3<f64> {
+        Point3::from(self.a * p.coords + self.b)
+    }
+}
+
+/// Iterative closest point of `source` onto `target` with a general affine
+/// map, starting from the identity (the source already placed near the
+/// target). Each step solves, for the current closest points, the linear
+/// least squares of point-to-plane distances plus a lightly weighted
+/// point-to-point term (which keeps the map from sliding along the
+/// surface), on the `keep_fraction` closest pairs. Errors when the source
+/// has fewer than 4 points or the problem is degenerate (flat source).
+pub fn affine_icp(
+    source: &[Point3<f64>],
+    target: &MeshQuery,
+    keep_fraction: f64,
+    max_iterations: usize,
+) -> Result<AffineFit> {
+    const W_POINT: f64 = 0.1;
+    if source.len() < 4 {
+        return Err(Error::invalid(
+            "affine ICP",
+            format!("{} source points (at least 4)", source.len()),
+        ));
+    }
+    // Work about the source's centroid, so that the normal equations are
+    // well scaled.
+    let c = source.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / source.len() as f64;
+    let mut fit = AffineFit {
+        a: Matrix3::identity(),
+        b: Vector3::zeros(),
+        trimmed_rms: f64::INFINITY,
+    };
+    let mut prev = f64::INFINITY;
+    for _ in 0..max_iterations {
+        let moved: Vec<Point3<f64>> = source.iter().map(|p| fit.apply(p)).collect();
+        let hits: Vec<_> = moved.iter().map(|p| target.closest_point(p)).collect();
+        let d: Vec<f64> = hits.iter().map(|h| h.t).collect();
+        let keep = kept(&d, keep_fraction);
+        let rms = (keep.iter().map(|&i| d[i] * d[i]).sum::<f64>() / keep.len() as f64).sqrt();
+        fit.trimmed_rms = rms;
+        if prev.is_finite() && prev - rms <= 1e-6 * prev {
+            break;
+        }
+        prev = rms;
+        // Unknowns: a (row-major, 9) and b' (3) of p -> a (p - c) + b'.
+        let mut jtj = SMatrix::<f64, 12, 12>::zeros();
+        let mut jtr = SVector::<f64, 12>::zeros();
+        for &i in &keep {
+            let v = source[i].coords - c;
+            let q = hits[i].point.coords;
+            let n = target.mesh().triangle_normal(hits[i].triangle);
+            let mut row = |w: &Vector3<f64>, r: f64, weight: f64| {
+                let mut j = SVector::<f64, 12>::zeros();
+                for k in 0..3 {
+                    for m in 0..3 {
+                        j[3 * k + m] = w[k] * v[m];
+                    }
+                    j[9 + k] = w[k];
+                }
+                jtj += weight * j * j.transpose();
+                jtr += weight * j * r;
+            };
+            row(&n, n.dot(&q), 1.0);
+            for k in 0..3 {
+                let e = Vector3::ith(k, 1.0);
+                row(&e, q[k], W_POINT * W_POINT);
+            }
+        }
+        let damp = 1e-12 * jtj.trace().max(f64::MIN_POSITIVE);
+        let Some(x) = (jtj + SMatrix::<f64, 12, 12>::identity() * damp)
+            .lu()
+            .solve(&jtr)
+        else {
+            return Err(Error::invalid("affine ICP", "degenerate normal equations"));
+        };
+        let a = Matrix3::from_fn(|k, m| x[3 * k + m]);
+        if !a.iter().all(|v| v.is_finite()) || a.determinant() <= 0.0 {
+            return Err(Error::invalid("affine ICP", "the map folds the source"));
+        }
+        fit.a = a;
+        fit.b = Vector3::new(x[9], x[10], x[11]) - a * c;
+    }
+    Ok(fit)
+}
+
 /// Result of [`gpa`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct GpaResult {
@@ -633,6 +731,61 @@ mod tests {
         let a: Vec<Point3<f64>> = (0..5).map(|i| Point3::new(i as f64, 0.0, 0.0)).collect();
         assert!(umeyama(&a, &a, false).is_err());
         assert!(umeyama(&a[..2], &a[..2], false).is_err());
+    }
+
+    #[test]
+    fn affine_icp_recovers_an_anisotropic_scaling_of_a_closed_surface() {
+        // A lumpy, asymmetric closed surface (a latitude-longitude sphere
+        // pushed out unevenly, so that no symmetry lets the map slide),
+        // and the same surface scaled about an off-centre point and
+        // turned: the map must come back from the surface alone.
+        let (nlat, nlon) = (40usize, 80usize);
+        let mut vertices = vec![Point3::new(0.0, 0.0, 1.0), Point3::new(0.0, 0.0, -1.0)];
+        for i in 1..nlat {
+            let th = std::f64::consts::PI * i as f64 / nlat as f64;
+            for j in 0..nlon {
+                let ph = std::f64::consts::TAU * j as f64 / nlon as f64;
+                vertices.push(Point3::new(
+                    th.sin() * ph.cos(),
+                    th.sin() * ph.sin(),
+                    th.cos(),
+                ));
+            }
+        }
+        let at = |i: usize, j: usize| (2 + (i - 1) * nlon + j % nlon) as u32;
+        let mut triangles = Vec::new();
+        for j in 0..nlon {
+            triangles.push([0, at(1, j), at(1, j + 1)]);
+            triangles.push([1, at(nlat - 1, j + 1), at(nlat - 1, j)]);
+            for i in 1..nlat - 1 {
+                triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+                triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+            }
+        }
+        for v in &mut vertices {
+            let u = v.coords;
+            let r = 0.02 * (1.0 + 0.3 * u.x * u.x + 0.2 * u.y + 0.1 * u.x * u.z);
+            *v = Point3::from(u * r);
+        }
+        let m = TriMesh {
+            vertices,
+            triangles,
+        };
+        let centre = Point3::new(0.003, -0.002, 0.001);
+        let rot = Rotation3::from_euler_angles(0.02, -0.03, 0.025);
+        let scale = Matrix3::from_diagonal(&Vector3::new(1.1, 0.9, 1.05));
+        let a = rot.matrix() * scale;
+        let truth = |p: &Point3<f64>| Point3::from(a * (p - centre) + centre.coords);
+        let target = TriMesh {
+            vertices: m.vertices.iter().map(truth).collect(),
+            triangles: m.triangles.clone(),
+        };
+        let q = MeshQuery::new(&target).unwrap();
+        let fit = affine_icp(&m.vertices, &q, 1.0, 200).unwrap();
+        let err = (fit.apply(&centre) - centre).norm();
+        assert!(err < 2e-5, "centre carried {err} m off");
+        assert!((fit.a - a).norm() < 5e-3, "{}", fit.a);
+        assert!(fit.trimmed_rms < 2e-5);
     }
 
     #[test]
