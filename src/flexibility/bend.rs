@@ -22,7 +22,8 @@ use crate::solver::kinematics;
 use crate::solver::scalar::{d6_eps, D6};
 use crate::solver::workspace::KinBuf;
 use crate::solver::{
-    BodyIndex, BushingModel, Load, LoadFrame, LoadSet, StaticOptions, System, SystemSpec, Workspace,
+    BodyIndex, BushingIndex, BushingModel, Load, LoadFrame, LoadSet, StaticOptions, System,
+    SystemSpec, Workspace,
 };
 use nalgebra::{DMatrix, DVector, Point3, Vector2, Vector3};
 use std::collections::BTreeMap;
@@ -39,7 +40,7 @@ pub struct Joint {
     /// The upper vertebra.
     pub upper: Level,
     /// The bushing's index in the system.
-    pub bushing: usize,
+    pub bushing: BushingIndex,
     /// The model's stiffness `(rx, ry, rz, tx, ty, tz)` (N m/rad, N/m).
     pub k: [f64; 6],
     /// Column of its first stiffness parameter in [`System::dtau_dstiffness`].
@@ -87,7 +88,7 @@ impl BendModel {
         let mut joints = Vec::new();
         let mut column = 0;
         for (i, name) in sys.bushing_names().enumerate() {
-            let model_i = sys.bushing_model(i).cloned();
+            let model_i = sys.bushing_model(BushingIndex(i)).cloned();
             let np = model_i
                 .as_ref()
                 .map(|m| m.n_stiffness_params())
@@ -107,7 +108,7 @@ impl BendModel {
                 joints.push(Joint {
                     name: name.strip_suffix("_bushing").unwrap_or(name).to_string(),
                     upper,
-                    bushing: i,
+                    bushing: BushingIndex(i),
                     k: [r.x, r.y, r.z, t.x, t.y, t.z],
                     column,
                 });
