@@ -998,7 +998,7 @@ fn an_experiment_with_no_measured_value_says_so() {
 // `--jobs` far above the cores: capped (and said), the diagnosis runs.
 #[test]
 fn jobs_are_capped_at_the_cores() {
-    use osim_spine::cli::diagnose::worker_threads;
+    use osim_spine::cli::worker_threads;
     assert_eq!(worker_threads(Some(100_000), 2), Some(2));
     assert_eq!(worker_threads(Some(1), 8), Some(1));
     assert_eq!(worker_threads(Some(0), 8), None);

@@ -32,26 +32,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     // Never write into a folder that holds an input.
     let protected = crate::util::guard::Protected::default().inputs([&a.experiment]);
     crate::util::guard::check_output_dir(&a.out, &protected, a.force)?;
-    let cores = std::thread::available_parallelism()
-        .map(|n| n.get())
-        .unwrap_or(1);
-    let jobs = worker_threads(a.jobs, cores);
-    if let (Some(asked), Some(j)) = (a.jobs, jobs) {
-        if asked > j {
-            crate::errln!("--jobs {asked}: capped at the {cores} cores of this machine");
-        }
-    }
-    super::with_jobs(jobs, || run_inner(&a))
-}
-
-/// The worker threads for `--jobs requested` on a machine of `cores`
-/// cores: at most the cores (more threads only add memory and switching),
-/// at least one; `None` (all cores) without `--jobs` or with `--jobs 0`.
-pub fn worker_threads(requested: Option<usize>, cores: usize) -> Option<usize> {
-    match requested {
-        None | Some(0) => None,
-        Some(j) => Some(j.min(cores.max(1))),
-    }
+    super::with_jobs(a.jobs, || run_inner(&a))
 }
 
 fn run_inner(a: &Args) -> anyhow::Result<i32> {

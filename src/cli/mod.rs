@@ -110,6 +110,16 @@ pub fn warn_missing_meshes(out: &std::path::Path, missing: &[String], kept: bool
     );
 }
 
+/// The worker threads for `--jobs requested` on a machine of `cores`
+/// cores: at most the cores (more threads only add memory and switching),
+/// at least one; `None` (all cores) without `--jobs` or with `--jobs 0`.
+pub fn worker_threads(requested: Option<usize>, cores: usize) -> Option<usize> {
+    match requested {
+        None | Some(0) => None,
+        Some(j) => Some(j.min(cores.max(1))),
+    }
+}
+
 /// Run `f` on a pool of `jobs` worker threads (`None`: one per core; more
 /// than the cores: the cores, with a note on stderr). Results do not
 /// depend on the count: parallel work is collected in input order.
@@ -122,13 +132,10 @@ where
 {
     use anyhow::Context;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let jobs = match jobs {
-        Some(n) if n > cores => {
-            eprintln!("note: --jobs {n} is more than the {cores} cores: {cores} used");
-            Some(cores)
-        }
-        other => other,
-    };
+    if let Some(n) = jobs.filter(|&n| n > cores) {
+        eprintln!("note: --jobs {n} is more than the {cores} cores: {cores} used");
+    }
+    let jobs = worker_threads(jobs, cores);
     rayon::ThreadPoolBuilder::new()
         .num_threads(jobs.unwrap_or(0))
         .build()
