@@ -294,3 +294,155 @@ fn the_checker_finds_a_later_module_and_ignores_comments_and_strings() {
         1
     );
 }
+
+/// The sibling names of `dir_module` (`osim`, `diagnose::synth`) that
+/// `code` (a file of that directory, comments and strings blanked, test
+/// module cut) refers to: `super::NAME` and `crate::<dir_module>::NAME`.
+fn sibling_refs(code: &str, dir_module: &str, siblings: &[String]) -> Vec<String> {
+    let code = code.split("#[cfg(test)]").next().unwrap_or("");
+    let ident = |s: &str| -> String {
+        s.chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+            .collect()
+    };
+    let mut out = Vec::new();
+    let full = format!("crate::{dir_module}::");
+    for prefix in ["super::", full.as_str()] {
+        for (k, _) in code.match_indices(prefix) {
+            let before = code[..k].chars().next_back();
+            if before.is_some_and(|c| c.is_ascii_alphanumeric() || c == '_' || c == ':') {
+                continue;
+            }
+            let rest = &code[k + prefix.len()..];
+            let names: Vec<String> = match rest.strip_prefix('{') {
+                Some(group) => group
+                    .split('}')
+                    .next()
+                    .unwrap_or("")
+                    .split(',')
+                    .map(|s| ident(s.trim()))
+                    .collect(),
+                None => vec![ident(rest)],
+            };
+            out.extend(names.into_iter().filter(|n| siblings.contains(n)));
+        }
+    }
+    out.sort();
+    out.dedup();
+    out
+}
+
+/// A cycle in `edges` (node -> nodes it uses), as the list of its nodes.
+fn find_cycle(edges: &BTreeMap<String, Vec<String>>) -> Option<Vec<String>> {
+    fn visit(
+        n: &str,
+        edges: &BTreeMap<String, Vec<String>>,
+        state: &mut BTreeMap<String, u8>,
+        stack: &mut Vec<String>,
+    ) -> Option<Vec<String>> {
+        state.insert(n.to_string(), 1);
+        stack.push(n.to_string());
+        for m in edges.get(n).into_iter().flatten() {
+            match state.get(m.as_str()) {
+                Some(1) => {
+                    let at = stack.iter().position(|s| s == m).unwrap_or(0);
+                    return Some(stack[at..].to_vec());
+                }
+                Some(_) => {}
+                None => {
+                    if let Some(c) = visit(m, edges, state, stack) {
+                        return Some(c);
+                    }
+                }
+            }
+        }
+        stack.pop();
+        state.insert(n.to_string(), 2);
+        None
+    }
+    let mut state = BTreeMap::new();
+    for n in edges.keys() {
+        if !state.contains_key(n.as_str()) {
+            if let Some(c) = visit(n, edges, &mut state, &mut Vec::new()) {
+                return Some(c);
+            }
+        }
+    }
+    None
+}
+
+/// The sibling files (and sub-folders) of every module folder, as a graph.
+fn sibling_cycles(dir: &Path, module: &str, out: &mut Vec<String>) {
+    let mut nodes: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_stem().unwrap().to_string_lossy().to_string();
+        if p.is_dir() {
+            sibling_cycles(&p, &format!("{module}::{name}"), out);
+            let mut files = Vec::new();
+            rust_files(&p, &mut files);
+            nodes.entry(name).or_default().extend(files);
+        } else if p.extension().is_some_and(|x| x == "rs") && name != "mod" {
+            nodes.entry(name).or_default().push(p);
+        }
+    }
+    let names: Vec<String> = nodes.keys().cloned().collect();
+    let mut edges = BTreeMap::new();
+    for (n, files) in &nodes {
+        let mut used = Vec::new();
+        for f in files {
+            // Files of a sub-folder reach this folder's siblings by the
+            // full path only (their `super::` is the sub-folder).
+            let direct = f.parent() == Some(dir);
+            let code = code_only(&std::fs::read_to_string(f).unwrap());
+            let refs = if direct {
+                sibling_refs(&code, module, &names)
+            } else {
+                sibling_refs(&code.replace("super::", "_uper::"), module, &names)
+            };
+            used.extend(refs.into_iter().filter(|r| r != n));
+        }
+        used.sort();
+        used.dedup();
+        edges.insert(n.clone(), used);
+    }
+    if let Some(c) = find_cycle(&edges) {
+        out.push(format!(
+            "src/{}: {}",
+            module.replace("::", "/"),
+            c.join(" -> ")
+        ));
+    }
+}
+
+#[test]
+fn no_cycle_between_sibling_files() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut bad = Vec::new();
+    for e in std::fs::read_dir(&root).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            let m = p.file_name().unwrap().to_string_lossy().to_string();
+            sibling_cycles(&p, &m, &mut bad);
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "files of one module that use each other (move the shared types to a file both use):\n  {}",
+        bad.join("\n  ")
+    );
+}
+
+#[test]
+fn the_sibling_checker_sees_super_and_full_paths() {
+    let names = vec!["a".to_string(), "b".to_string(), "c".to_string()];
+    let code = "use super::{a::X, c};\nfn f() { crate::m::b::g(); crate::other::a::h(); }\n";
+    assert_eq!(sibling_refs(code, "m", &names), vec!["a", "b", "c"]);
+    let mut edges = BTreeMap::new();
+    edges.insert("a".to_string(), vec!["b".to_string()]);
+    edges.insert("b".to_string(), vec!["c".to_string()]);
+    edges.insert("c".to_string(), vec![]);
+    assert_eq!(find_cycle(&edges), None);
+    edges.insert("c".to_string(), vec!["a".to_string()]);
+    assert_eq!(find_cycle(&edges).map(|c| c.len()), Some(3));
+}

@@ -777,17 +777,3 @@ pub fn max_follower(sim: &Sim) -> f64 {
         })
         .fold(0.0, f64::max)
 }
-
-/// The six Lepton expressions of the preload-stiffening law.
-pub fn preload_expressions(k: &[f64; 6], beta: f64) -> [String; 6] {
-    let f = crate::util::fmt_f64;
-    let g = format!("(1+{}*max(0,-delta_y))", f(beta));
-    [
-        format!("{}*theta_x*{g}", f(k[0])),
-        format!("{}*theta_y*{g}", f(k[1])),
-        format!("{}*theta_z*{g}", f(k[2])),
-        format!("{}*delta_x", f(k[3])),
-        format!("{}*delta_y", f(k[4])),
-        format!("{}*delta_z", f(k[5])),
-    ]
-}

@@ -8,7 +8,6 @@
 //! that two effects (mixed-effect candidates, two-effect truths) combine
 //! into one law that the solver evaluates and OpenSim reads.
 
-use super::family::preload_expressions;
 use crate::error::{Error, Result};
 use crate::solver::{BushingModel, Curve, Expr};
 use nalgebra::Vector3;
@@ -193,6 +192,20 @@ impl LawParts {
             }
         })
     }
+}
+
+/// The six Lepton expressions of the preload-stiffening law.
+pub fn preload_expressions(k: &[f64; 6], beta: f64) -> [String; 6] {
+    let f = crate::util::fmt_f64;
+    let g = format!("(1+{}*max(0,-delta_y))", f(beta));
+    [
+        format!("{}*theta_x*{g}", f(k[0])),
+        format!("{}*theta_y*{g}", f(k[1])),
+        format!("{}*theta_z*{g}", f(k[2])),
+        format!("{}*delta_x", f(k[3])),
+        format!("{}*delta_y", f(k[4])),
+        format!("{}*delta_z", f(k[5])),
+    ]
 }
 
 #[cfg(test)]

@@ -10,10 +10,10 @@
 //! `s_A = ((c_0 - c_A) + (c_B - c_AB)) / (2 c_0)`, likewise `s_B`; the two
 //! shares add up to the fraction of the held-out gap the pair closes.
 
+use super::criteria::{win_probability, CandidateStats, ALPHA, HELDOUT_MIN};
 use super::family::Effect;
 use super::fit::{Fitted, Weights};
 use super::gap::chi2_of;
-use super::select::{win_probability, CandidateStats, ALPHA, HELDOUT_MIN};
 use super::sim::Sim;
 use super::stages::{fit_pair, FitCtx, Fits, Split};
 use serde::Serialize;

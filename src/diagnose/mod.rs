@@ -19,6 +19,7 @@
 //! | `synth` | synthetic labelled experiments (truth = nominal + one random effect, solved by the crate's solver, plus noise) for testing generality |
 //! | `report` | `diagnosis.json`, Markdown, SVG figures, the improved `.osim` |
 
+pub mod criteria;
 pub mod design;
 pub mod family;
 pub mod fit;
@@ -27,6 +28,7 @@ pub mod law;
 pub mod mixed;
 pub mod noise;
 pub mod other;
+pub mod outcome;
 pub mod ratios;
 pub mod report;
 pub mod select;

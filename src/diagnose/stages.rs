@@ -5,10 +5,10 @@
 //! the out-of-fold predictions of the full fits; and mixed-effect pairs
 //! started from two single-effect fits, fitted the same way.
 
+use super::criteria::Options;
 use super::design::Design;
 use super::family::{Family, Kind};
 use super::fit::{dominant_level, fit, kinds, Fitted, Weights};
-use super::select::Options;
 use super::sim::Sim;
 use crate::error::Result;
 use rayon::prelude::*;
