@@ -1017,6 +1017,6 @@ fn jobs_are_capped_at_the_cores() {
     ]);
     let err = String::from_utf8_lossy(&st.stderr);
     assert!(st.status.success(), "{err}");
-    assert!(err.contains("capped at"), "{err}");
+    assert!(err.contains("is more than the"), "{err}");
     assert!(out.join("diagnosis.json").exists());
 }
