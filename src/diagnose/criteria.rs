@@ -37,7 +37,7 @@ pub const EXPLAINED_CLOSED: f64 = 0.9;
 pub const EXPLAINED_REDUCED_CHI2: f64 = 2.0;
 
 /// `other`: structured misfit ratio of the augmented model's residuals
-/// (see [`Remaining::misfit`]). Chosen on the development set,
+/// (see [`Remaining::misfit`](super::other::Remaining::misfit)). Chosen on the development set,
 /// the standard synthetic set and the out-of-vocabulary tuning seed 7
 /// (largest in-vocabulary value 1.28).
 pub const OTHER_MISFIT: f64 = 1.5;
