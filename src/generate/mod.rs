@@ -591,19 +591,15 @@ pub fn generate_with_geometry(
     } else {
         None
     };
-    let registered: Vec<(String, Point3<f64>)> = patient
-        .iter()
-        .flat_map(|(l, pts)| pts.iter().map(move |(c, p)| (format!("{l}_{c}"), *p)))
-        .collect();
-    let model_set = crate::base::centres::model_landmarks(&out_model, &poses2)?;
-    let shape = crate::landmarks::metrics::shape(&model_set, &centres);
-    let views = if opts.views {
-        let model_markers: Vec<Point3<f64>> = model_set.points.values().copied().collect();
-        let bones = views::posed_triangles(&own_meshes, &out_model, &poses2);
-        views::generate_views(&centres, &registered, &model_markers, &bones)
-    } else {
-        Vec::new()
-    };
+    // the model's shape and the frontal/sagittal views
+    let (shape, views) = shape_and_views(
+        &out_model,
+        &poses2,
+        &centres,
+        &patient,
+        &own_meshes,
+        opts.views,
+    )?;
     let report = GenerateReport {
         // File names only: the report is the same wherever the inputs lie
         // and whatever the working directory (determinism).
@@ -643,6 +639,32 @@ pub fn generate_with_geometry(
         views,
         meshes: own_meshes,
     })
+}
+
+/// Step 6: the shape of the model (Cobb, lordosis, kyphosis from its
+/// markers and centres) and, when asked, the frontal and sagittal views
+/// (centres, registered landmarks, markers, the patient's bones).
+fn shape_and_views(
+    model: &Model,
+    poses: &BTreeMap<String, Isometry3<f64>>,
+    centres: &BTreeMap<Level, Point3<f64>>,
+    patient: &BTreeMap<Level, Points>,
+    own_meshes: &BTreeMap<String, crate::mesh::TriMesh>,
+    with_views: bool,
+) -> Result<(crate::landmarks::metrics::Shape, Vec<(String, String)>)> {
+    let model_set = crate::base::centres::model_landmarks(model, poses)?;
+    let shape = crate::landmarks::metrics::shape(&model_set, centres);
+    if !with_views {
+        return Ok((shape, Vec::new()));
+    }
+    let registered: Vec<(String, Point3<f64>)> = patient
+        .iter()
+        .flat_map(|(l, pts)| pts.iter().map(move |(c, p)| (format!("{l}_{c}"), *p)))
+        .collect();
+    let model_markers: Vec<Point3<f64>> = model_set.points.values().copied().collect();
+    let bones = views::posed_triangles(own_meshes, model, poses);
+    let views = views::generate_views(centres, &registered, &model_markers, &bones);
+    Ok((shape, views))
 }
 
 /// What step 4c needs from the generic steps.
