@@ -126,46 +126,8 @@ impl Sim {
                 "no intervertebral level (a bushing between adjacent bodies) lies between the fixed body and the loaded bodies",
             ));
         }
-        let mut nominal = Vec::new();
-        let mut k_nominal = Vec::new();
-        let mut frames = Vec::new();
-        for l in &levels {
-            let m = base
-                .bushing_model(l.bushing)
-                .cloned()
-                .ok_or_else(|| Error::invalid(ctx.clone(), "bushing index out of range"))?;
-            let k = match &m {
-                BushingModel::Linear {
-                    rot_stiffness: r,
-                    trans_stiffness: t,
-                    ..
-                } => [r.x, r.y, r.z, t.x, t.y, t.z],
-                _ => {
-                    return Err(Error::invalid(
-                        format!("{ctx}: level {}", l.name),
-                        "the nominal model must have linear, uncoupled BushingForces (the baseline form)",
-                    ))
-                }
-            };
-            if !k.iter().all(|v| v.is_finite() && *v > 0.0) {
-                return Err(Error::invalid(
-                    format!("{ctx}: level {}", l.name),
-                    format!("nominal stiffness must be positive, got {k:?}"),
-                ));
-            }
-            if !base.bushing_on_joint_frames(l.bushing) {
-                return Err(Error::invalid(
-                    format!("{ctx}: level {}", l.name),
-                    "the bushing must sit on the two offset frames of its 6-DoF joint",
-                ));
-            }
-            let fr = base
-                .bushing_frames(l.bushing)
-                .ok_or_else(|| Error::invalid(ctx.clone(), "bushing index out of range"))?;
-            nominal.push(m);
-            k_nominal.push(k);
-            frames.push(fr);
-        }
+        // every level's nominal linear law, stiffness and joint frames
+        let (nominal, k_nominal, frames) = nominal_levels(&base, &levels, &ctx)?;
         // every case's loads, resolved on the nominal system
         let (loads, prepared) = case_loads(exp, &base, &ctx)?;
         let mut row_bodies = Vec::new();
@@ -421,4 +383,57 @@ fn case_loads(
         })
         .collect::<Result<Vec<_>>>()?;
     Ok((loads, prepared))
+}
+
+/// Every level's nominal law (linear, uncoupled, positive, on its joint's
+/// frames: the baseline form), its six stiffnesses and its two frames.
+#[allow(clippy::type_complexity)]
+fn nominal_levels(
+    base: &System,
+    levels: &[Level],
+    ctx: &str,
+) -> Result<(
+    Vec<BushingModel>,
+    Vec<[f64; 6]>,
+    Vec<(Isometry3<f64>, Isometry3<f64>)>,
+)> {
+    let mut nominal = Vec::new();
+    let mut k_nominal = Vec::new();
+    let mut frames = Vec::new();
+    for l in levels {
+        let m = base
+            .bushing_model(l.bushing)
+            .cloned()
+            .ok_or_else(|| Error::invalid(ctx.to_string(), "bushing index out of range"))?;
+        let k = match &m {
+            BushingModel::Linear {
+                rot_stiffness: r,
+                trans_stiffness: t,
+                ..
+            } => [r.x, r.y, r.z, t.x, t.y, t.z],
+            _ => return Err(Error::invalid(
+                format!("{ctx}: level {}", l.name),
+                "the nominal model must have linear, uncoupled BushingForces (the baseline form)",
+            )),
+        };
+        if !k.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(Error::invalid(
+                format!("{ctx}: level {}", l.name),
+                format!("nominal stiffness must be positive, got {k:?}"),
+            ));
+        }
+        if !base.bushing_on_joint_frames(l.bushing) {
+            return Err(Error::invalid(
+                format!("{ctx}: level {}", l.name),
+                "the bushing must sit on the two offset frames of its 6-DoF joint",
+            ));
+        }
+        let fr = base
+            .bushing_frames(l.bushing)
+            .ok_or_else(|| Error::invalid(ctx.to_string(), "bushing index out of range"))?;
+        nominal.push(m);
+        k_nominal.push(k);
+        frames.push(fr);
+    }
+    Ok((nominal, k_nominal, frames))
 }
