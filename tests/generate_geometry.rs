@@ -26,7 +26,7 @@ use osim_spine::osim::model::Geometry;
 use osim_spine::osim::Document;
 use osim_spine::segmentation::{palpate, Options};
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// A scoliotic pose of the base: a right thoracic and a left lumbar curve
 /// (lateral bending up to 5 deg per joint), axial rotation towards the
@@ -292,38 +292,82 @@ fn copy_tree(from: &Path, to: &Path) {
     }
 }
 
+/// The cyclist base model built as `../shared/scoliosis-dev/README.md`
+/// says, once per test binary.
+fn cyclist_base() -> Option<PathBuf> {
+    static DIR: std::sync::OnceLock<Option<PathBuf>> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let model = common::shared("data/models/cyclistFullBodyMuscle.osim")?;
+        let geom = common::shared("data/geometry-bodyframe")?;
+        let dir = tempfile::tempdir().unwrap().keep().join("cyclist");
+        common::run_ok(&[
+            "base".as_ref(),
+            "--generic".as_ref(),
+            model.as_os_str(),
+            "--geometry".as_ref(),
+            geom.as_os_str(),
+            "--out".as_ref(),
+            dir.as_os_str(),
+        ]);
+        Some(dir)
+    })
+    .clone()
+}
+
 /// A patient model from a scoliotic patient's mesh folder
-/// (`../shared/scoliosis-dev/D03_double`, on the embedded base), copied to
-/// another folder and the original removed: OpenSim 4.6 loads the copy
-/// with no line but "Loaded model", every mesh it wears has at most
-/// 5,000 triangles and OpenSim's own wrapped muscle paths at the default
-/// pose pass through no vertebra (its meshes the patient's).
+/// (`../shared/scoliosis-dev/D03_double`, on the embedded base) with the
+/// default geometry of `--segmentation` (the patient's), copied to another
+/// folder and the original removed: OpenSim 4.6 loads the copy with no
+/// line but "Loaded model", every mesh it wears has at most 5,000
+/// triangles and OpenSim's own wrapped muscle paths at the default pose
+/// pass through no vertebra (its meshes the patient's).
 #[test]
 fn patient_model_is_self_contained_and_loads_cleanly_in_opensim() {
     let Some(seg) = common::shared("scoliosis-dev/D03_double/segmentation/meshes") else {
         return;
     };
+    loads_cleanly_in_opensim(&seg, None, 18);
+}
+
+/// The same from a label map (D03's, T9-S1 in the field of view) on the
+/// cyclist base: 9 patient meshes (T9-L5 and the sacrum), decimated.
+#[test]
+fn patient_model_from_a_label_map_on_the_cyclist_base_loads_cleanly_in_opensim() {
+    let Some(seg) = common::shared("scoliosis-dev/D03_double/segmentation/labelmap.nii.gz") else {
+        return;
+    };
+    let Some(base) = cyclist_base() else {
+        return;
+    };
+    loads_cleanly_in_opensim(&seg, Some(&base), 9);
+}
+
+/// `generate --segmentation SEG [--base BASE]` (no `--geometry`), the output
+/// folder moved, then loaded in OpenSim 4.6: see the tests above.
+fn loads_cleanly_in_opensim(seg: &Path, base: Option<&Path>, expect_patient_meshes: usize) {
     let Some(py) = common::opensim_python() else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
     let made = tmp.path().join("made");
     let model = made.join("patient.osim");
-    common::run_ok(&[
+    let mut args: Vec<&std::ffi::OsStr> = vec![
         "generate".as_ref(),
         "--segmentation".as_ref(),
         seg.as_os_str(),
-        "--geometry".as_ref(),
-        "patient".as_ref(),
         "--out".as_ref(),
         model.as_os_str(),
-    ]);
+    ];
+    if let Some(b) = base {
+        args.extend(["--base".as_ref(), b.as_os_str()]);
+    }
+    common::run_ok(&args);
     let moved = tmp.path().join("elsewhere");
     copy_tree(&made, &moved);
     std::fs::remove_dir_all(&made).unwrap();
     let model = moved.join("patient.osim");
-    // Every mesh written: within the triangle budget; 18 of them the
-    // patient's (T1-L5 and the sacrum).
+    // Every mesh written: within the triangle budget; the patient's as many
+    // as the segmentation has levels.
     let mut patient_meshes = 0;
     for e in std::fs::read_dir(moved.join("Geometry")).unwrap() {
         let p = e.unwrap().path();
@@ -342,7 +386,7 @@ fn patient_model_is_self_contained_and_loads_cleanly_in_opensim() {
             patient_meshes += 1;
         }
     }
-    assert_eq!(patient_meshes, 18);
+    assert_eq!(patient_meshes, expect_patient_meshes, "{}", seg.display());
     // OpenSim's log of loading the copy.
     let result = tmp.path().join("log.json");
     let o = std::process::Command::new(&py)
@@ -361,7 +405,8 @@ fn patient_model_is_self_contained_and_loads_cleanly_in_opensim() {
     // OpenSim's wrapped paths against the patient's vertebrae.
     let (crossings, worst) = common::opensim_path_crossings(&py, &model);
     println!(
-        "patient model: {patient_meshes} patient meshes, OpenSim log clean, {} crossings, path lengths within {:.2e} m of OpenSim's",
+        "{}: {patient_meshes} patient meshes, OpenSim log clean, {} crossings, path lengths within {:.2e} m of OpenSim's",
+        seg.display(),
         crossings.len(),
         worst
     );

@@ -48,8 +48,9 @@ pub struct Args {
     /// each vertebra's landmarks) or patient (the segmentation's own, with
     /// --segmentation: wrap spheres, joints, markers and mass from the
     /// patient's bones; written to Geometry/ as `<stem>_<LEVEL>.vtp`).
-    #[arg(long, value_enum, ignore_case = true, default_value_t = GeometryChoice::Base)]
-    pub geometry: GeometryChoice,
+    /// Default: patient with --segmentation, base with --landmarks.
+    #[arg(long, value_enum, ignore_case = true)]
+    pub geometry: Option<GeometryChoice>,
     /// Output model (.osim); meshes go to Geometry/ beside it.
     #[arg(long, value_name = "MODEL.osim")]
     pub out: PathBuf,
@@ -97,12 +98,23 @@ fn refuse_overwriting_inputs(args: &Args) -> crate::Result<()> {
     crate::util::guard::check_outputs(&[&args.out], &protected, args.force)
 }
 
+/// The meshes the model wears: as asked, else the patient's own when a
+/// segmentation gives them (they measure closer to the patient's bone and
+/// centres than the scaled base meshes), else the base's.
+fn geometry_choice(args: &Args) -> GeometryChoice {
+    match (args.geometry, &args.segmentation) {
+        (Some(g), _) => g,
+        (None, Some(_)) => GeometryChoice::Patient,
+        (None, None) => GeometryChoice::Base,
+    }
+}
+
 /// Run `generate`; returns the exit code.
 pub fn run(args: Args) -> anyhow::Result<i32> {
     if args.out.extension().map(|e| e != "osim").unwrap_or(true) {
         return Err(Error::invalid("--out", "the output model must be a .osim file").into());
     }
-    if args.geometry == GeometryChoice::Patient && args.segmentation.is_none() {
+    if args.geometry == Some(GeometryChoice::Patient) && args.segmentation.is_none() {
         return Err(Error::invalid(
             "--geometry",
             "`--geometry patient` takes the patient's meshes from a segmentation: give --segmentation instead of --landmarks",
@@ -121,7 +133,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         .file_stem()
         .map(|s| patient_model_name(&s.to_string_lossy()))
         .unwrap_or_else(|| "patient".into());
-    let patient_geometry = match (&segmentation, args.geometry) {
+    let patient_geometry = match (&segmentation, geometry_choice(&args)) {
         (Some(p), GeometryChoice::Patient) => Some(PatientGeometry::from_palpated(p, &stem)),
         _ => None,
     };
