@@ -21,8 +21,8 @@ for P in D01_thoracic45 D02_lumbar55 D03_double; do
       --film $D/film_right.csv --predict $D/film_left_small_T1.csv $extra --out "$W/$P/$mode" --force \
       > "$W/$P/$mode.log" 2>&1
   done
-  /work/venv/bin/python benches/flexibility_dev.py "$W/$P/personalised" "$W/$P/uniform" $P > "$W/$P/score.json"
-  /work/venv/bin/python - "$W/$P/score.json" <<'PY'
+  ${OSIM_SPINE_PYTHON:-python3} benches/flexibility_dev.py "$W/$P/personalised" "$W/$P/uniform" $P > "$W/$P/score.json"
+  ${OSIM_SPINE_PYTHON:-python3} - "$W/$P/score.json" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))
 print("%s: withheld-film RMSE personalised %.2f mm, uniform %.2f mm (ratio %.2f); main curve %s Cobb film %.1f, personalised %.1f, uniform %.1f deg; truth in 95%% interval %d/%d; curve/rest stiffness ratio %.2f (truth %.2f, %+.0f%%)" % (
