@@ -288,3 +288,29 @@ fn a_mesh_folder_far_away_gives_the_same_landmarks() {
     println!("mesh folder at 1 km: largest landmark change {w:.2e} mm");
     assert!(w < 0.01, "a landmark moved {w} mm");
 }
+
+#[test]
+fn a_surface_beyond_the_sample_cap_is_refused_naming_the_cap() {
+    use osim_spine::palpation::{palpate_vertebra, FrameHint};
+    let (_, l4) = lumbosacral()
+        .into_iter()
+        .find(|(l, _)| *l == Level::L4)
+        .unwrap();
+    // Back to metres: a real L4 palpates; the same shape 30 times larger
+    // (900 times the area) is over the cap of 1 mm^2 samples.
+    let real = l4.scaled(&Vector3::repeat(1e-3));
+    let area = real.area();
+    assert!(area < 0.05, "L4 surface {area} m^2");
+    palpate_vertebra(&real, Level::L4, &FrameHint::body_frame()).unwrap();
+    let huge = real.scaled(&Vector3::repeat(30.0));
+    assert!(huge.area() * 1e6 > 4e6, "{} m^2", huge.area());
+    let t = std::time::Instant::now();
+    let e = palpate_vertebra(&huge, Level::L4, &FrameHint::body_frame())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("4 million surface samples") && e.contains("L4"),
+        "{e}"
+    );
+    assert!(t.elapsed().as_secs_f64() < 2.0, "{:?}", t.elapsed());
+}
