@@ -51,7 +51,7 @@ fn zero_bomb(path: &Path, n: usize) {
 }
 
 /// Run `osim-spine args` with its address space limited to `mb` MB.
-fn run_within(mb: u64, args: &[&str]) -> Output {
+pub fn run_within(mb: u64, args: &[&str]) -> Output {
     Command::new("sh")
         .arg("-c")
         .arg("ulimit -v \"$1\"; shift; exec \"$@\"")
