@@ -23,7 +23,7 @@ fuzz_target!(|data: &[u8]| {
     let Ok(m) = mesh::read_bytes(format, bytes, path) else {
         return;
     };
-    let Ok(m) = folder::closed(m, path) else {
+    let Ok((m, _turned)) = folder::closed(m, path) else {
         return;
     };
     let _ = checks::check_shape(Level::L3, &m);

@@ -29,6 +29,12 @@ impl From<FrameName> for LoadFrame {
     }
 }
 
+/// Largest moment a load case may apply (N*m, norm).
+pub const MAX_MOMENT: f64 = 1e4;
+
+/// Largest force or follower load a load case may apply (N, norm).
+pub const MAX_FORCE: f64 = 1e5;
+
 /// One `[[case]]` table.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -85,6 +91,7 @@ impl LoadCase {
                 return Err(err(format!("{name} must be three finite numbers")));
             }
         }
+        self.check_magnitudes(&err)?;
         if self.moment.iter().any(|&x| x != 0.0) && self.moment_frame.is_none() {
             return Err(err("moment_frame is required with a non-zero moment: \"ground\" (fixed axes) or \"body\" (follows the body)".into()));
         }
@@ -93,6 +100,26 @@ impl LoadCase {
                 "follower_load must be a finite magnitude >= 0 N (compressive), got {}",
                 self.follower_load
             )));
+        }
+        Ok(())
+    }
+
+    /// Loads within what a spine (or a rig) can bear: a moment's norm at
+    /// most [`MAX_MOMENT`], a force's and the follower load at most
+    /// [`MAX_FORCE`]; beyond, the solver would only report a failure to
+    /// converge under a wrong cause.
+    fn check_magnitudes(&self, err: &impl Fn(String) -> Error) -> Result<()> {
+        let norm = |v: &[f64; 3]| Vector3::from(*v).norm();
+        for (name, size, max, unit) in [
+            ("moment", norm(&self.moment), MAX_MOMENT, "N*m"),
+            ("force", norm(&self.force), MAX_FORCE, "N"),
+            ("follower_load", self.follower_load, MAX_FORCE, "N"),
+        ] {
+            if size > max {
+                return Err(err(format!(
+                    "{name} of magnitude {size:.4e} {unit} is beyond the limit of {max:.0e} {unit} (loads on a spine are below 1e2 N*m and 1e4 N): check the units"
+                )));
+            }
         }
         Ok(())
     }

@@ -141,6 +141,9 @@ fn run_inner(args: &Args) -> anyhow::Result<i32> {
     let files: Vec<(PathBuf, Vec<u8>)> = files.into_iter().collect();
     crate::util::write_all_or_nothing(&files)?;
     let r = &c.report;
+    for w in &r.warnings {
+        crate::errln!("warning: {w}");
+    }
     if r.operators.len() == 1 && args.files.len() > 1 {
         crate::outln!(
             "note: one operator: without `# operator:` comments or an operator column the {} files are \

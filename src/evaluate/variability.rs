@@ -134,6 +134,9 @@ pub struct VariabilityReport {
     /// ([`crate::evaluate::propagation`]); `None` when not asked for.
     pub model_propagation: Option<ModelPropagation>,
     pub notes: Vec<String>,
+    /// What makes the statistics doubtful (palpations with identical
+    /// landmark sets).
+    pub warnings: Vec<String>,
 }
 
 fn value(p: &nalgebra::Point3<f64>, origin: &Vector3<f64>, axis: usize) -> f64 {
@@ -201,8 +204,56 @@ pub fn analyse(pals: &[PalpationSet]) -> Result<VariabilityReport> {
         friedman,
         model_propagation: None,
         notes: Vec::new(),
+        warnings: identical_sets(pals),
     })
 }
+
+/// Palpations whose landmark sets are identical (every landmark, every
+/// coordinate to the bit): a repetition that agrees to the last digit was
+/// copied, not palpated again. One warning per group, at most
+/// [`MAX_LISTED`] groups listed.
+fn identical_sets(pals: &[PalpationSet]) -> Vec<String> {
+    type Key = Vec<(LandmarkId, [u64; 3])>;
+    let mut groups: BTreeMap<Key, Vec<&PalpationSet>> = BTreeMap::new();
+    for p in pals {
+        let key = p
+            .set
+            .points
+            .iter()
+            .map(|(id, q)| (*id, [q.x, q.y, q.z].map(f64::to_bits)))
+            .collect();
+        groups.entry(key).or_default().push(p);
+    }
+    let name = |p: &PalpationSet| {
+        format!(
+            "{} (operator {}, repetition {})",
+            p.source.display(),
+            p.operator,
+            p.repetition
+        )
+    };
+    let mut same: Vec<String> = groups
+        .values()
+        .filter(|g| g.len() > 1)
+        .map(|g| {
+            format!(
+                "identical landmark sets (every coordinate equal): {}; a repeated palpation that agrees to the last digit was copied, and counts here as perfect agreement",
+                g.iter().map(|p| name(p)).collect::<Vec<_>>().join(", ")
+            )
+        })
+        .collect();
+    if same.len() > MAX_LISTED {
+        let more = same.len() - MAX_LISTED;
+        same.truncate(MAX_LISTED);
+        same.push(format!(
+            "... and {more} more groups of identical landmark sets"
+        ));
+    }
+    same
+}
+
+/// Most groups of identical sets listed one by one.
+const MAX_LISTED: usize = 10;
 
 /// Centroid of every landmark of every palpation.
 fn grand_centroid(pals: &[PalpationSet]) -> Vector3<f64> {

@@ -21,6 +21,12 @@ pub(crate) struct LocalMesh {
     pub centroids: Vec<Point3<f64>>,
 }
 
+/// Most points spread over one surface (`LocalMesh::area_samples`).
+pub(crate) const MAX_SURFACE_SAMPLES: usize = 4_000_000;
+
+/// Surface area per point of the evenly spread samples (m^2): 1 mm^2.
+pub(crate) const SAMPLE_AREA: f64 = 1.0e-6;
+
 /// Weld and orient a mesh once (shared by every trial frame).
 pub(crate) fn prepare(mesh: &TriMesh, ctx: &str) -> Result<TriMesh> {
     mesh.validate()?;
@@ -30,6 +36,17 @@ pub(crate) fn prepare(mesh: &TriMesh, ctx: &str) -> Result<TriMesh> {
     let size = (hi - lo).norm();
     if size.is_nan() || size <= 0.0 || mesh.triangles.len() < 4 {
         return Err(Error::invalid(ctx, "the mesh is empty or degenerate"));
+    }
+    // The surface must fit the sample cap (bounded time and memory).
+    let area = mesh.area();
+    if area.is_nan() || area / SAMPLE_AREA > MAX_SURFACE_SAMPLES as f64 {
+        return Err(Error::invalid(
+            ctx,
+            format!(
+                "the surface is {area:.3e} m^2: it would need more than the cap of {} million surface samples of 1 mm^2 each (a lumbar vertebra is about 0.01 m^2): are the coordinates in the declared units?",
+                MAX_SURFACE_SAMPLES / 1_000_000
+            ),
+        ));
     }
     let (mut welded, _) = mesh.welded(1e-7 * size);
     welded.orient_consistently();
@@ -103,11 +120,14 @@ impl LocalMesh {
     /// Points spread evenly over the surface, about one per `area_each`
     /// (m^2) whatever the mesh's resolution: each face gets its share of
     /// points (the fractional remainder carried to the next face), spread
-    /// over it by the R2 low-discrepancy sequence. Deterministic.
+    /// over it by the R2 low-discrepancy sequence. Deterministic. At most
+    /// `MAX_SURFACE_SAMPLES` points (sparser on a larger surface).
     pub fn area_samples(&self, area_each: f64) -> Vec<Point3<f64>> {
         // R2 sequence steps (the plastic number's inverse powers).
         const A1: f64 = 0.754_877_666_246_692_7;
         const A2: f64 = 0.569_840_290_998_053_3;
+        let total: f64 = self.areas.iter().sum();
+        let area_each = area_each.max(total / MAX_SURFACE_SAMPLES as f64);
         let mut out = Vec::new();
         let mut carry = 0.5;
         for (t, area) in self.tris.iter().zip(&self.areas) {

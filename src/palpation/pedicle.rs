@@ -15,7 +15,7 @@
 //! their endplate centre, across the axis) away from the body's axis.
 
 use super::body::EndplatePoints;
-use super::local::LocalMesh;
+use super::local::{LocalMesh, SAMPLE_AREA};
 use crate::mesh::{fit_sphere, Sphere};
 use nalgebra::{Point3, Vector3};
 
@@ -82,9 +82,6 @@ pub(crate) fn rim_radius(sup: &EndplatePoints, inf: &EndplatePoints) -> f64 {
     }
     s / 8.0
 }
-
-/// Surface area per sample of the anterior surface (m^2): 1 mm^2.
-const SAMPLE_AREA: f64 = 1.0e-6;
 
 /// The anterior-surface nodes of the body (points spread evenly over it)
 /// and their least-squares sphere.

@@ -201,8 +201,9 @@ pub fn assemble(
     opts: &Options,
 ) -> Result<Palpated> {
     let mut levels = Vec::new();
+    let cap = loaded.resolution.map(|r| r.confidence_cap()).unwrap_or(1.0);
     for (input, (_, r)) in loaded.levels.iter().zip(results) {
-        if let Some(p) = accept(input, r, &mut loaded.findings) {
+        if let Some(p) = accept(input, r, cap, &mut loaded.findings) {
             levels.push(p);
         }
     }
@@ -229,6 +230,7 @@ pub fn assemble(
         frame,
         levels,
         findings: loaded.findings,
+        resolution: loaded.resolution,
     })
 }
 
@@ -236,6 +238,7 @@ pub fn assemble(
 fn accept(
     input: &LevelInput,
     r: Result<VertebraPalpation>,
+    cap: f64,
     findings: &mut Vec<Finding>,
 ) -> Option<LevelResult> {
     let level = input.level;
@@ -285,22 +288,33 @@ fn accept(
         ));
         return None;
     }
-    Some(with_distances(input, p, findings))
+    Some(with_distances(input, p, cap, findings))
 }
 
-/// Distance of each landmark to the surface; low confidence flagged.
+/// Distance of each landmark to the surface; low confidence flagged (by
+/// the palpation: a cap from the voxel size is said once, by the map).
 fn with_distances(
     input: &LevelInput,
-    p: VertebraPalpation,
+    mut p: VertebraPalpation,
+    cap: f64,
     findings: &mut Vec<Finding>,
 ) -> LevelResult {
     let query = MeshQuery::new(&input.mesh).ok();
     let mut distance = std::collections::BTreeMap::new();
-    for (code, lm) in &p.landmarks {
+    for (code, lm) in p.landmarks.iter_mut() {
+        let own = lm.confidence;
+        if own > cap {
+            lm.confidence = cap;
+            let why = format!("capped at {cap:.2} by the label map's voxel size");
+            lm.note = Some(match lm.note.take() {
+                Some(n) => format!("{n}; {why}"),
+                None => why,
+            });
+        }
         if let Some(q) = &query {
             distance.insert(*code, q.distance(&lm.point));
         }
-        if lm.confidence < UNCERTAIN {
+        if own < UNCERTAIN {
             findings.push(Finding {
                 level: Some(input.level),
                 code: Some(*code),
@@ -308,7 +322,7 @@ fn with_distances(
                 message: format!(
                     "{}_{code} uncertain (confidence {:.2}){}",
                     input.level,
-                    lm.confidence,
+                    own,
                     lm.note
                         .as_deref()
                         .map(|n| format!(": {n}"))

@@ -59,6 +59,8 @@ pub fn load(path: &Path, opts: &Options) -> Result<Loaded> {
             ),
         ));
     }
+    let resolution = Resolution::of(&map);
+    findings.extend(resolution.coarse_findings());
     Ok(Loaded {
         kind: Kind::LabelMap,
         source: source_name(path),
@@ -68,7 +70,79 @@ pub fn load(path: &Path, opts: &Options) -> Result<Loaded> {
         levels,
         findings,
         cut_by_fov: cut,
+        resolution: Some(resolution),
     })
+}
+
+/// Largest voxel edge (mm) the landmarking protocol is written for: a
+/// thicker slice blurs the endplates it places landmarks on.
+pub const PROTOCOL_VOXEL_MM: f64 = 3.0;
+
+/// A label map's voxel size: what its landmarks can resolve.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Resolution {
+    /// Voxel edge lengths along the map's i, j, k axes (mm).
+    pub voxel_mm: [f64; 3],
+    /// The anatomical direction each voxel axis runs closest to.
+    #[serde(skip)]
+    pub directions: [&'static str; 3],
+}
+
+impl Resolution {
+    /// The voxel edges of a map and their directions in the RAS world.
+    pub fn of(map: &LabelMap) -> Resolution {
+        let m = map.affine.fixed_view::<3, 3>(0, 0);
+        let edge = |k: usize| m.column(k).into_owned();
+        Resolution {
+            voxel_mm: [0, 1, 2].map(|k| edge(k).norm()),
+            directions: [0, 1, 2].map(|k| match edge(k).iamax() {
+                0 => "left-right",
+                1 => "anterior-posterior",
+                _ => "superior-inferior",
+            }),
+        }
+    }
+
+    /// The largest voxel edge (mm).
+    pub fn largest_mm(&self) -> f64 {
+        self.voxel_mm.iter().copied().fold(0.0, f64::max)
+    }
+
+    /// The resolution's part of every landmark's position uncertainty:
+    /// half the largest voxel edge (mm).
+    pub fn uncertainty_mm(&self) -> f64 {
+        0.5 * self.largest_mm()
+    }
+
+    /// Highest confidence a landmark of this map can have: 1 up to the
+    /// protocol's voxel, then falling as its ratio to the largest edge.
+    pub fn confidence_cap(&self) -> f64 {
+        (PROTOCOL_VOXEL_MM / self.largest_mm()).min(1.0)
+    }
+
+    /// One warning per voxel axis thicker than the protocol's voxel,
+    /// naming the axis, its direction and its size.
+    pub fn coarse_findings(&self) -> Vec<Finding> {
+        let names = ["i", "j", "k"];
+        (0..3)
+            .filter(|&k| self.voxel_mm[k] > PROTOCOL_VOXEL_MM)
+            .map(|k| {
+                Finding::new(
+                    None,
+                    Severity::Warning,
+                    format!(
+                        "the label map's voxels are {:.2} mm along {} (its {} axis): too coarse for the protocol along {} (at most {PROTOCOL_VOXEL_MM} mm): every landmark is uncertain by at least {:.2} mm and its confidence capped at {:.2}; re-segment a scan with thinner slices",
+                        self.voxel_mm[k],
+                        names[k],
+                        self.directions[k],
+                        names[k],
+                        self.uncertainty_mm(),
+                        self.confidence_cap()
+                    ),
+                )
+            })
+            .collect()
+    }
 }
 
 /// Each level of the table present in the map, with its labels.

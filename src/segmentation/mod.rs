@@ -109,6 +109,8 @@ pub struct Loaded {
     pub findings: Vec<Finding>,
     /// Levels left out because the field of view cuts them (label maps).
     pub cut_by_fov: Vec<Level>,
+    /// The voxel size (label maps).
+    pub resolution: Option<labelmap::Resolution>,
 }
 
 /// One palpated level.
@@ -138,6 +140,8 @@ pub struct Palpated {
     pub frame: Frame,
     pub levels: Vec<LevelResult>,
     pub findings: Vec<Finding>,
+    /// The voxel size (label maps).
+    pub resolution: Option<labelmap::Resolution>,
 }
 
 /// Read a segmentation: a folder of meshes or a NIfTI label map.
@@ -237,6 +241,7 @@ fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
         levels,
         findings,
         cut_by_fov: Vec::new(),
+        resolution: None,
     })
 }
 

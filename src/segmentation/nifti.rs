@@ -490,8 +490,7 @@ fn qform(h: &NiftiHeader, path: &Path, notes: &mut Vec<String>) -> Result<Matrix
             format!("qfac {qfac}: expected 1 or -1 (nifti1_io reads it as -1, a mirrored k axis, nibabel as 1): the patient's handedness is ambiguous"),
         ));
     }
-    let (b, c, d) = unit_quaternion(h, notes);
-    let a = (1.0 - (b * b + c * c + d * d)).max(0.0).sqrt();
+    let (a, b, c, d) = unit_quaternion(h, notes);
     #[rustfmt::skip]
     let r = Matrix3::new(
         a * a + b * b - c * c - d * d, 2.0 * (b * c - a * d), 2.0 * (b * d + a * c),
@@ -514,13 +513,16 @@ fn qform(h: &NiftiHeader, path: &Path, notes: &mut Vec<String>) -> Result<Matrix
     Ok(m)
 }
 
-/// The quaternion's (b, c, d); of norm 1 or more (a = 0 within 1e-7, as
-/// nifti1_io decides), scaled to norm 1, with a note when it was above 1.
-fn unit_quaternion(h: &NiftiHeader, notes: &mut Vec<String>) -> (f64, f64, f64) {
+/// The quaternion (a, b, c, d) as `nifti_quatern_to_mat44` completes it:
+/// a = sqrt(1 - |(b, c, d)|^2), except when that is below 1e-7 (a half
+/// turn, or a norm above 1): then a = 0 exactly and (b, c, d) scaled to
+/// norm 1, with a note when the norm was above 1.
+fn unit_quaternion(h: &NiftiHeader, notes: &mut Vec<String>) -> (f64, f64, f64, f64) {
     let (b, c, d) = (h.quatern_b as f64, h.quatern_c as f64, h.quatern_d as f64);
     let n2 = b * b + c * c + d * d;
-    if 1.0 - n2 >= 1e-7 {
-        return (b, c, d);
+    let a = 1.0 - n2;
+    if a >= 1e-7 {
+        return (a.sqrt(), b, c, d);
     }
     if n2 > 1.0 + 1e-6 {
         notes.push(format!(
@@ -529,7 +531,7 @@ fn unit_quaternion(h: &NiftiHeader, notes: &mut Vec<String>) -> (f64, f64, f64) 
         ));
     }
     let n = n2.sqrt();
-    (b / n, c / n, d / n)
+    (0.0, b / n, c / n, d / n)
 }
 
 /// A qform voxel size: a zero (or non-finite) one taken as 1 mm-unit, a

@@ -39,6 +39,9 @@ pub struct LandmarkEntry {
     /// Position in the output units and frame.
     pub position: [f64; 3],
     pub confidence: f64,
+    /// The label map's resolution as a position uncertainty (output
+    /// units): half its largest voxel edge; `None` for a mesh folder.
+    pub uncertainty: Option<f64>,
     /// Distance to the level's surface (output units).
     pub distance_to_surface: Option<f64>,
     pub uncertain: bool,
@@ -66,6 +69,8 @@ pub struct Report {
     pub frame: crate::landmarks::Frame,
     /// Axes of the segmentation itself.
     pub segmentation_frame: crate::landmarks::Frame,
+    /// The label map's voxel size (edges along i, j, k, mm).
+    pub resolution: Option<super::labelmap::Resolution>,
     pub levels_palpated: Vec<Level>,
     pub warnings: usize,
     pub findings: Vec<Finding>,
@@ -101,6 +106,7 @@ pub fn report(p: &Palpated) -> Report {
                     name: format!("{}_{code}", r.level),
                     position: out(&lm.point),
                     confidence: r4(lm.confidence),
+                    uncertainty: p.resolution.map(|v| r4(v.uncertainty_mm() * 1e-3 * s)),
                     distance_to_surface: r.distance.get(code).map(|d| r4(d * s)),
                     uncertain: lm.confidence < super::assemble::UNCERTAIN,
                     note: lm.note.clone(),
@@ -115,6 +121,7 @@ pub fn report(p: &Palpated) -> Report {
         units: p.units,
         frame: p.frame,
         segmentation_frame: p.world,
+        resolution: p.resolution,
         levels_palpated: p.levels.iter().map(|r| r.level).collect(),
         warnings: p
             .findings

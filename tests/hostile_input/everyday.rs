@@ -138,6 +138,27 @@ fn a_mesh_over_the_triangle_cap_is_refused_before_it_is_parsed() {
         e.contains("huge.stl") && e.contains("limited to 2000000") && e.contains("decimate"),
         "{e}"
     );
+    // Ten million triangles (a 500 MB file, sparse): refused by `palpate`
+    // within 5 s and 1 GB of address space.
+    let dir = d.path().join("meshes");
+    std::fs::create_dir(&dir).unwrap();
+    let big = dir.join("L3.stl");
+    let n: u64 = 10_000_000;
+    head[80..84].copy_from_slice(&(n as u32).to_le_bytes());
+    std::fs::write(&big, &head).unwrap();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&big)
+        .unwrap()
+        .set_len(84 + 50 * n)
+        .unwrap();
+    let out = d.path().join("lm.csv");
+    let t = std::time::Instant::now();
+    let o = super::label_maps::run_within(1024, &["palpate", s(&dir), "--out", s(&out)]);
+    let secs = t.elapsed().as_secs_f64();
+    assert_refused(&o, "L3.stl", "limited to 2000000");
+    assert!(secs < 5.0, "refused in {secs:.1} s");
+    assert!(!out.exists());
 }
 
 #[test]
@@ -218,4 +239,142 @@ fn variability_refuses_the_same_palpation_twice() {
     assert_refused(&o, "b.csv", "the same content as");
     assert!(text(&o).contains("a.csv"), "{}", text(&o));
     assert!(!out.exists());
+}
+
+#[test]
+fn loads_beyond_a_spine_are_refused_naming_the_magnitude() {
+    let d = tempfile::tempdir().unwrap();
+    let m = d.path().join("m.osim");
+    std::fs::write(&m, corpus_model()).unwrap();
+    for (name, case, fragment) in [
+        (
+            "moment",
+            "moment = [0.0, 0.0, 1e9]\nmoment_frame = \"ground\"",
+            "moment of magnitude 1.0000e9 N*m",
+        ),
+        (
+            "force",
+            "force = [3e5, 4e5, 0.0]",
+            "force of magnitude 5.0000e5 N",
+        ),
+        (
+            "follower",
+            "follower_load = 2e5",
+            "follower_load of magnitude 2.0000e5 N",
+        ),
+    ] {
+        let load = d.path().join(format!("{name}.toml"));
+        std::fs::write(
+            &load,
+            format!("[[case]]\nid = \"big\"\nbody = \"L5\"\n{case}\n"),
+        )
+        .unwrap();
+        let out = d.path().join(format!("sim_{name}"));
+        let o = run(&["simulate", s(&m), "--load", s(&load), "--out", s(&out)]);
+        assert_refused(&o, &format!("{name}.toml"), fragment);
+        assert!(!text(&o).contains("no stiffness"), "{}", text(&o));
+        assert!(!out.exists());
+    }
+    // A moment a spine bears is solved.
+    let load = d.path().join("small.toml");
+    std::fs::write(
+        &load,
+        "[[case]]\nid = \"small\"\nbody = \"L5\"\nmoment = [0.0, 0.0, 5.0]\nmoment_frame = \"ground\"\n",
+    )
+    .unwrap();
+    let out = d.path().join("sim_small");
+    let o = run(&["simulate", s(&m), "--load", s(&load), "--out", s(&out)]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+}
+
+#[test]
+fn variability_warns_on_identical_sets_in_different_files() {
+    let d = tempfile::tempdir().unwrap();
+    let text = example();
+    // b: the same landmarks with other comments (different bytes); c:
+    // one coordinate moved by 0.1 mm.
+    let a = d.path().join("a.csv");
+    let b = d.path().join("b.csv");
+    let c = d.path().join("c.csv");
+    std::fs::write(&a, &text).unwrap();
+    std::fs::write(&b, format!("# palpated again on Tuesday\n{text}")).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let row = lines.iter().position(|l| l.starts_with("L3_")).unwrap();
+    let mut cells: Vec<String> = lines[row].split(',').map(String::from).collect();
+    cells[1] = format!("{}", cells[1].parse::<f64>().unwrap() + 0.1);
+    lines[row] = cells.join(",");
+    std::fs::write(&c, lines.join("\n") + "\n").unwrap();
+    let out = d.path().join("var");
+    let o = run(&[
+        "variability",
+        s(&a),
+        s(&b),
+        s(&c),
+        "--no-models",
+        "--out",
+        s(&out),
+    ]);
+    let t = super::text(&o);
+    assert_eq!(o.status.code(), Some(0), "{t}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("variability.json")).unwrap()).unwrap();
+    let w = json["warnings"].as_array().unwrap();
+    assert_eq!(w.len(), 1, "{w:?}");
+    let w = w[0].as_str().unwrap();
+    assert!(
+        w.contains("identical landmark sets") && w.contains("a.csv") && w.contains("b.csv"),
+        "{w}"
+    );
+    assert!(!w.contains("c.csv"), "{w}");
+    assert!(t.contains("warning: identical landmark sets"), "{t}");
+    // Different sets: no warning.
+    let out2 = d.path().join("var2");
+    let o = run(&[
+        "variability",
+        s(&a),
+        s(&c),
+        "--no-models",
+        "--out",
+        s(&out2),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", super::text(&o));
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out2.join("variability.json")).unwrap()).unwrap();
+    assert_eq!(json["warnings"].as_array().unwrap().len(), 0);
+}
+
+#[test]
+fn an_experiment_of_20000_cases_loads_in_linear_time() {
+    let src = common::repo_root().join("tests/data/published");
+    let d = tempfile::tempdir().unwrap();
+    std::fs::copy(src.join("specimen.osim"), d.path().join("specimen.osim")).unwrap();
+    let case = d.path().join("case");
+    std::fs::create_dir(&case).unwrap();
+    let toml = std::fs::read_to_string(src.join("yamamoto1989/experiment.toml")).unwrap();
+    let head = &toml[..toml.find("[[case]]").unwrap()];
+    // n cases of 1..9 N*m, each with one measured rotation.
+    let write = |n: usize| {
+        let mut t = head.to_string();
+        let mut k = String::from("case,upper,lower,rx,ry,rz,tx,ty,tz\n");
+        for i in 0..n {
+            let m = 1.0 + (i % 9) as f64;
+            t.push_str(&format!(
+                "[[case]]\nid = \"c{i}\"\nbody = \"lumbar1\"\nmoment = [0.0, 0.0, {m}]\nmoment_frame = \"ground\"\n\n"
+            ));
+            k.push_str(&format!("c{i},lumbar1,lumbar2,,,{:.2},,,\n", 0.6 * m));
+        }
+        std::fs::write(case.join("experiment.toml"), t).unwrap();
+        std::fs::write(case.join("kinematics.csv"), k).unwrap();
+        let t = std::time::Instant::now();
+        let e = osim_spine::calibrate::experiment::Experiment::read(&case)
+            .unwrap_or_else(|e| panic!("{n} cases: {e}"));
+        assert_eq!(e.cases.len(), n);
+        t.elapsed().as_secs_f64()
+    };
+    let small = write(2_000);
+    let big = write(20_000);
+    println!("experiment load: 2,000 cases {small:.3} s, 20,000 cases {big:.3} s");
+    assert!(big < 2.0, "20,000 cases loaded in {big:.2} s");
+    // Linear: ten times the cases, not a hundred times the time.
+    assert!(big < 30.0 * small.max(0.01), "{small:.3} s -> {big:.3} s");
 }

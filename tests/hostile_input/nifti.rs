@@ -51,7 +51,7 @@ fn zero_bomb(path: &Path, n: usize) {
 }
 
 /// Run `osim-spine args` with its address space limited to `mb` MB.
-fn run_within(mb: u64, args: &[&str]) -> Output {
+pub fn run_within(mb: u64, args: &[&str]) -> Output {
     Command::new("sh")
         .arg("-c")
         .arg("ulimit -v \"$1\"; shift; exec \"$@\"")
@@ -287,4 +287,124 @@ fn a_mesh_folder_far_away_gives_the_same_landmarks() {
     let w = worst_after(&sets[0].1, &sets[1].1, sets[1].0);
     println!("mesh folder at 1 km: largest landmark change {w:.2e} mm");
     assert!(w < 0.01, "a landmark moved {w} mm");
+}
+
+#[test]
+fn a_surface_beyond_the_sample_cap_is_refused_naming_the_cap() {
+    use osim_spine::palpation::{palpate_vertebra, FrameHint};
+    let (_, l4) = lumbosacral()
+        .into_iter()
+        .find(|(l, _)| *l == Level::L4)
+        .unwrap();
+    // Back to metres: a real L4 palpates; the same shape 30 times larger
+    // (900 times the area) is over the cap of 1 mm^2 samples.
+    let real = l4.scaled(&Vector3::repeat(1e-3));
+    let area = real.area();
+    assert!(area < 0.05, "L4 surface {area} m^2");
+    palpate_vertebra(&real, Level::L4, &FrameHint::body_frame()).unwrap();
+    let huge = real.scaled(&Vector3::repeat(30.0));
+    assert!(huge.area() * 1e6 > 4e6, "{} m^2", huge.area());
+    let t = std::time::Instant::now();
+    let e = palpate_vertebra(&huge, Level::L4, &FrameHint::body_frame())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("4 million surface samples") && e.contains("L4"),
+        "{e}"
+    );
+    assert!(t.elapsed().as_secs_f64() < 2.0, "{:?}", t.elapsed());
+}
+
+/// The lumbosacral meshes voxelised on a RAS grid of `voxel` mm edges
+/// (TotalSegmentator labels), as a NIfTI file in `dir`.
+fn thick_map(dir: &Path, name: &str, voxel: [f64; 3]) -> std::path::PathBuf {
+    let to_ras = |v: &Vector3<f64>| Vector3::new(v.z, v.x, v.y);
+    let meshes: Vec<(u16, TriMesh)> = lumbosacral()
+        .into_iter()
+        .map(|(l, mut m)| {
+            for v in m.vertices.iter_mut() {
+                v.coords = to_ras(&v.coords);
+            }
+            let label = if l.is_sacrum() {
+                25
+            } else {
+                43 - l.index() as u16
+            };
+            (label, m)
+        })
+        .collect();
+    let refs: Vec<(u16, &TriMesh)> = meshes.iter().map(|(l, m)| (*l, m)).collect();
+    let (lo, hi) = meshes.iter().flat_map(|(_, m)| &m.vertices).fold(
+        (Vector3::repeat(f64::MAX), Vector3::repeat(f64::MIN)),
+        |(a, b), v| (a.inf(&v.coords), b.sup(&v.coords)),
+    );
+    let mut a = Matrix4::from_diagonal(&nalgebra::Vector4::new(voxel[0], voxel[1], voxel[2], 1.0));
+    let corner = lo - Vector3::from(voxel) * 2.0;
+    a.fixed_view_mut::<3, 1>(0, 3).copy_from(&corner);
+    let dims = [0, 1, 2].map(|k| ((hi[k] - lo[k]) / voxel[k]).ceil() as usize + 5);
+    let map = voxelise::voxelise(&refs, dims, a);
+    let p = dir.join(format!("{name}.nii"));
+    std::fs::write(
+        &p,
+        voxelise::nifti_bytes(&map, voxelise::HeaderTransform::Sform),
+    )
+    .unwrap();
+    p
+}
+
+#[test]
+fn thick_slices_are_named_and_widen_every_landmark() {
+    let d = tempfile::tempdir().unwrap();
+    for (name, voxel, axis, direction) in [
+        ("fine", [1.0, 1.0, 1.0], None, ""),
+        ("thick_k", [0.5, 0.5, 6.0], Some("k"), "superior-inferior"),
+        ("thick_i", [6.0, 0.5, 0.5], Some("i"), "left-right"),
+    ] {
+        let p = thick_map(d.path(), name, voxel);
+        let largest = voxel.iter().copied().fold(0.0, f64::max);
+        let got = match segmentation::palpate(&p, &Options::default()) {
+            Ok(got) => got,
+            Err(e) => panic!("{name}: {e}"),
+        };
+        let coarse: Vec<&str> = got
+            .findings
+            .iter()
+            .map(|f| f.message.as_str())
+            .filter(|m| m.contains("too coarse for the protocol"))
+            .collect();
+        match axis {
+            None => assert!(coarse.is_empty(), "{name}: {coarse:?}"),
+            Some(a) => {
+                assert_eq!(coarse.len(), 1, "{name}: {coarse:?}");
+                let m = coarse[0];
+                assert!(
+                    m.contains(&format!("along {a}"))
+                        && m.contains("6.00 mm")
+                        && m.contains(direction),
+                    "{name}: {m}"
+                );
+            }
+        }
+        let report = segmentation::report::report(&got);
+        let cap = (3.0 / largest).min(1.0);
+        let entries: Vec<_> = report.levels.iter().flat_map(|l| &l.landmarks).collect();
+        assert!(!entries.is_empty(), "{name}: no landmark");
+        for e in entries {
+            // Output in mm: half the largest voxel edge.
+            let u = e
+                .uncertainty
+                .unwrap_or_else(|| panic!("{name} {}: no uncertainty", e.name));
+            assert!(
+                (u - 0.5 * largest).abs() < 1e-9,
+                "{name} {}: uncertainty {u}",
+                e.name
+            );
+            assert!(
+                e.confidence <= cap + 1e-9,
+                "{name} {}: confidence {}",
+                e.name,
+                e.confidence
+            );
+        }
+    }
 }
