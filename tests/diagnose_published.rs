@@ -8,7 +8,10 @@
 //! (within their 95% intervals).
 
 use osim_spine::calibrate::experiment::Experiment;
+use osim_spine::diagnose::noise::NoiseSource;
+use osim_spine::diagnose::select::Outcome;
 use osim_spine::diagnose::select::{diagnose, Options, Verdict};
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 /// The published cases (folders with a `reading.toml`).
@@ -95,8 +98,28 @@ fn published_tables_get_the_verdict_their_reading_names() {
             o.ratios.iter().map(|r| &r.text).collect::<Vec<_>>(),
             o.reasons
         );
-        // a table of primary rotations at one magnitude: whole levels held out
-        assert!(o.design.by_level, "{}", o.design.rule);
+        // a table of primary rotations at one magnitude over three or more
+        // measured levels: whole levels held out; over fewer, a trend is
+        // untestable and the verdict says so
+        let levels: BTreeSet<(&str, &str)> = exp
+            .rows
+            .iter()
+            .map(|row| (row.upper.as_str(), row.lower.as_str()))
+            .collect();
+        assert_eq!(o.design.levels.len(), levels.len());
+        if levels.len() >= 3 {
+            assert!(o.design.by_level, "{}", o.design.rule);
+        } else {
+            assert!(!o.design.by_level);
+            assert!(o.design.is_untestable("level_dependent_stiffness"));
+            assert!(
+                o.reasons
+                    .iter()
+                    .any(|x| x.contains("level_dependent_stiffness")),
+                "{:?}",
+                o.reasons
+            );
+        }
         if r.trend {
             assert_ne!(o.verdict, Verdict::Unidentifiable);
         }
@@ -105,20 +128,15 @@ fn published_tables_get_the_verdict_their_reading_names() {
         want.sort_unstable();
         got.sort_unstable();
         assert_eq!(got, want, "{}", dir.display());
-        assert!(matches!(o.verdict, Verdict::Effect(e) if r.effects.iter().any(|w| w == e.name())));
-        assert!(o.confidence > 0.0 && o.confidence <= 1.0);
-        // means without SDs: the noise is the literature spread, and said to be
-        if exp
-            .rows
-            .iter()
-            .all(|row| row.sd.iter().all(Option::is_none))
-        {
+        if r.effects.is_empty() {
+            assert_eq!(o.verdict, Verdict::None, "{}", dir.display());
+        } else {
             assert!(
-                o.assumptions.iter().any(|a| a.contains("assumed")),
-                "{:?}",
-                o.assumptions
+                matches!(o.verdict, Verdict::Effect(e) if r.effects.iter().any(|w| w == e.name()))
             );
         }
+        assert!(o.confidence > 0.0 && o.confidence <= 1.0);
+        noise_is_said(&exp, &o);
         // the fitted ratios agree with the table's own
         for (q, table) in &r.ratios {
             let f = o
@@ -134,4 +152,38 @@ fn published_tables_get_the_verdict_their_reading_names() {
             );
         }
     }
+}
+
+/// Means without SDs: the noise is the literature spread, and said to be.
+/// With SDs: every cell's noise is its stated SD (in degrees) over the
+/// square root of the specimen count, and nothing is assumed about the rotations.
+fn noise_is_said(exp: &Experiment, o: &Outcome) {
+    let stated = exp
+        .rows
+        .iter()
+        .any(|row| row.sd.iter().any(Option::is_some));
+    if !stated {
+        assert!(
+            o.assumptions.iter().any(|a| a.contains("assumed")),
+            "{:?}",
+            o.assumptions
+        );
+        return;
+    }
+    let n = f64::from(exp.measurement.n_specimens.unwrap());
+    for c in &o.sim.cells {
+        let sd = exp.rows[c.row].sd[c.dof].unwrap();
+        let want = sd.to_degrees() / n.sqrt();
+        let got = c.sd.unwrap();
+        assert!(
+            (got - want).abs() < 1e-9 * want,
+            "row {} {got} {want}",
+            c.row
+        );
+    }
+    assert!(o
+        .noise_model
+        .rotation
+        .is_some_and(|r| r.source == NoiseSource::Stated));
+    assert!(o.assumptions.is_empty(), "{:?}", o.assumptions);
 }

@@ -6,7 +6,7 @@
 
 use crate::calibrate::experiment::LoadCase;
 use serde::Serialize;
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 
 /// Axis names of the format (X lateral bending, Y axial rotation, Z flexion/extension).
 pub const AXIS_NAMES: [&str; 3] = ["LB", "AR", "FE"];
@@ -88,8 +88,19 @@ pub struct Design {
     pub rule: String,
     /// Number of folds of a K-fold design over (case, level) rows, or of
     /// the leave-one-level-out design (0: a single split into `train` and
-    /// `heldout` cases).
+    /// `heldout` cases); set by [`Design::assign_folds`].
     pub folds: usize,
+    /// The measured levels (indices into the simulated levels), in order:
+    /// a K-fold design is built over these only.
+    pub levels: Vec<usize>,
+    /// The fold of each held-out row `(case, level)` of a K-fold design.
+    #[serde(skip)]
+    pub row_fold: BTreeMap<(usize, usize), usize>,
+    /// Rows `(case, level)` of a K-fold design kept in training by every
+    /// fold: nothing else in training could predict them (no other row
+    /// loads the same axis and measures the same DoFs), so a held-out
+    /// prediction would be the nominal model's, whatever the candidate.
+    pub kept: Vec<(usize, usize)>,
     /// Leave-one-level-out (a published table's design): fold `l` holds
     /// out every row of level `l`.
     pub by_level: bool,
@@ -329,9 +340,12 @@ impl Design {
                 train: all.clone(),
                 heldout: all,
                 rule: format!(
-                    "{FOLDS}-fold cross-validation over (case, level) rows: fold f holds out the row of case c at level l when (c + l) mod {FOLDS} = f, so each fold keeps every level and both directions of every axis in training, and every row is predicted once by a fit that never saw it (the design has no second magnitude or follower load to extrapolate to)"
+                    "{FOLDS}-fold cross-validation over (case, level) rows: fold f holds out the row of case c at the l-th measured level when (c + l) mod {FOLDS} = f, so each fold keeps every level and both directions of every axis in training, and every row is predicted once by a fit that never saw it (the design has no second magnitude or follower load to extrapolate to)"
                 ),
                 folds: FOLDS,
+                levels: Vec::new(),
+                row_fold: BTreeMap::new(),
+                kept: Vec::new(),
                 by_level: false,
                 primary_only: false,
                 untestable,
@@ -349,6 +363,9 @@ impl Design {
             heldout,
             rule: format!("held out: {}; fitted on the rest", rules.join("; ")),
             folds: 0,
+            levels: Vec::new(),
+            row_fold: BTreeMap::new(),
+            kept: Vec::new(),
             by_level: false,
             primary_only: false,
             untestable,
@@ -359,24 +376,157 @@ impl Design {
         }
     }
 
+    /// True for a published table's design: one magnitude per direction
+    /// (a K-fold design) and only the primary rotations measured.
+    pub fn is_table(&self) -> bool {
+        self.folds > 0 && self.primary_only
+    }
+
     /// The design of a published table: one magnitude per direction and
-    /// only the primary rotations, over `n_levels` levels (at least 3). A
-    /// per-level, per-direction stiffness predicts the held-out direction
-    /// of a level from nothing the fit saw, so the design holds out whole
-    /// levels and predicts each from the others (leave-one-level-out):
-    /// what it tests is a stiffness trend along the spine and a direction
-    /// asymmetry shared by the levels. Returns false (and changes nothing)
-    /// when the design is not a table's.
-    pub fn leave_one_level_out(&mut self, n_levels: usize) -> bool {
-        if self.folds == 0 || !self.primary_only || n_levels < 3 {
+    /// only the primary rotations, over the `measured` levels (indices
+    /// into the simulated levels; at least 3). A per-level, per-direction
+    /// stiffness predicts the held-out direction of a level from nothing
+    /// the fit saw, so the design holds out whole levels and predicts each
+    /// from the others (leave-one-level-out): what it tests is a stiffness
+    /// trend along the spine and a direction asymmetry shared by the
+    /// levels. Levels on the load path that were not measured take no
+    /// part. Returns false (and changes nothing) when the design is not a
+    /// table's or has fewer than three measured levels.
+    pub fn leave_one_level_out(&mut self, measured: &[usize]) -> bool {
+        let n_levels = measured.len();
+        if !self.is_table() || n_levels < 3 {
             return false;
         }
         self.by_level = true;
+        self.levels = measured.to_vec();
         self.folds = n_levels;
         self.rule = format!(
-            "leave-one-level-out over the {n_levels} levels: fold l holds out every row of level l and predicts it from a fit to the other levels (one magnitude per direction and only the primary rotations: a stiffness trend along the spine and a direction asymmetry shared by the levels are what such a table can test; a per-level, per-direction stiffness cannot be predicted for a level the fit never saw)"
+            "leave-one-level-out over the {n_levels} measured levels: fold l holds out every row of level l and predicts it from a fit to the other levels (one magnitude per direction and only the primary rotations: a stiffness trend along the spine and a direction asymmetry shared by the levels are what such a table can test; a per-level, per-direction stiffness cannot be predicted for a level the fit never saw)"
         );
         true
+    }
+
+    /// A table's design over fewer than three measured levels: a trend
+    /// along the spine cannot be tested (no level can be predicted from a
+    /// trend through the others), and the cases measured at more levels
+    /// would test it.
+    pub fn note_few_levels(&mut self, n_levels: usize) {
+        const LEVEL: &str = "level_dependent_stiffness";
+        let what = if n_levels == 1 {
+            "a single measured level".to_string()
+        } else {
+            format!("{n_levels} measured levels")
+        };
+        self.untestable.push((
+            LEVEL.into(),
+            format!("{what}: a trend along the spine is tested by predicting a level from a trend through the others, which needs at least three levels"),
+        ));
+        self.missing.push(MissingCase {
+            case: "the same cases measured at three or more levels".into(),
+            effect: LEVEL.into(),
+            reason: "a level predicted from a trend fitted to the others tests a stiffness that changes along the spine".into(),
+        });
+    }
+
+    /// Assign the rows `(case, level, measured DoFs)` of a K-fold design to
+    /// folds, over the measured levels only (each level's rank among them,
+    /// not its index on the load path): leave-one-level-out, or row
+    /// `(c, l)` in fold `(c + rank(l)) mod FOLDS`. A row nothing else in
+    /// training could predict (no training row of a case loading the same
+    /// axis measures its DoFs) stays in training in every fold; the folds
+    /// left with no row are dropped and the rest numbered in order. Does
+    /// nothing in a single-split design.
+    pub fn assign_folds(&mut self, rows: &[(usize, usize, Vec<usize>)]) {
+        if self.folds == 0 {
+            return;
+        }
+        // the measured levels, unless leave-one-level-out named them
+        if self.levels.is_empty() {
+            let set: BTreeSet<usize> = rows.iter().map(|r| r.1).collect();
+            self.levels = set.into_iter().collect();
+        }
+        let rank = |l: usize| self.levels.iter().position(|&x| x == l).unwrap_or(l);
+        let first: Vec<usize> = rows
+            .iter()
+            .map(|&(c, l, _)| {
+                if self.by_level {
+                    rank(l)
+                } else {
+                    (c + rank(l)) % FOLDS
+                }
+            })
+            .collect();
+        let kept = self.unpredictable_rows(rows, &first);
+        // folds that still hold a row out, numbered in order
+        let used: BTreeSet<usize> = (0..rows.len())
+            .filter(|&i| !kept[i])
+            .map(|i| first[i])
+            .collect();
+        let number = |f: usize| used.iter().position(|&u| u == f).unwrap_or(0);
+        self.row_fold = (0..rows.len())
+            .filter(|&i| !kept[i])
+            .map(|i| ((rows[i].0, rows[i].1), number(first[i])))
+            .collect();
+        self.kept = (0..rows.len())
+            .filter(|&i| kept[i])
+            .map(|i| (rows[i].0, rows[i].1))
+            .collect();
+        self.folds = used.len();
+        if !self.kept.is_empty() {
+            let ids: BTreeSet<&str> = self
+                .kept
+                .iter()
+                .filter_map(|k| self.cases.get(k.0))
+                .map(|c| c.id.as_str())
+                .collect();
+            self.rule.push_str(&format!(
+                "; {} row(s) stay in training in every fold, as nothing else in training loads the same axis and measures the same DoFs (cases {})",
+                self.kept.len(),
+                ids.into_iter().collect::<Vec<_>>().join(", ")
+            ));
+        }
+        // the held-out cases: those with a row some fold holds out
+        let held: BTreeSet<usize> = self.row_fold.keys().map(|k| k.0).collect();
+        self.heldout = held.into_iter().collect();
+    }
+
+    /// The rows (flags) that stay in training: repeatedly, a row whose
+    /// fold `first[i]` leaves in training no row of a case loading the
+    /// same axis that measures each of its DoFs (rows kept so far count as
+    /// training in every fold).
+    fn unpredictable_rows(
+        &self,
+        rows: &[(usize, usize, Vec<usize>)],
+        first: &[usize],
+    ) -> Vec<bool> {
+        let axis = |i: usize| self.cases.get(rows[i].0).and_then(|c| c.axis);
+        let mut kept = vec![false; rows.len()];
+        loop {
+            let mut changed = false;
+            for i in 0..rows.len() {
+                if kept[i] {
+                    continue;
+                }
+                let trains = |j: usize| kept[j] || first[j] != first[i];
+                let predictable = rows[i].2.iter().all(|d| {
+                    (0..rows.len())
+                        .any(|j| trains(j) && axis(j) == axis(i) && rows[j].2.contains(d))
+                });
+                if !predictable {
+                    kept[i] = true;
+                    changed = true;
+                }
+            }
+            if !changed {
+                return kept;
+            }
+        }
+    }
+
+    /// True when the row of `case` at `level` is held out (in a K-fold
+    /// design, by some fold; otherwise when its case is a held-out case).
+    pub fn holds_out(&self, case: usize, level: usize) -> bool {
+        self.heldout.contains(&case) && !self.kept.contains(&(case, level))
     }
 
     /// A table's design on a specimen whose levels' own axes are tilted
@@ -437,12 +587,10 @@ impl Design {
     }
 
     /// The fold that holds out the row of `case` at `level` (K-fold
-    /// designs only).
+    /// designs only, after [`Design::assign_folds`]; `None` for a row kept
+    /// in training).
     pub fn fold_of(&self, case: usize, level: usize) -> Option<usize> {
-        if self.by_level {
-            return (self.folds > 0).then(|| level % self.folds);
-        }
-        (self.folds > 0).then(|| (case + level) % self.folds)
+        self.row_fold.get(&(case, level)).copied()
     }
 
     /// Effects the measured quantities cannot show, given which DoFs
@@ -598,7 +746,7 @@ mod tests {
                 cs.push(case(&format!("{n}_{sg}_10"), v, 0.0));
             }
         }
-        let d = Design::new(&cs);
+        let mut d = Design::new(&cs);
         assert!(!d.is_untestable("nonlinear_stiffness"));
         assert!(d
             .weakly_tested
@@ -609,6 +757,10 @@ mod tests {
             names.contains(&"FE_pos_5") && names.contains(&"FE_neg_5"),
             "{names:?}"
         );
+        // every case at five levels, all three rotations measured
+        let levels = 5;
+        d.assign_folds(&rows(cs.len(), &[0, 1, 2, 3, 4], |_| vec![0, 1, 2]));
+        assert!(d.kept.is_empty(), "{:?}", d.kept);
         // K-fold over (case, level) rows: asymmetry and level-dependent
         // stiffness stay testable
         assert_eq!(d.folds, FOLDS);
@@ -618,7 +770,6 @@ mod tests {
             d.untestable
         );
         assert!(!d.is_untestable("level_dependent_stiffness"));
-        let levels = 5;
         for f in 0..FOLDS {
             let held: Vec<(usize, usize)> = (0..cs.len())
                 .flat_map(|c| (0..levels).map(move |l| (c, l)))
@@ -670,8 +821,8 @@ mod tests {
         assert!(!d.is_untestable("joint_pose_error"));
     }
 
-    #[test]
-    fn a_table_of_primary_rotations_is_left_out_level_by_level() {
+    /// The six cases `FE/AR/LB x neg/pos` at 10 N m.
+    fn table_cases() -> Vec<LoadCase> {
         let mut cs = Vec::new();
         for (a, n) in AXIS_NAMES.iter().enumerate() {
             for (s, sg) in [(-1.0, "neg"), (1.0, "pos")] {
@@ -680,28 +831,107 @@ mod tests {
                 cs.push(case(&format!("{n}_{sg}_10"), v, 0.0));
             }
         }
+        cs
+    }
+
+    /// Rows `(case, level, DoFs)` of every case at every level.
+    fn rows(
+        n_cases: usize,
+        levels: &[usize],
+        dofs: impl Fn(usize) -> Vec<usize>,
+    ) -> Vec<(usize, usize, Vec<usize>)> {
+        levels
+            .iter()
+            .flat_map(|&l| (0..n_cases).map(move |c| (c, l)))
+            .map(|(c, l)| (c, l, dofs(c)))
+            .collect()
+    }
+
+    #[test]
+    fn a_table_of_primary_rotations_is_left_out_level_by_level() {
+        let cs = table_cases();
         let primary: Vec<[bool; 6]> = (0..cs.len())
             .map(|c| std::array::from_fn(|d| d == c / 2))
             .collect();
         let mut d = Design::new(&cs);
         d.note_measurement(&primary);
-        assert!(d.primary_only);
+        assert!(d.primary_only && d.is_table());
         // too few levels for a trend: the design stays as it is
-        assert!(!d.leave_one_level_out(2));
+        assert!(!d.leave_one_level_out(&[0, 1]));
         assert!(!d.by_level);
-        assert!(d.leave_one_level_out(5));
+        // five measured levels of a longer load path (levels 0 and 2 not
+        // measured): the folds are over the measured ones
+        let measured = [1, 3, 4, 5, 6];
+        assert!(d.leave_one_level_out(&measured));
+        d.assign_folds(&rows(cs.len(), &measured, |c| vec![c / 2]));
         assert!(d.by_level && d.folds == 5);
-        // every row of a level in one fold, each level its own fold
+        assert!(d.kept.is_empty());
+        // every row of a level in one fold, each measured level its own fold
         for c in 0..cs.len() {
-            for l in 0..5 {
-                assert_eq!(d.fold_of(c, l), Some(l));
+            for (k, &l) in measured.iter().enumerate() {
+                assert_eq!(d.fold_of(c, l), Some(k));
+                assert!(d.holds_out(c, l));
             }
+            assert_eq!(d.fold_of(c, 0), None);
         }
         // all three rotations measured: not a table's design
         let mut d = Design::new(&cs);
         d.note_measurement(&vec![[true, true, true, false, false, false]; cs.len()]);
-        assert!(!d.leave_one_level_out(5));
+        assert!(!d.is_table());
+        assert!(!d.leave_one_level_out(&measured));
         assert_eq!(d.folds, FOLDS);
+    }
+
+    #[test]
+    fn rows_nothing_could_predict_stay_in_training() {
+        // a one-level table: flexion and extension, one side of lateral
+        // bending and of axial rotation (cases FE_neg, FE_pos, LB_pos,
+        // AR_pos), primary rotations only, at level 2 of the load path
+        let cs: Vec<LoadCase> = table_cases()
+            .into_iter()
+            .filter(|c| c.id.starts_with("FE") || c.id.contains("pos"))
+            .collect();
+        let ids: Vec<&str> = cs.iter().map(|c| c.id.as_str()).collect();
+        let axis_of = |c: usize| CaseInfo::of(&cs[c]).axis.unwrap();
+        let primary: Vec<[bool; 6]> = (0..cs.len())
+            .map(|c| std::array::from_fn(|d| d == axis_of(c)))
+            .collect();
+        let mut d = Design::new(&cs);
+        d.note_measurement(&primary);
+        assert!(d.is_table());
+        assert!(!d.leave_one_level_out(&[2]));
+        d.note_few_levels(1);
+        assert!(d.is_untestable("level_dependent_stiffness"));
+        assert!(d
+            .missing
+            .iter()
+            .any(|m| m.effect == "level_dependent_stiffness"));
+        let one = rows(cs.len(), &[2], |c| vec![axis_of(c)]);
+        d.assign_folds(&one);
+        // the one row about X and the one about Y: nothing else predicts them
+        let mut kept: Vec<&str> = d.kept.iter().map(|k| ids[k.0]).collect();
+        kept.sort_unstable();
+        assert_eq!(kept, ["AR_pos_10", "LB_pos_10"]);
+        // every held-out row is predicted by a training row of its axis
+        for r in &one {
+            match d.fold_of(r.0, r.1) {
+                Some(f) => {
+                    assert!(d.holds_out(r.0, r.1));
+                    assert!(one
+                        .iter()
+                        .any(|t| d.fold_of(t.0, t.1) != Some(f) && axis_of(t.0) == axis_of(r.0)));
+                }
+                None => assert!(!d.holds_out(r.0, r.1)),
+            }
+        }
+        // the two flexion/extension rows, each in its own fold, no empty fold
+        assert_eq!(d.folds, 2);
+        assert!(d.rule.contains("stay in training"), "{}", d.rule);
+        // the same cases at five levels: every row predictable
+        let mut d = Design::new(&cs);
+        d.note_measurement(&primary);
+        d.assign_folds(&rows(cs.len(), &[0, 1, 2, 3, 4], |c| vec![axis_of(c)]));
+        assert!(d.kept.is_empty());
     }
 
     #[test]

@@ -56,11 +56,9 @@ pub struct Outcome {
 impl Outcome {
     /// Indices of held-out cells.
     pub fn heldout_cells(&self) -> Vec<usize> {
-        let held: Vec<bool> = (0..self.sim.loads.len())
-            .map(|i| self.design.heldout.contains(&i))
-            .collect();
-        (0..self.sim.cells.len())
-            .filter(|&c| held[self.sim.cells[c].case])
+        let cells = &self.sim.cells;
+        (0..cells.len())
+            .filter(|&c| self.design.holds_out(cells[c].case, cells[c].level))
             .collect()
     }
 

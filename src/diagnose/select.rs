@@ -499,6 +499,16 @@ fn measured_dofs(sim: &Sim) -> Vec<[bool; 6]> {
     m
 }
 
+/// The measured rows `(case, level, DoFs)`, by level then case (each
+/// level's rows together, the levels in order along the load path).
+fn measured_rows(sim: &Sim) -> Vec<(usize, usize, Vec<usize>)> {
+    let mut rows: BTreeMap<(usize, usize), Vec<usize>> = BTreeMap::new();
+    for c in &sim.cells {
+        rows.entry((c.level, c.case)).or_default().push(c.dof);
+    }
+    rows.into_iter().map(|((l, c), d)| (c, l, d)).collect()
+}
+
 /// The experiment as simulated, its design and split, and the noise known
 /// before any fit.
 struct Setup {
@@ -529,12 +539,21 @@ impl Setup {
         let mut design = Design::new(&exp.cases);
         design.note_measurement(&measured_dofs(&sim));
         // a published table (one magnitude, primary rotations): leave one
-        // level out
-        let table = design.leave_one_level_out(sim.levels.len()).then(|| {
-            let primary = sim.primary_dofs().map(|p| p.0);
-            design.note_tilt(sim.tilt_spread, primary, super::sim::TILT_TOL_DEG);
+        // measured level out, or no trend to test over fewer than three
+        let rows = measured_rows(&sim);
+        let mut levels: Vec<usize> = rows.iter().map(|r| r.1).collect();
+        levels.dedup();
+        let table = design.is_table().then(|| {
+            if design.leave_one_level_out(&levels) {
+                let primary = sim.primary_dofs().map(|p| p.0);
+                design.note_tilt(sim.tilt_spread, primary, super::sim::TILT_TOL_DEG);
+            } else {
+                design.note_few_levels(levels.len());
+            }
             design.untestable_names()
         });
+        // the folds over the measured rows
+        design.assign_folds(&rows);
         let split = Split::of(&sim, &design);
         let means_over = noise::means_over(&exp.measurement);
         let assumed = noise::assume_spread_of_means(&mut sim, means_over);

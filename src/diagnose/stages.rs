@@ -21,16 +21,18 @@ pub struct Split {
 }
 
 impl Split {
-    /// The cells of the design's training and held-out cases.
+    /// The cells of the design's training cases, and those of its
+    /// held-out rows (not the rows a K-fold design keeps in training).
     pub fn of(sim: &Sim, design: &Design) -> Split {
-        let member = |set: &[usize]| -> Vec<usize> {
-            (0..sim.cells.len())
-                .filter(|&c| set.contains(&sim.cells[c].case))
-                .collect()
-        };
+        let cells = 0..sim.cells.len();
         Split {
-            train: member(&design.train),
-            heldout: member(&design.heldout),
+            train: cells
+                .clone()
+                .filter(|&c| design.train.contains(&sim.cells[c].case))
+                .collect(),
+            heldout: cells
+                .filter(|&c| design.holds_out(sim.cells[c].case, sim.cells[c].level))
+                .collect(),
         }
     }
 }
