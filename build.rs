@@ -6,6 +6,9 @@
 //! the folder lacks fails the build. (The templates the code reads are
 //! embedded where they are read, with `include_str!`.)
 
+#[path = "build/model_files.rs"]
+mod model_files;
+
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -14,33 +17,16 @@ fn main() {
     let out_dir = std::env::var("OUT_DIR").expect("cargo sets OUT_DIR");
     println!("cargo:rerun-if-changed=build.rs");
     let base = Path::new(&root).join("base_model");
+    println!("cargo:rerun-if-changed=build/model_files.rs");
+    println!(
+        "cargo:rerun-if-changed={}",
+        base.join(model_files::MODEL_FILE).display()
+    );
+    let names = model_files::model_files(&base).unwrap_or_else(|e| panic!("{e}"));
     let mut code = String::new();
-    table(&mut code, "BASE_MODEL", &base, &model_files(&base));
+    table(&mut code, "BASE_MODEL", &base, &names);
     std::fs::write(Path::new(&out_dir).join("embedded_files.rs"), code)
         .expect("write embedded_files.rs");
-}
-
-/// `base.osim` and the mesh files it names, sorted (the same table on every machine).
-fn model_files(dir: &Path) -> Vec<String> {
-    let model = dir.join("base.osim");
-    println!("cargo:rerun-if-changed={}", model.display());
-    let text = std::fs::read_to_string(&model).expect("base_model/base.osim is readable UTF-8");
-    let mut names: Vec<String> = text
-        .split("<mesh_file>")
-        .skip(1)
-        .filter_map(|rest| rest.split("</mesh_file>").next())
-        .map(|n| n.trim().to_string())
-        .collect();
-    names.push("base.osim".to_string());
-    names.sort();
-    names.dedup();
-    for n in &names {
-        assert!(
-            !n.contains(['/', '\\']) && dir.join(n).is_file(),
-            "base_model/base.osim names `{n}`, which is not a file of base_model/"
-        );
-    }
-    names
 }
 
 /// One `pub static KONST: &[(&str, &[u8])]` of the files `names` of `dir`.
