@@ -214,14 +214,15 @@ impl MeshQuery {
         if (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]) {
             return false;
         }
-        let votes = RAYS
-            .iter()
-            .filter(|d| {
-                let dir = Vector3::new(d[0], d[1], d[2]);
-                self.ray_hits(p, &dir, f64::MAX).len() % 2 == 1
-            })
-            .count();
-        votes >= 2
+        let odd = |d: &[f64; 3]| {
+            let dir = Vector3::new(d[0], d[1], d[2]);
+            self.ray_hits(p, &dir, f64::MAX).len() % 2 == 1
+        };
+        // Two rays that agree decide the majority; the third breaks a tie.
+        match (odd(&RAYS[0]), odd(&RAYS[1])) {
+            (first, second) if first == second => first,
+            _ => odd(&RAYS[2]),
+        }
     }
 
     /// Distance to the surface, negative inside (m).
