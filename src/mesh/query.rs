@@ -13,7 +13,7 @@
 use super::TriMesh;
 use crate::error::{Error, Result};
 use nalgebra::{Point3, Vector3};
-use parry3d_f64::query::{PointQuery, Ray};
+use parry3d_f64::query::PointQuery;
 use parry3d_f64::shape::TriMesh as ParryMesh;
 
 /// A point on the mesh surface.
@@ -152,10 +152,10 @@ impl MeshQuery {
         dir: &Vector3<f64>,
         max_t: f64,
     ) -> Vec<SurfaceHit> {
-        let ray = Ray::new(*origin, *dir);
+        let ray = SlabRay::new(origin, dir, max_t);
         let mut hits: Vec<SurfaceHit> = Vec::new();
         let bvh = self.shape.bvh();
-        for leaf in bvh.leaves(|node| node.cast_ray(&ray, max_t) < f64::MAX) {
+        for leaf in bvh.leaves(|node| ray.hits_box(&node.mins(), &node.maxs())) {
             let k = leaf as usize;
             let Some(&orig) = self.tri_map.get(k) else {
                 continue;
@@ -214,14 +214,15 @@ impl MeshQuery {
         if (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]) {
             return false;
         }
-        let votes = RAYS
-            .iter()
-            .filter(|d| {
-                let dir = Vector3::new(d[0], d[1], d[2]);
-                self.ray_hits(p, &dir, f64::MAX).len() % 2 == 1
-            })
-            .count();
-        votes >= 2
+        let odd = |d: &[f64; 3]| {
+            let dir = Vector3::new(d[0], d[1], d[2]);
+            self.ray_hits(p, &dir, f64::MAX).len() % 2 == 1
+        };
+        // Two rays that agree decide the majority; the third breaks a tie.
+        match (odd(&RAYS[0]), odd(&RAYS[1])) {
+            (first, second) if first == second => first,
+            _ => odd(&RAYS[2]),
+        }
     }
 
     /// Distance to the surface, negative inside (m).
@@ -232,6 +233,51 @@ impl MeshQuery {
         } else {
             d
         }
+    }
+}
+
+/// A ray `origin + t dir`, `0 <= t <= max_t`, with its reciprocal
+/// direction computed once for the bounding-box tests of a traversal.
+struct SlabRay {
+    origin: Point3<f64>,
+    /// `1 / dir[k]`, `None` where `dir[k]` is zero.
+    inv_dir: [Option<f64>; 3],
+    max_t: f64,
+}
+
+impl SlabRay {
+    fn new(origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> SlabRay {
+        SlabRay {
+            origin: *origin,
+            inv_dir: [0, 1, 2].map(|k| (dir[k] != 0.0).then(|| 1.0 / dir[k])),
+            max_t,
+        }
+    }
+
+    /// Does the ray meet the box `mins`-`maxs`? The slab test of parry's
+    /// solid `Aabb` ray cast, operation for operation (the same answers),
+    /// without a division per box.
+    fn hits_box(&self, mins: &Point3<f64>, maxs: &Point3<f64>) -> bool {
+        let (mut tmin, mut tmax) = (0.0_f64, self.max_t);
+        for k in 0..3 {
+            let o = self.origin[k];
+            let Some(inv) = self.inv_dir[k] else {
+                if o < mins[k] || o > maxs[k] {
+                    return false;
+                }
+                continue;
+            };
+            let (mut near, mut far) = ((mins[k] - o) * inv, (maxs[k] - o) * inv);
+            if near > far {
+                std::mem::swap(&mut near, &mut far);
+            }
+            tmin = tmin.max(near);
+            tmax = tmax.min(far);
+            if tmin > tmax {
+                return false;
+            }
+        }
+        tmin < f64::MAX
     }
 }
 
