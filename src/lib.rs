@@ -98,6 +98,7 @@ pub mod palpation;
 pub mod personalise;
 pub mod procedural;
 pub mod segmentation;
+pub mod simulate;
 pub mod solver;
 pub mod util;
 

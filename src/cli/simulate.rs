@@ -10,19 +10,16 @@
 //! line per case: converged, largest displacement, stability. Every case is
 //! solved before anything is written: a failing case leaves no output.
 
-use crate::calibrate::experiment::{
-    parse_cases, parse_experiment_toml, LoadCase, Units, MAX_FILE_BYTES,
-};
-use crate::calibrate::measure::{pair_increment, Convention};
+use crate::calibrate::experiment::{LoadCase, Units};
 use crate::osim::Document;
-use crate::solver::dynamics::Integrator;
-use crate::solver::from_model::ignored_forces;
-use crate::solver::output::{sto_string, BodyPose, BushingRecord};
-use crate::solver::{BodyIndex, DofIndex, StaticOptions, System, SystemSpec, Workspace};
+use crate::simulate::{
+    body_pairs, case_record, kinematics_rows, largest_displacement, poses, read_load_file, setup,
+    solve_case, CaseOut, CaseResult, Setup, SimulateOptions,
+};
+use crate::solver::output::sto_string;
+use crate::solver::{StaticOptions, Workspace};
 use anyhow::{bail, Context};
 use clap::Args as ClapArgs;
-use serde::Serialize;
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `simulate`.
@@ -55,37 +52,6 @@ pub struct Args {
     pub force: bool,
 }
 
-#[derive(Debug, Serialize)]
-struct SolverInfo {
-    mode: &'static str,
-    iterations: Option<usize>,
-    residual_norm: Option<f64>,
-    time_step: Option<f64>,
-    duration: Option<f64>,
-}
-
-#[derive(Debug, Serialize)]
-struct ClampViolation {
-    coordinate: String,
-    value: f64,
-    range: [f64; 2],
-}
-
-#[derive(Debug, Serialize)]
-struct CaseResult {
-    model: String,
-    case: LoadCase,
-    gravity: [f64; 3],
-    fixed_body: Option<String>,
-    solver: SolverInfo,
-    coordinates: BTreeMap<String, f64>,
-    speeds: Option<BTreeMap<String, f64>>,
-    bodies: BTreeMap<String, BodyPose>,
-    bushings: BTreeMap<String, BushingRecord>,
-    clamped_range_violations: Vec<ClampViolation>,
-    ignored_forces: Vec<String>,
-}
-
 /// File stem for a case id: letters, digits, `.`, `_`, `-`; others become `_`.
 fn file_stem(id: &str) -> String {
     id.chars()
@@ -99,37 +65,6 @@ fn file_stem(id: &str) -> String {
         .collect()
 }
 
-/// The body welded to ground (root joint without free coordinates), if unique.
-fn welded_root(sys: &System) -> Option<String> {
-    let roots: Vec<&str> = sys
-        .body_names()
-        .enumerate()
-        .filter(|(i, _)| sys.is_welded_to_ground(BodyIndex(*i)))
-        .map(|(_, n)| n)
-        .collect();
-    match roots.as_slice() {
-        [one] => Some(one.to_string()),
-        _ => None,
-    }
-}
-
-/// `--dynamic` needs an inertia some mass distribution has: refuse bodies
-/// whose principal moments break the triangle inequality.
-fn refuse_impossible_inertia(model: &crate::osim::model::Model) -> anyhow::Result<()> {
-    for b in &model.bodies {
-        if crate::osim::physics::breaks_triangle(&b.inertia) {
-            bail!(
-                "{}: <Body name=\"{}\"> (line {}): inertia {:?} breaks the triangle inequality of principal moments (I1 + I2 >= I3); forward dynamics refused",
-                model.file.display(),
-                b.name,
-                b.line,
-                b.inertia
-            );
-        }
-    }
-    Ok(())
-}
-
 /// A progress bar over the steps of one dynamic case (on stderr, hidden
 /// when stderr is not a terminal).
 fn step_bar(case: &str, t: f64, dt: f64) -> indicatif::ProgressBar {
@@ -138,195 +73,45 @@ fn step_bar(case: &str, t: f64, dt: f64) -> indicatif::ProgressBar {
     bar
 }
 
-/// The `[specimen]` table of a load file in the experiment format.
-struct Specimen {
-    fixed_body: String,
-    gravity: bool,
-    units: Units,
+/// The library's options from the command line.
+fn options(a: &Args) -> SimulateOptions {
+    SimulateOptions {
+        fixed: a.fixed.clone(),
+        no_gravity: a.no_gravity,
+        dynamic: a.dynamic,
+        dt: a.dt,
+    }
 }
 
-/// Read the load file: its cases and, in the experiment format
-/// (`[specimen]` and `[units]` tables), the specimen description.
-fn read_load_file(path: &Path) -> anyhow::Result<(Vec<LoadCase>, Option<Specimen>)> {
-    let text = crate::util::read_text_capped(path, MAX_FILE_BYTES, "load files")?;
-    let has_specimen = text
-        .parse::<toml::Table>()
-        .map(|t| t.contains_key("specimen"))
-        .unwrap_or(false);
-    if !has_specimen {
-        return Ok((parse_cases(&text, path)?, None));
-    }
-    let e = parse_experiment_toml(&text, path)?;
-    let sp = Specimen {
-        fixed_body: e.fixed_body,
-        gravity: e.gravity,
-        units: e.units,
-    };
-    Ok((e.cases, Some(sp)))
-}
-
-/// The solver system of the model with the fixed body and gravity of the
-/// command line, else of the `[specimen]` table.
-struct Setup {
-    model: crate::osim::model::Model,
-    sys: System,
-    fixed: Option<String>,
-    ignored: Vec<String>,
-    names: Vec<String>,
-}
-
-fn setup(a: &Args, specimen: Option<&Specimen>) -> anyhow::Result<Setup> {
-    let doc = Document::read(&a.model)?;
-    let model = doc.model()?;
-    for w in crate::osim::lint::warnings(&model) {
-        crate::errln!("warning: {}: {w}", a.model.display());
-    }
-    if a.dynamic.is_some() {
-        refuse_impossible_inertia(&model)?;
-    }
-    let mut spec = SystemSpec::from_model(&model)?;
-    let ignored = ignored_forces(&model);
-    // Gravity off by --no-gravity or `[specimen] gravity = false`.
-    if a.no_gravity || specimen.map(|s| !s.gravity).unwrap_or(false) {
-        spec.gravity = nalgebra::Vector3::zeros();
-    }
-    // Fixed body: --fixed, else `[specimen] fixed_body`.
-    let fixed_arg = a
-        .fixed
-        .clone()
-        .or_else(|| specimen.map(|s| s.fixed_body.clone()));
-    if let Some(b) = &fixed_arg {
-        spec = System::with_body_fixed(&spec, b)?;
-    }
-    let sys = System::new(&spec).with_context(|| format!("{}", a.model.display()))?;
-    let fixed = fixed_arg.or_else(|| welded_root(&sys));
-    let names = sys.coordinates().iter().map(|c| c.name.clone()).collect();
-    Ok(Setup {
-        model,
-        sys,
-        fixed,
-        ignored,
-        names,
-    })
-}
-
-/// What one case gave.
-struct CaseOut {
-    rows: Vec<(f64, Vec<f64>)>,
-    q: nalgebra::DVector<f64>,
-    u: Option<nalgebra::DVector<f64>>,
-    info: SolverInfo,
-    stable: Option<bool>,
-}
-
-/// Static equilibrium or forward dynamics of one case.
-fn solve_case(
-    a: &Args,
+/// One case solved, with a progress bar over a dynamic run's steps.
+fn solve_with_bar(
     st: &Setup,
     case: &LoadCase,
+    opts: &SimulateOptions,
     ws: &mut Workspace,
 ) -> anyhow::Result<CaseOut> {
-    let sys = &st.sys;
-    let ctx = || format!("case '{}'", case.id);
-    let loads = sys
-        .prepare_loads(&case.loads(st.fixed.as_deref())?)
-        .with_context(ctx)?;
-    let q0 = sys.default_q();
-    let Some(t) = a.dynamic else {
-        let sol = sys
-            .solve_static(&loads, q0.as_slice(), ws, &StaticOptions::default())
-            .with_context(|| format!("case '{}': static equilibrium did not converge", case.id))?;
-        let full = sys.full_coordinates(sol.q.as_slice());
-        let info = SolverInfo {
-            mode: "static",
-            iterations: Some(sol.iterations),
-            residual_norm: Some(sol.residual_norm),
-            time_step: None,
-            duration: None,
-        };
-        return Ok(CaseOut {
-            rows: vec![(0.0, full)],
-            q: sol.q,
-            u: None,
-            info,
-            stable: sol.stable,
-        });
-    };
-    let mut integ = Integrator::new(sys, a.dt);
-    let every = ((0.01 / a.dt).round() as usize).max(1);
-    let u0 = vec![0.0; sys.n_dofs()];
-    let bar = step_bar(&case.id, t, a.dt);
-    let traj = integ
-        .run_observed(
-            sys,
-            &loads,
-            ws,
-            (q0.as_slice(), &u0),
-            t,
-            every,
-            &mut |s, _| {
-                if s % 1000 == 0 {
-                    bar.set_position(s as u64)
-                }
-            },
-        )
-        .with_context(ctx)?;
-    bar.finish_and_clear();
-    let Some(last) = traj.last() else {
-        bail!("{}: empty trajectory", ctx())
-    };
-    let rows = traj
-        .iter()
-        .map(|s| (s.time, sys.full_coordinates(s.q.as_slice())))
-        .collect();
-    let info = SolverInfo {
-        mode: "dynamic",
-        iterations: None,
-        residual_norm: None,
-        time_step: Some(a.dt),
-        duration: Some(t),
-    };
-    Ok(CaseOut {
-        rows,
-        q: last.q.clone(),
-        u: Some(last.u.clone()),
-        info,
-        stable: None,
-    })
+    let bar = opts.dynamic.map(|t| step_bar(&case.id, t, opts.dt));
+    let out = solve_case(st, case, opts, ws, &mut |s| {
+        if let Some(b) = &bar {
+            b.set_position(s as u64)
+        }
+    })?;
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    Ok(out)
 }
 
-/// The case's JSON record.
-fn case_record(
+/// The record of one case, with a warning per clamped coordinate out of range.
+fn record(
     a: &Args,
     st: &Setup,
     case: &LoadCase,
     out: CaseOut,
     ws: &mut Workspace,
 ) -> anyhow::Result<CaseResult> {
-    let sys = &st.sys;
-    let ctx = || format!("case '{}'", case.id);
-    let q = out.q.as_slice();
-    let bodies = sys.body_poses(q, ws).with_context(ctx)?;
-    let bushings = sys
-        .bushing_records(q, out.u.as_ref().map(|v| v.as_slice()), ws)
-        .with_context(ctx)?;
-    let full = sys.full_coordinates(q);
-    let coordinates = st.names.iter().cloned().zip(full.iter().copied()).collect();
-    let speeds = out.u.as_ref().map(|u| {
-        (0..sys.n_dofs())
-            .map(|i| (sys.dof_name(DofIndex(i)).to_string(), u[i]))
-            .collect()
-    });
-    let clamped_range_violations = sys
-        .clamp_violations(q)
-        .into_iter()
-        .map(|(coordinate, value, range)| ClampViolation {
-            coordinate,
-            value,
-            range,
-        })
-        .collect::<Vec<_>>();
-    for v in &clamped_range_violations {
+    let result = case_record(&a.model.display().to_string(), st, case, out, ws)?;
+    for v in &result.clamped_range_violations {
         crate::errln!(
             "warning: case '{}': clamped coordinate '{}' = {} is outside its range [{}, {}]",
             case.id,
@@ -336,89 +121,7 @@ fn case_record(
             v.range[1]
         );
     }
-    let g = sys.gravity();
-    Ok(CaseResult {
-        model: a.model.display().to_string(),
-        case: case.clone(),
-        gravity: [g.x, g.y, g.z],
-        fixed_body: st.fixed.clone(),
-        solver: out.info,
-        coordinates,
-        speeds,
-        bodies,
-        bushings,
-        clamped_range_violations,
-        ignored_forces: st.ignored.clone(),
-    })
-}
-
-/// Body poses in ground (name order of the system) at free dofs `q`.
-fn poses(sys: &System, q: &[f64]) -> anyhow::Result<BTreeMap<String, nalgebra::Isometry3<f64>>> {
-    Ok(sys.body_transforms(q)?.into_iter().collect())
-}
-
-/// Largest body-origin displacement between two sets of poses (m, body).
-fn largest_displacement(
-    from: &BTreeMap<String, nalgebra::Isometry3<f64>>,
-    to: &BTreeMap<String, nalgebra::Isometry3<f64>>,
-) -> (f64, String) {
-    let mut best = (0.0, String::new());
-    for (n, x) in to {
-        if let Some(x0) = from.get(n) {
-            let d = (x.translation.vector - x0.translation.vector).norm();
-            if d > best.0 {
-                best = (d, n.clone());
-            }
-        }
-    }
-    best
-}
-
-/// Adjacent (upper, lower) body pairs: every joint between two bodies.
-fn body_pairs(st: &Setup) -> anyhow::Result<Vec<(String, String)>> {
-    let known: std::collections::BTreeSet<&str> = st.sys.body_names().collect();
-    Ok(st
-        .model
-        .joint_frames()?
-        .into_iter()
-        .filter(|j| known.contains(j.child_body.as_str()) && known.contains(j.parent_body.as_str()))
-        .map(|j| (j.child_body, j.parent_body))
-        .collect())
-}
-
-/// `kinematics.csv` rows of one case (format of `experiment.md`): the
-/// change each pair's relative pose underwent from the unloaded
-/// equilibrium `p0` to the loaded one `p1`, in `units`.
-fn kinematics_rows(
-    id: &str,
-    pairs: &[(String, String)],
-    p0: &BTreeMap<String, nalgebra::Isometry3<f64>>,
-    p1: &BTreeMap<String, nalgebra::Isometry3<f64>>,
-    units: &Units,
-) -> String {
-    let pose = |x: &nalgebra::Isometry3<f64>| crate::solver::Pose {
-        r: x.rotation.to_rotation_matrix().into_inner(),
-        p: x.translation.vector,
-    };
-    let mut out = String::new();
-    for (u, l) in pairs {
-        let (Some(u0), Some(l0), Some(u1), Some(l1)) = (p0.get(u), p0.get(l), p1.get(u), p1.get(l))
-        else {
-            continue;
-        };
-        let inc = pair_increment(
-            Convention::Composed,
-            &pose(u0),
-            &pose(l0),
-            &pose(u1),
-            &pose(l1),
-        );
-        let cells: Vec<String> = (0..6)
-            .map(|d| format!("{}", inc[d] * units.from_si(d)))
-            .collect();
-        out.push_str(&format!("{id},{u},{l},{}\n", cells.join(",")));
-    }
-    out
+    Ok(result)
 }
 
 /// One console line per case: converged, largest displacement, stable.
@@ -448,7 +151,11 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
     crate::util::guard::check_output_dir(&a.out, &protected, a.force)?;
     check_durations(&a)?;
     let (cases, specimen) = read_load_file(&a.load)?;
-    let st = setup(&a, specimen.as_ref())?;
+    let opts = options(&a);
+    let st = setup(&Document::read(&a.model)?, &opts, specimen.as_ref())?;
+    for w in &st.warnings {
+        crate::errln!("warning: {}: {w}", a.model.display());
+    }
     let g = st.sys.gravity();
     crate::outln!(
         "simulate: gravity {}, fixed body {}{}",
@@ -492,7 +199,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
                 case.id
             );
         }
-        let out = solve_case(&a, &st, case, &mut ws)?;
+        let out = solve_with_bar(&st, case, &opts, &mut ws)?;
         let p1 = poses(&st.sys, out.q.as_slice())?;
         let (from, from_name) = match &p_ref {
             Some(p) => (p, "the unloaded equilibrium"),
@@ -506,7 +213,7 @@ pub fn run(a: Args) -> anyhow::Result<i32> {
             kin.push_str(&kinematics_rows(&case.id, &pairs, p0, &p1, &units));
         }
         let rows = out.rows.clone();
-        let result = case_record(&a, &st, case, out, &mut ws)?;
+        let result = record(&a, &st, case, out, &mut ws)?;
         let json = serde_json::to_string_pretty(&result)?;
         let sto = sto_string(
             &format!("{} case {}", st.model.name, case.id),
