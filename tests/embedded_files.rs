@@ -24,22 +24,6 @@ fn model_and_meshes(dir: &Path) -> BTreeSet<String> {
     set
 }
 
-/// The files of `dir` git tracks, or `None` outside a git checkout.
-fn tracked(dir: &Path) -> Option<BTreeSet<String>> {
-    let o = std::process::Command::new("git")
-        .arg("-C")
-        .arg(dir)
-        .args(["ls-files", "--", "."])
-        .output()
-        .ok()?;
-    o.status.success().then(|| {
-        String::from_utf8_lossy(&o.stdout)
-            .lines()
-            .map(str::to_string)
-            .collect()
-    })
-}
-
 #[test]
 fn the_binary_embeds_exactly_the_model_and_its_meshes() {
     let dir = common::repo_root().join("base_model");
@@ -57,7 +41,7 @@ fn the_binary_embeds_exactly_the_model_and_its_meshes() {
         );
     }
     // Every embedded file is tracked (none is a local leftover).
-    match tracked(&dir) {
+    match common::git_tracked(&dir) {
         Some(t) => {
             let untracked: Vec<_> = embedded.difference(&t).collect();
             assert!(

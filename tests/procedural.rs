@@ -537,7 +537,7 @@ fn generic_model_loads_in_opensim_with_the_same_kinematics_and_muscles() {
 
 /// The files of a folder (relative name -> bytes), sorted.
 fn folder_files(dir: &std::path::Path) -> BTreeMap<String, Vec<u8>> {
-    let tracked = tracked_files(dir);
+    let tracked = common::git_tracked(dir);
     let mut out = BTreeMap::new();
     for e in std::fs::read_dir(dir).unwrap() {
         let e = e.unwrap();
@@ -548,27 +548,6 @@ fn folder_files(dir: &std::path::Path) -> BTreeMap<String, Vec<u8>> {
         }
     }
     out
-}
-
-/// The files of `dir` that git tracks, when `dir` is in a git checkout
-/// (a stray file such as OpenSim's `opensim.log` is not part of the
-/// folder); `None` elsewhere (every file counts).
-fn tracked_files(dir: &std::path::Path) -> Option<std::collections::BTreeSet<String>> {
-    let o = std::process::Command::new("git")
-        .arg("-C")
-        .arg(dir)
-        .args(["ls-files", "--", "."])
-        .output()
-        .ok()?;
-    if !o.status.success() {
-        return None;
-    }
-    Some(
-        String::from_utf8_lossy(&o.stdout)
-            .lines()
-            .map(str::to_string)
-            .collect(),
-    )
 }
 
 /// Acceptance 1: `base_model/` is what `osim-spine base --procedural --out

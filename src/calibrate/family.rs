@@ -171,7 +171,7 @@ pub trait ModelFamily: Send + Sync {
 
 /// Literature bounds of thesis Table 3.3 (rotations N*m/rad about X, Y, Z;
 /// translations N/m along X, Y, Z), deflection order rx..tz.
-pub const LITERATURE_BOUNDS: [(f64, f64); 6] = [
+const LITERATURE_BOUNDS: [(f64, f64); 6] = [
     (9.0, 249.0),             // right-left (lateral) bending
     (43.0, 1250.0),           // axial rotation
     (12.0, 750.0),            // flexion-extension
@@ -182,13 +182,13 @@ pub const LITERATURE_BOUNDS: [(f64, f64); 6] = [
 
 /// Upper bound of a stiffening parameter (tangent stiffness x10001 at the
 /// reference rotation: a sinh neutral zone of a tenth of the reference rotation).
-pub const MAX_STIFFENING: f64 = 1e4;
+const MAX_STIFFENING: f64 = 1e4;
 
 /// Bound of the coupling (partial) correlations.
-pub const MAX_CORRELATION: f64 = 0.95;
+const MAX_CORRELATION: f64 = 0.95;
 
 /// Unit of stiffness DoF `d`.
-pub fn stiffness_unit(d: usize) -> &'static str {
+fn stiffness_unit(d: usize) -> &'static str {
     if d < 3 {
         "N*m/rad"
     } else {
@@ -214,7 +214,7 @@ pub struct Level {
 
 /// Normalised level key for matching tables: upper case, no `_`/`-`/space
 /// (`T12_L1`, `t12l1` and `T12-L1` all match).
-pub fn level_key(name: &str) -> String {
+fn level_key(name: &str) -> String {
     name.chars()
         .filter(|c| !matches!(c, '_' | '-' | ' '))
         .flat_map(|c| c.to_uppercase())

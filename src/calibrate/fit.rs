@@ -164,7 +164,7 @@ pub struct Calibration {
 }
 
 /// Start points (natural units): nominal (clamped) then Latin hypercube in log space.
-pub fn start_points(pb: &Problem, opts: &FitOptions) -> Vec<Vec<f64>> {
+fn start_points(pb: &Problem, opts: &FitOptions) -> Vec<Vec<f64>> {
     let (lo, hi) = pb.fit_bounds();
     let mut out = Vec::new();
     if opts.nominal_start && opts.starts > 0 {
@@ -197,7 +197,7 @@ pub fn fit_from(
 
 /// Check the problem before fitting: every case reaches equilibrium at the
 /// start and every parameter moves at least one residual.
-pub fn precheck(pb: &Problem, start: &[f64]) -> Result<()> {
+fn precheck(pb: &Problem, start: &[f64]) -> Result<()> {
     let mut ev = pb.evaluator();
     let x = pb.fit_coords_of(start);
     let (_, j) = ev.residuals(pb, &x, true).map_err(|e| {

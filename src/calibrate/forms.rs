@@ -33,7 +33,7 @@ use nalgebra::Matrix6;
 /// Below this stiffening the sinh curve is replaced by its (exact to double
 /// precision) cubic Taylor polynomial: `a` is then too large for `sinh(x/a)`
 /// to be differentiated without cancellation.
-pub const SINH_SERIES_BELOW: f64 = 1e-8;
+const SINH_SERIES_BELOW: f64 = 1e-8;
 
 /// Floor of the reference rotation (rad): 0.1 deg.
 pub const MIN_REFERENCE_ROTATION: f64 = 0.1 * (std::f64::consts::PI / 180.0);
@@ -70,7 +70,7 @@ pub fn reference_rotations(values: impl IntoIterator<Item = (usize, f64)>) -> [f
 }
 
 /// `acosh(1 + s)^2`, smooth (and exactly differentiable) down to `s = 0`.
-pub fn acosh1p_sq<T: Scalar>(s: T) -> T {
+fn acosh1p_sq<T: Scalar>(s: T) -> T {
     if s.re() < SINH_SERIES_BELOW {
         // 2 s - s^2 / 3 + 4 s^3 / 45 (next term ~ s^4: below 1e-32)
         s * (T::c(2.0) - s * (T::c(1.0 / 3.0) - s * T::c(4.0 / 45.0)))

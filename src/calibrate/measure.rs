@@ -43,7 +43,7 @@ impl std::str::FromStr for Convention {
 /// matrix. Accurate for angles well below pi (inter-vertebral increments);
 /// smooth at zero (series), so dual numbers differentiate it everywhere it
 /// is used.
-pub fn rotvec<T: Scalar>(r: &Matrix3<T>) -> Vector3<T> {
+fn rotvec<T: Scalar>(r: &Matrix3<T>) -> Vector3<T> {
     let half = T::c(0.5);
     let v = Vector3::new(
         r[(2, 1)] - r[(1, 2)],

@@ -170,7 +170,7 @@ fn pose_delta(
 
 /// Joint-frame perturbations of `n` landmark-noise samples for the joints
 /// between the given (upper, lower) vertebra levels.
-pub fn frame_perturbations(
+fn frame_perturbations(
     joints: &[(Level, Level)],
     n: usize,
     sd: f64,
@@ -247,7 +247,7 @@ pub fn frame_perturbations(
 /// Apply perturbations (per level of `pb`'s family, by joint child body) to
 /// a copy of the experiment's spec: joint frames F and M and the bushing's
 /// frames all right-multiplied by the same small transform.
-pub fn perturbed_spec(
+fn perturbed_spec(
     spec: &SystemSpec,
     joints: &[(String, String)],
     bushings: &[String],
@@ -333,7 +333,7 @@ fn spread(name: &str, reference: f64, v: &[f64], off: &[f64], rot: &[f64]) -> Sp
 }
 
 /// Two-way ANOVA without replication of `y[i][j]`: (SS rows, SS cols, SS residual).
-pub fn two_way_anova(y: &[Vec<f64>]) -> (f64, f64, f64) {
+fn two_way_anova(y: &[Vec<f64>]) -> (f64, f64, f64) {
     let r = y.len();
     let c = y.first().map(|v| v.len()).unwrap_or(0);
     if r == 0 || c == 0 {

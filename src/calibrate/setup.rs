@@ -37,7 +37,7 @@ impl Default for Setup {
 }
 
 /// The accepted `--params` values, for messages.
-pub const PARAMS_HELP: &str = "uniform, per-level, ratio:TABLE, nonlinear:sinh, nonlinear:cubic, nonlinear:sinh:per-level, nonlinear:cubic:per-level or coupled";
+const PARAMS_HELP: &str = "uniform, per-level, ratio:TABLE, nonlinear:sinh, nonlinear:cubic, nonlinear:sinh:per-level, nonlinear:cubic:per-level or coupled";
 
 /// Parse `uniform`, `per-level`, `ratio:FILE` (FILE relative to the
 /// working directory), `nonlinear:sinh|cubic[:per-level]` or `coupled`.

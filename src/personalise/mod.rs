@@ -44,13 +44,6 @@ use crate::solver::spec::DOF_NAMES;
 use crate::util::fmt_f64;
 use std::path::Path;
 
-/// Bushing classes that are levels.
-pub const BUSHING_CLASSES: [&str; 3] = [
-    "BushingForce",
-    "FunctionBasedBushingForce",
-    "ExpressionBasedBushingForce",
-];
-
 /// A level of a model: one bushing.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Level {
@@ -507,7 +500,7 @@ fn validate_curve(
 /// Check a law: positive stiffness and ratios, non-negative damping,
 /// monotone curves (unless `allow_softening`), symmetric positive-definite
 /// coupled matrices, expressions that parse.
-pub fn validate_law(law: &LevelLaw, allow_softening: bool) -> std::result::Result<(), String> {
+fn validate_law(law: &LevelLaw, allow_softening: bool) -> std::result::Result<(), String> {
     for (i, c) in law.damping().iter().enumerate() {
         if !(c.is_finite() && *c >= 0.0) {
             return Err(format!("damping {} must be >= 0, got {c}", DOF_NAMES[i]));
@@ -908,7 +901,7 @@ fn function_element(c: &CurveSpec) -> Element {
 }
 
 /// The OpenSim class a law is written as.
-pub fn class_of(law: &LevelLaw) -> &'static str {
+fn class_of(law: &LevelLaw) -> &'static str {
     match law {
         LevelLaw::Linear { .. } => "BushingForce",
         LevelLaw::Nonlinear { curves, .. } => {
@@ -979,7 +972,7 @@ fn is_law_prop(tag: &str) -> bool {
 
 /// The bushing element `e` rewritten with `law`: same name, sockets, frames
 /// and other non-law properties; class per [`class_of`].
-pub fn rewrite_bushing(e: &Element, law: &LevelLaw) -> Element {
+fn rewrite_bushing(e: &Element, law: &LevelLaw) -> Element {
     let mut out = Element::new(class_of(law));
     out.attrs = e.attrs.clone();
     out.line = 0;

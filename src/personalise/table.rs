@@ -810,7 +810,7 @@ pub fn is_csv(path: &Path) -> bool {
 // ---------------------------------------------------------------- writers
 
 /// The `format` tag of TOML tables.
-pub const FORMAT_TAG: &str = "osim-spine stiffness table 1";
+const FORMAT_TAG: &str = "osim-spine stiffness table 1";
 
 /// A number as TOML/CSV text: shortest round-trip form, always a float literal.
 pub fn num(x: f64) -> String {

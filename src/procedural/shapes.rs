@@ -11,7 +11,7 @@ use nalgebra::{Point3, Vector3};
 
 /// Round a point to whole micrometres (compact, exact ASCII output; far
 /// below any modelled dimension).
-pub fn round_um(p: &Point3<f64>) -> Point3<f64> {
+fn round_um(p: &Point3<f64>) -> Point3<f64> {
     p.map(|c| (c * 1e6).round() / 1e6)
 }
 

@@ -114,7 +114,7 @@ fn distribute(total: f64, weights: &[f64]) -> Vec<f64> {
 
 /// Segment angles (rad, + lordotic) of the 17 joints T1-T2 .. L5-S1 from
 /// the alignment targets; `w` are the body wedges T1..L5.
-pub fn segment_angles(t: &Templates, w: &[f64]) -> Vec<f64> {
+fn segment_angles(t: &Templates, w: &[f64]) -> Vec<f64> {
     let a = &t.alignment;
     let mut seg = vec![0.0; 17];
     // lumbar: L1-L2 .. L5-S1 (joints 12..16)

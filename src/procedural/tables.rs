@@ -8,10 +8,10 @@ use serde::Deserialize;
 use std::path::Path;
 
 /// Embedded template texts (name, text).
-pub const ALIGNMENT_TOML: &str = include_str!("../../templates/alignment.toml");
-pub const SEGMENTS_TOML: &str = include_str!("../../templates/segments.toml");
-pub const MUSCLES_TOML: &str = include_str!("../../templates/muscles.toml");
-pub const SHAPE_TOML: &str = include_str!("../../templates/procedural_shape.toml");
+const ALIGNMENT_TOML: &str = include_str!("../../templates/alignment.toml");
+const SEGMENTS_TOML: &str = include_str!("../../templates/segments.toml");
+const MUSCLES_TOML: &str = include_str!("../../templates/muscles.toml");
+const SHAPE_TOML: &str = include_str!("../../templates/procedural_shape.toml");
 
 /// `alignment.toml`.
 #[derive(Debug, Clone, Deserialize, PartialEq)]

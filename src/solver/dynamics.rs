@@ -552,9 +552,9 @@ impl Integrator {
 
 /// Most integration steps one run may take (a step cap: `--dynamic 1e9
 /// --dt 1e-9` is refused up front instead of running for ever).
-pub const MAX_STEPS: usize = 10_000_000;
+const MAX_STEPS: usize = 10_000_000;
 /// Most samples one run keeps (longer runs sample more sparsely).
-pub const MAX_SAMPLES: usize = 100_000;
+const MAX_SAMPLES: usize = 100_000;
 
 /// Number of steps of `duration` at `dt`, refused beyond [`MAX_STEPS`].
 pub fn step_count(duration: f64, dt: f64) -> Result<usize> {

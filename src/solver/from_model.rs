@@ -115,7 +115,7 @@ fn other_damping(b: &OtherBushing, ctx: &str) -> Result<[f64; 6]> {
 /// Missing functions/expressions are zero (OpenSim's defaults). An
 /// expression-based bushing whose six expressions are all linear forms of
 /// the deflection becomes [`BushingModel::Coupled`].
-pub fn other_bushing_model(b: &OtherBushing, ctx: &str) -> Result<BushingModel> {
+fn other_bushing_model(b: &OtherBushing, ctx: &str) -> Result<BushingModel> {
     let damping = other_damping(b, ctx)?;
     match b.class.as_str() {
         "FunctionBasedBushingForce" => {

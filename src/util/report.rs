@@ -19,7 +19,7 @@
 use serde::Serialize;
 
 /// Residuals below this (N or N m) are reported as 0: they are round-off.
-pub const RESIDUAL_FLOOR: f64 = 1e-9;
+const RESIDUAL_FLOOR: f64 = 1e-9;
 
 /// Round `x` to `decimals` decimal places (the f64 nearest to that decimal);
 /// values too large for that grid are returned as they are.
@@ -44,7 +44,7 @@ fn round_sig(x: f64, digits: usize) -> f64 {
 }
 
 /// The reported value of a number found under key `key`.
-pub fn round_number(key: &str, x: f64) -> f64 {
+fn round_number(key: &str, x: f64) -> f64 {
     let r = if key.contains("residual") {
         if x.abs() < RESIDUAL_FLOOR {
             0.0
@@ -65,7 +65,7 @@ pub fn round_number(key: &str, x: f64) -> f64 {
 /// Round every float (a number token with a fraction or exponent) of the
 /// JSON text `json` by the rules of the module; everything else is copied
 /// unchanged.
-pub fn round_json_text(json: &str) -> String {
+fn round_json_text(json: &str) -> String {
     let b = json.as_bytes();
     let mut out = String::with_capacity(json.len());
     let mut stack: Vec<String> = Vec::new();

@@ -274,3 +274,21 @@ pub fn check_generated_in_opensim(python: &Path, model: &Path) -> (usize, usize)
     );
     (rows.len(), crossing)
 }
+
+/// The names of the files of `dir` that git tracks (a stray file such as
+/// OpenSim's `opensim.log` is not one), or `None` when `dir` is not in a
+/// git checkout.
+pub fn git_tracked(dir: &Path) -> Option<std::collections::BTreeSet<String>> {
+    let o = Command::new("git")
+        .arg("-C")
+        .arg(dir)
+        .args(["ls-files", "--", "."])
+        .output()
+        .ok()?;
+    o.status.success().then(|| {
+        String::from_utf8_lossy(&o.stdout)
+            .lines()
+            .map(str::to_string)
+            .collect()
+    })
+}
