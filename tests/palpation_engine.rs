@@ -301,3 +301,49 @@ fn decimated_dense_meshes_agree_with_the_dense_ones() {
     let worst = d.last().unwrap();
     assert!(worst.0 <= 4.0, "worst {:.2} mm at {}", worst.0, worst.1);
 }
+
+/// A vertebra far from the coordinate origin (2 m, 100 m, 1 km away, as a
+/// scanner's world may put it) is palpated as at the origin: every
+/// landmark and the centre, moved back, within 0.01 mm.
+#[test]
+fn a_vertebra_far_from_the_origin_gives_the_same_landmarks() {
+    let Some(meshes) = cyclist_meshes() else {
+        return;
+    };
+    let hint = FrameHint::body_frame();
+    let near = check_family(&meshes, &hint);
+    for metres in [2.0, 100.0, 1000.0] {
+        let shift = Vector3::new(metres, -0.6 * metres, 0.8 * metres);
+        let iso = Isometry3::from_parts(Translation3::from(shift), UnitQuaternion::identity());
+        let moved: Vec<(Level, TriMesh)> = meshes
+            .iter()
+            .map(|(l, m)| (*l, m.transformed(&iso)))
+            .collect();
+        let far = check_family(&moved, &hint);
+        let mut worst = (0.0, String::new());
+        for (p, q) in near.iter().zip(&far) {
+            let mut d = vec![("centre".to_string(), (q.centre - shift - p.centre).norm())];
+            for (c, lp) in &p.landmarks {
+                let lq = q.landmarks.get(c).map(|x| x.point - shift);
+                let dist = lq.map_or(f64::INFINITY, |x| (x - lp.point).norm());
+                d.push((c.to_string(), dist));
+            }
+            for (name, x) in d {
+                if x > worst.0 {
+                    worst = (x, format!("{}_{name}", p.level));
+                }
+            }
+        }
+        println!(
+            "{metres} m away: largest change {:.2e} mm ({})",
+            worst.0 * 1e3,
+            worst.1
+        );
+        assert!(
+            worst.0 < 1e-5,
+            "{metres} m away: {} moved {:.4} mm",
+            worst.1,
+            worst.0 * 1e3
+        );
+    }
+}

@@ -63,19 +63,20 @@ fn refine(
         .try_normalize(1e-6)
         .unwrap_or_else(|| n0.cross(&Vector3::y()).normalize());
     let v = n0.cross(&u);
+    // The plane turns about the samples' centroid: x[2] is its offset from
+    // the centroid, so a tilt does not sweep it across a vertebra that lies
+    // far from the coordinate origin.
     let mean = pts.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / pts.len() as f64;
     let cap = 0.1 * size;
-    let mut x = [0.0, 0.0, n0.dot(&mean)];
+    let mut x = [0.0, 0.0, 0.0];
     let mut hints = vec![0u32; pts.len()];
+    let plane = |x: &[f64; 3]| {
+        let n = tilted(&n0, &u, &v, x[0], x[1]);
+        (n, x[2] + n.dot(&mean))
+    };
     let mut eval = |x: &[f64; 3]| {
-        mirror_cost(
-            q,
-            pts,
-            &mut hints,
-            &tilted(&n0, &u, &v, x[0], x[1]),
-            x[2],
-            cap,
-        )
+        let (n, d) = plane(x);
+        mirror_cost(q, pts, &mut hints, &n, d, cap)
     };
     let mut f = eval(&x);
     let a0 = steps_deg.0.to_radians();
@@ -100,7 +101,8 @@ fn refine(
             }
         }
     }
-    (tilted(&n0, &u, &v, x[0], x[1]), x[2], f)
+    let (n, d) = plane(&x);
+    (n, d, f)
 }
 
 /// Turns of the hint's right axis about the cranial and anterior axes
