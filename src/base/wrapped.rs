@@ -557,9 +557,7 @@ pub fn through_vertebrae(
     let mut out = Vec::new();
     for (body, mq) in vertebrae {
         let Some(x) = poses.get(body) else { continue };
-        let Some((lo, hi)) = mq.mesh().bounds() else {
-            continue;
-        };
+        let (lo, hi) = mq.bounds();
         let (c, rad) = (nalgebra::center(&lo, &hi), 0.5 * (hi - lo).norm());
         let inv = x.inverse();
         let mut depth = 0.0;

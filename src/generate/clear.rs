@@ -238,24 +238,21 @@ fn place_via(
             &u,
             &v,
             x,
-            mq,
-            |g| {
-                let ok =
-                    clear_of(
-                        a,
-                        g,
-                        vertebrae,
-                        poses,
-                        end_bodies.first().cloned().flatten(),
-                    ) && clear_of(g, b, vertebrae, poses, end_bodies.get(1).cloned().flatten());
-                let inside = || {
-                    inside_length(a, g, vertebrae, poses, end_bodies.get(..1).unwrap_or(&[]))
-                        + inside_length(g, b, vertebrae, poses, end_bodies.get(1..2).unwrap_or(&[]))
-                };
-                match outside_wraps(g) {
-                    false => None,
-                    true if ok => Some(Fit::Clear),
-                    true => Some(Fit::Graze(inside())),
+            |p, g| {
+                // The cheap tests first: outside the muscle's wrap spheres,
+                // then clear of the crossed bone (distance, then inside).
+                if !outside_wraps(g) || !clear_of_bone(mq, p) {
+                    return None;
+                }
+                // Each new segment's run inside each other vertebra, once.
+                let first = runs_inside(a, g, vertebrae, poses, end_bodies.get(..1));
+                let second = runs_inside(g, b, vertebrae, poses, end_bodies.get(1..2));
+                if first.iter().chain(&second).all(|run| *run <= GRAZE) {
+                    Some(Fit::Clear)
+                } else {
+                    Some(Fit::Graze(
+                        first.iter().sum::<f64>() + second.iter().sum::<f64>(),
+                    ))
                 }
             },
             a,
@@ -275,7 +272,9 @@ fn place_via(
     // path's end bodies, if that is shorter than the direct segment's run;
     // the next round clears what its new segments still cross, and the
     // self-check reports what is left.
-    let direct = inside_length(a, b, vertebrae, poses, end_bodies);
+    let direct: f64 = runs_inside(a, b, vertebrae, poses, Some(end_bodies))
+        .iter()
+        .sum();
     let progress = least(|d| d.least).filter(|(inside, _, _)| *inside < direct);
     clear
         .map(|(_, p)| p)
@@ -310,15 +309,15 @@ struct Detour {
 /// plane of `u`, `v`: the shortest detour whose segments `score` clears
 /// (score 0), the one running least inside other vertebrae under
 /// [`FALLBACK_INSIDE`] of the self-check's tolerance, and the one running
-/// least inside them at any depth. Ground coordinates.
-#[allow(clippy::too_many_arguments)]
+/// least inside them at any depth. `score` takes a trial point in the
+/// vertebra frame and in ground, and refuses (`None`) one too close to
+/// the bone or inside a wrap sphere. Ground coordinates.
 fn detour_from(
     mid: &Point3<f64>,
     u: &Vector3<f64>,
     v: &Vector3<f64>,
     x: &nalgebra::Isometry3<f64>,
-    mq: &MeshQuery,
-    score: impl Fn(&Point3<f64>) -> Option<Fit>,
+    score: impl Fn(&Point3<f64>, &Point3<f64>) -> Option<Fit>,
     a: &Point3<f64>,
     b: &Point3<f64>,
 ) -> Detour {
@@ -331,17 +330,17 @@ fn detour_from(
         let mut t = 0.001;
         while t <= MAX_OFFSET {
             let p = mid + d * t;
-            if mq.signed_distance(&p) > CLEARANCE {
-                let g = x * p;
+            let g = x * p;
+            if let Some(fit) = score(&p, &g) {
                 let detour = (g - a).norm() + (b - g).norm();
-                match score(&g) {
-                    Some(Fit::Clear) => {
+                match fit {
+                    Fit::Clear => {
                         if best.map(|(bd, _)| detour < bd).unwrap_or(true) {
                             best = Some((detour, g));
                         }
                         break;
                     }
-                    Some(Fit::Graze(inside)) => {
+                    Fit::Graze(inside) => {
                         let better = |f: Option<Candidate>| {
                             f.is_none_or(|(fi, fd, _)| (inside, detour) < (fi, fd))
                         };
@@ -352,7 +351,6 @@ fn detour_from(
                             fallback = Some((inside, detour, g));
                         }
                     }
-                    None => {}
                 }
             }
             t += 0.001;
@@ -365,15 +363,16 @@ fn detour_from(
     }
 }
 
-/// Total length (m) of the segment `a`-`b` (ground) inside the vertebrae
-/// but those named in `skip`.
-fn inside_length(
+/// Length (m) of the segment `a`-`b` (ground) inside each vertebra but
+/// those named in `skip`, in the order of `vertebrae`.
+fn runs_inside(
     a: &Point3<f64>,
     b: &Point3<f64>,
     vertebrae: &[(String, &MeshQuery)],
     poses: &BTreeMap<String, nalgebra::Isometry3<f64>>,
-    skip: &[Option<String>],
-) -> f64 {
+    skip: Option<&[Option<String>]>,
+) -> Vec<f64> {
+    let skip = skip.unwrap_or(&[]);
     vertebrae
         .iter()
         .filter(|(n, _)| !skip.iter().flatten().any(|s| s == n))
@@ -381,26 +380,13 @@ fn inside_length(
             let inv = poses.get(n)?.inverse();
             Some(mq.segment_length_inside(&(inv * a), &(inv * b)))
         })
-        .sum()
+        .collect()
 }
 
-/// Whether the segment `a`-`b` (ground) stays outside every vertebra but
-/// `skip`.
-fn clear_of(
-    a: &Point3<f64>,
-    b: &Point3<f64>,
-    vertebrae: &[(String, &MeshQuery)],
-    poses: &BTreeMap<String, nalgebra::Isometry3<f64>>,
-    skip: Option<String>,
-) -> bool {
-    vertebrae.iter().all(|(n, mq)| {
-        if skip.as_deref() == Some(n.as_str()) {
-            return true;
-        }
-        let Some(x) = poses.get(n) else { return true };
-        let inv = x.inverse();
-        mq.segment_length_inside(&(inv * a), &(inv * b)) <= GRAZE
-    })
+/// Is `p` (vertebra frame) outside the bone by more than [`CLEARANCE`]?
+/// The distance first: the inside test casts rays.
+fn clear_of_bone(mq: &MeshQuery, p: &Point3<f64>) -> bool {
+    mq.distance(p) > CLEARANCE && !mq.contains(p)
 }
 
 /// The `objects` of a muscle's PathPointSet.

@@ -190,20 +190,40 @@ impl MeshQuery {
     /// Length of the part of segment `a`-`b` inside the closed surface (m):
     /// how deep a muscle path segment passes through a bone.
     pub fn segment_length_inside(&self, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
+        // A segment clear of the bounding box (by a margin far above
+        // rounding) neither crosses the surface nor has a piece inside.
+        if self.segment_misses_bounds(a, b) {
+            return 0.0;
+        }
         let len = (b - a).norm();
-        let mut ts: Vec<f64> = vec![0.0];
-        ts.extend(self.segment_hits(a, b).iter().map(|h| h.t));
-        ts.push(1.0);
+        let hits = self.segment_hits(a, b);
+        // The pieces between consecutive crossings (and the ends).
         let mut inside = 0.0;
-        for w in ts.windows(2) {
-            if w[1] > w[0] {
-                let mid = a + (b - a) * (0.5 * (w[0] + w[1]));
+        let mut from = 0.0;
+        for to in hits.iter().map(|h| h.t).chain([1.0]) {
+            if to > from {
+                let mid = a + (b - a) * (0.5 * (from + to));
                 if self.contains(&mid) {
-                    inside += (w[1] - w[0]) * len;
+                    inside += (to - from) * len;
                 }
             }
+            from = to;
         }
         inside
+    }
+
+    /// Is the box of segment `a`-`b` apart from the mesh's bounding box by
+    /// more than a millionth of the mesh's size along some axis?
+    fn segment_misses_bounds(&self, a: &Point3<f64>, b: &Point3<f64>) -> bool {
+        let (lo, hi) = &self.bounds;
+        let margin = 1e-6 * self.scale;
+        (0..3).any(|k| a[k].max(b[k]) < lo[k] - margin || a[k].min(b[k]) > hi[k] + margin)
+    }
+
+    /// Bounding box of the mesh's vertices (the mesh's own
+    /// [`TriMesh::bounds`], computed once).
+    pub fn bounds(&self) -> (Point3<f64>, Point3<f64>) {
+        self.bounds
     }
 
     /// Is `p` inside the closed surface? Majority vote of crossing parity
