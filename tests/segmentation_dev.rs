@@ -299,9 +299,10 @@ fn accuracy(dev: &Path) -> Vec<(String, &'static str, f64, f64)> {
 
 /// Landmark accuracy against `landmarks_clean.csv` (SR/SL/IR/IL without
 /// their component along the endplate's SA->SP direction): mesh folders'
-/// median <= 0.8 mm (the acceptance's bound, met); the rest against
-/// today's bounds (label maps' median <= 1.6 mm, every 95th percentile
-/// <= 6 mm), the acceptance's (maps' median 1.2 mm, 95th percentiles 3 and
+/// median <= 0.5 mm (measured 0.33-0.37 mm; the acceptance's bound is
+/// 0.8 mm); the rest against today's bounds (label maps' median <= 1.4 mm,
+/// measured 1.19-1.26 mm; every 95th percentile <= 5.5 mm, measured
+/// 4.4-5.1 mm), the acceptance's (maps' median 1.2 mm, 95th percentiles 3 and
 /// 3.5 mm) being not met yet: see
 /// `landmarks_meet_the_acceptance_thresholds` (ignored). What is over:
 /// thoracic IR/IL 3-5 mm along the endplate's normal (T1-T9, where the
@@ -311,9 +312,9 @@ fn accuracy(dev: &Path) -> Vec<(String, &'static str, f64, f64)> {
 fn landmarks_agree_with_the_protocol() {
     let Some(dev) = dev() else { return };
     for (patient, kind, med, p95) in accuracy(&dev) {
-        let m_max = if kind == "meshes" { 0.8 } else { 1.6 };
+        let m_max = if kind == "meshes" { 0.5 } else { 1.4 };
         assert!(med <= m_max, "{patient} {kind}: median {med:.2} mm");
-        assert!(p95 <= 6.0, "{patient} {kind}: p95 {p95:.2} mm");
+        assert!(p95 <= 5.5, "{patient} {kind}: p95 {p95:.2} mm");
     }
 }
 

@@ -369,15 +369,13 @@ pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
     assemble::assemble(loaded, world, results, opts)
 }
 
-/// Distance from the coordinates' origin (m) beyond which a segmentation
-/// is palpated about a local origin: nearer, the coordinates are kept as
-/// they are (a scanner's offsets of up to a few metres cost no precision).
-const FAR_FROM_ORIGIN: f64 = 10.0;
-
-/// The point the levels are palpated about: far from the coordinates'
-/// origin ([`FAR_FROM_ORIGIN`]; a world kilometres away) volumes and inside
-/// tests lose their precision, so the centre of their bounding box, in
-/// whole metres; else the origin itself.
+/// The point the levels are palpated about: the centre of their bounding
+/// box in whole metres. Far from the coordinates' origin (a scanner's world
+/// metres or kilometres away) volumes and inside tests lose precision, and
+/// the palpation of voxel surfaces breaks near-ties by the rounding; about
+/// a whole-metre local origin the same anatomy gives the same local
+/// coordinates wherever its world is (and a world within half a metre of
+/// the origin is palpated as it is).
 fn local_origin(levels: &[LevelInput]) -> nalgebra::Vector3<f64> {
     use nalgebra::Vector3;
     let mut lo = Vector3::repeat(f64::INFINITY);
@@ -386,11 +384,10 @@ fn local_origin(levels: &[LevelInput]) -> nalgebra::Vector3<f64> {
         lo = lo.inf(&v.coords);
         hi = hi.sup(&v.coords);
     }
-    let centre = (lo + hi) * 0.5;
-    if lo.x > hi.x || centre.amax() < FAR_FROM_ORIGIN {
+    if lo.x > hi.x {
         return Vector3::zeros();
     }
-    centre.map(f64::round)
+    ((lo + hi) * 0.5).map(f64::round)
 }
 
 /// Move a mesh by `by` (metres).
