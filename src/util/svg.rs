@@ -486,8 +486,7 @@ pub fn boxplot_svg_axis(
     include_zero: bool,
 ) -> String {
     let slot_w = 120.0;
-    let (left, right, top, bottom) = (60.0, 20.0, 40.0, 50.0);
-    let w = (left + right + slot_w * series.len().max(1) as f64).max(560.0);
+    let (right, top, bottom) = (20.0, 40.0, 50.0);
     let h = 380.0;
     let series: Vec<(&str, Vec<f64>)> = series
         .iter()
@@ -519,8 +518,20 @@ pub fn boxplot_svg_axis(
     let ymin = (dmin / step).floor() * step;
     let ymax = (dmax / step).ceil() * step;
     let sy = |v: f64| top + (h - top - bottom) * (1.0 - (v - ymin) / (ymax - ymin));
-    let slot = (w - left - right) / series.len().max(1) as f64;
     let decimals = (-step.log10().floor()).max(0.0) as usize;
+    let ticks = ((ymax - ymin) / step).round() as i64;
+    // Left margin: the rotated axis title (to x = 24), a gap, the widest tick label.
+    let widest = (0..=ticks)
+        .map(|i| {
+            format!("{:.decimals$}", ymin + step * i as f64)
+                .chars()
+                .count()
+        })
+        .max()
+        .unwrap_or(1);
+    let left = (36.0 + 8.0 * widest as f64).max(60.0);
+    let w = (left + right + slot_w * series.len().max(1) as f64).max(560.0);
+    let slot = (w - left - right) / series.len().max(1) as f64;
     let mut s = format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{}\" y=\"22\" text-anchor=\"middle\" font-size=\"14\">{}</text>\n",
         w / 2.0,
@@ -531,7 +542,6 @@ pub fn boxplot_svg_axis(
         "<line x1=\"{left}\" y1=\"{top}\" x2=\"{left}\" y2=\"{}\" stroke=\"black\"/>\n",
         h - bottom
     ));
-    let ticks = ((ymax - ymin) / step).round() as i64;
     for i in 0..=ticks {
         let t = ymin + step * i as f64;
         s.push_str(&format!(
