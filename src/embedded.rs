@@ -80,7 +80,7 @@ impl BaseModel {
             },
             BaseModel::Embedded => {
                 check_relative(mesh_file)
-                    .map_err(|why| Error::invalid(EMBEDDED_BASE_LABEL, why))?;
+                    .map_err(|why| Error::invalid(EMBEDDED_BASE_LABEL, why.to_string()))?;
                 let name = mesh_file.rsplit(['/', '\\']).next().unwrap_or(mesh_file);
                 Ok(base_file_bytes(name).map(|b| b.to_vec()))
             }

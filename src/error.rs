@@ -109,6 +109,39 @@ pub enum SolverError {
     StepNotConverged { dt: f64 },
 }
 
+/// What is wrong with the numbers of a function, a stiffness curve or a
+/// bushing law (their `validate`): callers match on the kind; the message
+/// names the field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DataError {
+    /// A number of the named field is NaN or infinite.
+    #[error("{0} not finite")]
+    NotFinite(&'static str),
+    /// The named arrays are empty or of different lengths (`n`: the
+    /// abscissae's length).
+    #[error("{what} needs equal non-empty arrays (x has {n})")]
+    Lengths {
+        /// Which function's arrays.
+        what: &'static str,
+        /// Number of abscissae.
+        n: usize,
+    },
+    /// The named function's abscissae do not strictly increase.
+    #[error("{0} abscissae must be strictly increasing")]
+    NotIncreasing(&'static str),
+    /// A sinh curve's scale `a` is zero.
+    #[error("sinh curve needs a non-zero scale a")]
+    ZeroSinhScale,
+    /// The curve of one degree of freedom of a bushing law is invalid.
+    #[error("curve {dof}: {error}")]
+    Curve {
+        /// The degree of freedom (`rx` .. `tz`).
+        dof: &'static str,
+        /// What is wrong with its curve.
+        error: Box<DataError>,
+    },
+}
+
 impl Error {
     /// I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {

@@ -539,26 +539,24 @@ impl Experiment {
         let csv_text =
             crate::util::read_text_capped(&csv_path, MAX_FILE_BYTES, "experiment files")?;
         let rows = parse_kinematics(&csv_text, &csv_path, &raw.cases, &units, &|u, l| {
+            let unknown = |body: &str, column| PairError::UnknownBody {
+                body: body.to_string(),
+                column,
+                known: bodies.join(", "),
+            };
             if !known(u) {
-                return Err(format!(
-                    "unknown body '{u}' in column upper (bodies: {})",
-                    bodies.join(", ")
-                ));
+                return Err(unknown(u, "upper"));
             }
             if !known(l) {
-                return Err(format!(
-                    "unknown body '{l}' in column lower (bodies: {})",
-                    bodies.join(", ")
-                ));
+                return Err(unknown(l, "lower"));
             }
             match parent_of.get(u) {
                 Some(Some(p)) if *p == l => Ok(()),
-                Some(Some(p)) => Err(format!(
-                    "'{u}' and '{l}' are not an adjacent pair: the joint of '{u}' connects it to '{p}'"
-                )),
-                _ => Err(format!(
-                    "'{u}' and '{l}' are not an adjacent pair: '{u}' hangs on ground"
-                )),
+                parent => Err(PairError::NotAdjacent {
+                    upper: u.to_string(),
+                    lower: l.to_string(),
+                    parent: parent.copied().flatten().map(str::to_string),
+                }),
             }
         })?;
         let mut warnings = Vec::new();
@@ -636,9 +634,37 @@ impl Experiment {
 const MAX_ANGLE_RAD: f64 = 1.0;
 const MAX_TRANSLATION_M: f64 = 0.05;
 
-/// Checks an `upper`/`lower` pair of body names: `Err(message)` when the
-/// pair is not an adjacent pair of the model (see [`Experiment::read`]).
-pub type PairCheck<'a> = dyn Fn(&str, &str) -> std::result::Result<(), String> + 'a;
+/// Why a row's `upper`/`lower` pair of body names cannot be measured.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PairError {
+    /// The model has no body of that name.
+    #[error("unknown body '{body}' in column {column} (bodies: {known})")]
+    UnknownBody {
+        /// The name in the file.
+        body: String,
+        /// `upper` or `lower`.
+        column: &'static str,
+        /// The model's body names, comma-separated.
+        known: String,
+    },
+    /// `upper`'s joint does not hang it on `lower`.
+    #[error("'{upper}' and '{lower}' are not an adjacent pair: {}", match parent {
+        Some(p) => format!("the joint of '{upper}' connects it to '{p}'"),
+        None => format!("'{upper}' hangs on ground"),
+    })]
+    NotAdjacent {
+        /// The row's upper body.
+        upper: String,
+        /// The row's lower body.
+        lower: String,
+        /// The body `upper`'s joint connects it to (None: ground).
+        parent: Option<String>,
+    },
+}
+
+/// Checks an `upper`/`lower` pair of body names against the model (see
+/// [`Experiment::read`]).
+pub type PairCheck<'a> = dyn Fn(&str, &str) -> std::result::Result<(), PairError> + 'a;
 
 /// Largest experiment file accepted (a study with thousands of rows is < 1 MB).
 pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
@@ -757,7 +783,7 @@ pub fn parse_kinematics(
         };
         let upper = field(1).to_string();
         let lower = field(2).to_string();
-        check_pair(&upper, &lower).map_err(|m| Error::parse(path, at.clone(), m))?;
+        check_pair(&upper, &lower).map_err(|m| Error::parse(path, at.clone(), m.to_string()))?;
         let mut values = [None; 6];
         let mut sd = [None; 6];
         for d in 0..6 {
@@ -966,10 +992,14 @@ follower_load = 400.0
 
     const TOML: &str = "[specimen]\nmodel = \"specimen.osim\"\nfixed_body = \"sacrum\"\ngravity = false\n\n[units]\nangle = \"deg\"\nlength = \"mm\"\n\n[[case]]\nid = \"FE_neg_7.5\"\nbody = \"lumbar4\"\nmoment = [0.0, 0.0, -7.5]\nmoment_frame = \"ground\"\n\n[[case]]\nid = \"LB\"\nbody = \"lumbar4\"\nmoment = [7.5, 0.0, 0.0]\nmoment_frame = \"body\"\n";
 
-    fn adjacent(u: &str, l: &str) -> std::result::Result<(), String> {
+    fn adjacent(u: &str, l: &str) -> std::result::Result<(), PairError> {
         match (u, l) {
             ("lumbar5", "sacrum") | ("lumbar4", "lumbar5") => Ok(()),
-            _ => Err(format!("'{u}' and '{l}' are not an adjacent pair")),
+            _ => Err(PairError::NotAdjacent {
+                upper: u.into(),
+                lower: l.into(),
+                parent: None,
+            }),
         }
     }
 

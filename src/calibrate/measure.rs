@@ -28,13 +28,18 @@ pub enum Convention {
     Difference,
 }
 
+/// A convention name that is neither `composed` nor `difference`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("expected 'composed' or 'difference', got '{0}'")]
+pub struct UnknownConvention(pub String);
+
 impl std::str::FromStr for Convention {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = UnknownConvention;
+    fn from_str(s: &str) -> Result<Self, UnknownConvention> {
         match s {
             "composed" => Ok(Convention::Composed),
             "difference" => Ok(Convention::Difference),
-            _ => Err(format!("expected 'composed' or 'difference', got '{s}'")),
+            _ => Err(UnknownConvention(s.to_string())),
         }
     }
 }

@@ -182,10 +182,32 @@ impl PatientGeometry {
     }
 }
 
+/// Why a level's surface cannot be the model's geometry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum UnusableSurface {
+    /// Decimation left more than [`MAX_TRIANGLES`] triangles.
+    #[error("{0} triangles after decimation (at most {MAX_TRIANGLES})")]
+    TooManyTriangles(usize),
+    /// The surface has boundary or non-manifold edges.
+    #[error("the surface is not closed ({boundary} boundary, {non_manifold} non-manifold edges)")]
+    NotClosed {
+        /// Edges with one triangle.
+        boundary: usize,
+        /// Edges with more than two triangles.
+        non_manifold: usize,
+    },
+    /// No consistent outward orientation exists.
+    #[error("the surface cannot be oriented consistently outward")]
+    NotOrientable,
+}
+
 /// A level's surface made fit for the model: smoothed (label maps),
 /// decimated to [`MAX_TRIANGLES`], checked closed and turned outward;
 /// with a description of what was done, or why it cannot be used.
-pub fn prepare(mesh: TriMesh, kind: Kind) -> std::result::Result<(TriMesh, String), String> {
+pub fn prepare(
+    mesh: TriMesh,
+    kind: Kind,
+) -> std::result::Result<(TriMesh, String), UnusableSurface> {
     let n0 = mesh.triangles.len();
     // Voxel surfaces pinch where two voxels touch along an edge.
     let (mesh, split) = crate::mesh::manifold::split_non_manifold_edges(&mesh);
@@ -207,22 +229,18 @@ pub fn prepare(mesh: TriMesh, kind: Kind) -> std::result::Result<(TriMesh, Strin
         );
     }
     if out.triangles.len() > MAX_TRIANGLES {
-        return Err(format!(
-            "{} triangles after decimation (at most {MAX_TRIANGLES})",
-            out.triangles.len()
-        ));
+        return Err(UnusableSurface::TooManyTriangles(out.triangles.len()));
     }
     let rep = out.edge_report();
     if !rep.boundary_edges.is_empty() || !rep.non_manifold_edges.is_empty() {
-        return Err(format!(
-            "the surface is not closed ({} boundary, {} non-manifold edges)",
-            rep.boundary_edges.len(),
-            rep.non_manifold_edges.len()
-        ));
+        return Err(UnusableSurface::NotClosed {
+            boundary: rep.boundary_edges.len(),
+            non_manifold: rep.non_manifold_edges.len(),
+        });
     }
     out.orient_consistently();
     if !out.edge_report().inconsistent_edges.is_empty() || out.signed_volume() <= 0.0 {
-        return Err("the surface cannot be oriented consistently outward".into());
+        return Err(UnusableSurface::NotOrientable);
     }
     Ok((out, what))
 }

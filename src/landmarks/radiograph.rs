@@ -211,9 +211,9 @@ impl Header {
                     .ok_or_else(|| err(format!("`# units: {v}`: expected `mm` or `m`")))?,
             );
         } else if let Some(v) = header_value(line, "projection") {
-            self.projection = Some(parse_projection(v).map_err(err)?);
+            self.projection = Some(parse_projection(v, &err)?);
         } else if let Some(v) = header_value(line, "axes") {
-            self.axes = Some(parse_axes(v).map_err(err)?);
+            self.axes = Some(parse_axes(v, &err)?);
         } else if let Some(v) = header_value(line, "film") {
             self.film = Some(v.to_string());
         }
@@ -221,7 +221,7 @@ impl Header {
     }
 }
 
-fn parse_projection(v: &str) -> std::result::Result<Projection, String> {
+fn parse_projection(v: &str, err: &dyn Fn(String) -> Error) -> Result<Projection> {
     let mut words = v.split_whitespace();
     let expected = "expected `orthographic` or `perspective source_to_image_mm=D source_to_patient_mm=d` (D > d > 0)";
     match words.next().map(str::to_ascii_lowercase).as_deref() {
@@ -230,22 +230,26 @@ fn parse_projection(v: &str) -> std::result::Result<Projection, String> {
             let (mut sid, mut sod) = (None, None);
             for w in words {
                 let (k, x) = w.split_once('=').ok_or_else(|| {
-                    format!("`# projection: {v}`: `{w}` is not key=value; {expected}")
+                    err(format!(
+                        "`# projection: {v}`: `{w}` is not key=value; {expected}"
+                    ))
                 })?;
                 let x: f64 = x
                     .parse()
                     .ok()
                     .filter(|x: &f64| x.is_finite() && *x > 0.0)
                     .ok_or_else(|| {
-                        format!("`# projection: {v}`: `{w}` needs a positive number of mm")
+                        err(format!(
+                            "`# projection: {v}`: `{w}` needs a positive number of mm"
+                        ))
                     })?;
                 match k {
                     "source_to_image_mm" => sid = Some(x * 1e-3),
                     "source_to_patient_mm" => sod = Some(x * 1e-3),
                     _ => {
-                        return Err(format!(
+                        return Err(err(format!(
                             "`# projection: {v}`: unknown key `{k}`; {expected}"
-                        ))
+                        )))
                     }
                 }
             }
@@ -254,15 +258,15 @@ fn parse_projection(v: &str) -> std::result::Result<Projection, String> {
                     source_to_image: a,
                     source_to_patient: b,
                 }),
-                _ => Err(format!("`# projection: {v}`: {expected}")),
+                _ => Err(err(format!("`# projection: {v}`: {expected}"))),
             }
         }
-        _ => Err(format!("`# projection: {v}`: {expected}")),
+        _ => Err(err(format!("`# projection: {v}`: {expected}"))),
     }
 }
 
 /// Signs that bring the stated axes to the format's (`u` left, `v` cranial).
-fn parse_axes(v: &str) -> std::result::Result<(f64, f64), String> {
+fn parse_axes(v: &str, err: &dyn Fn(String) -> Error) -> Result<(f64, f64)> {
     let (mut su, mut sv) = (1.0, 1.0);
     for part in v.split(',') {
         let p = part.trim().to_ascii_lowercase();
@@ -272,10 +276,10 @@ fn parse_axes(v: &str) -> std::result::Result<(f64, f64), String> {
             } else if p.contains(neg) {
                 Ok(-1.0)
             } else {
-                Err(format!(
+                Err(err(format!(
                     "`# axes: {v}`: `{}` must say `{pos}` or `{neg}` (expected `u towards the patient's left, v cranial`)",
                     part.trim()
-                ))
+                )))
             }
         };
         if p.starts_with('u') {
@@ -283,9 +287,9 @@ fn parse_axes(v: &str) -> std::result::Result<(f64, f64), String> {
         } else if p.starts_with('v') {
             sv = sign("cranial", "caudal")?;
         } else {
-            return Err(format!(
+            return Err(err(format!(
                 "`# axes: {v}`: expected `u towards the patient's left, v cranial`"
-            ));
+            )));
         }
     }
     Ok((su, sv))

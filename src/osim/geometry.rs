@@ -57,20 +57,30 @@ fn search_roots(model_path: &Path, extra: &[PathBuf]) -> Vec<(PathBuf, PathBuf, 
     out
 }
 
-/// Check a `mesh_file` text: `Err(reason)` when it may not be followed.
-pub fn check_relative(mesh_file: &str) -> Result<&Path, String> {
+/// Why a `mesh_file` text may not be followed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum UnsafeMeshPath {
+    /// The text holds a NUL character.
+    #[error("contains a NUL character")]
+    Nul,
+    /// A `..` component would leave the geometry folders.
+    #[error("contains '..' (escapes the geometry folders)")]
+    ParentDir,
+    /// The path is absolute.
+    #[error("is an absolute path (must be relative to the geometry folders)")]
+    Absolute,
+}
+
+/// Check a `mesh_file` text: the relative path to follow, or why not.
+pub fn check_relative(mesh_file: &str) -> Result<&Path, UnsafeMeshPath> {
     let p = Path::new(mesh_file);
     if mesh_file.contains('\0') {
-        return Err("contains a NUL character".into());
+        return Err(UnsafeMeshPath::Nul);
     }
     for c in p.components() {
         match c {
-            Component::ParentDir => {
-                return Err("contains '..' (escapes the geometry folders)".into())
-            }
-            Component::RootDir | Component::Prefix(_) => {
-                return Err("is an absolute path (must be relative to the geometry folders)".into())
-            }
+            Component::ParentDir => return Err(UnsafeMeshPath::ParentDir),
+            Component::RootDir | Component::Prefix(_) => return Err(UnsafeMeshPath::Absolute),
             _ => {}
         }
     }
@@ -185,6 +195,14 @@ pub fn mesh_copies(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unsafe_mesh_paths_are_typed() {
+        assert!(check_relative("Geometry/l1.vtp").is_ok());
+        assert_eq!(check_relative("../x.vtp"), Err(UnsafeMeshPath::ParentDir));
+        assert_eq!(check_relative("/etc/passwd"), Err(UnsafeMeshPath::Absolute));
+        assert_eq!(check_relative("a\0b"), Err(UnsafeMeshPath::Nul));
+    }
 
     #[test]
     fn lookup_order_and_escapes() {

@@ -402,17 +402,14 @@ fn check_range(dof: usize) -> f64 {
     }
 }
 
-fn validate_curve(
-    c: &CurveSpec,
-    dof: usize,
-    allow_softening: bool,
-) -> std::result::Result<(), String> {
+fn validate_curve(c: &CurveSpec, dof: usize, allow_softening: bool, ctx: &str) -> Result<()> {
+    let bad = |m: String| Error::invalid(ctx, m);
     let d = DOF_NAMES[dof];
-    let pos = |v: f64, what: &str| -> std::result::Result<(), String> {
+    let pos = |v: f64, what: &str| -> Result<()> {
         if v > 0.0 && v.is_finite() {
             Ok(())
         } else {
-            Err(format!("curve {d}: {what} must be positive, got {v}"))
+            Err(bad(format!("curve {d}: {what} must be positive, got {v}")))
         }
     };
     match c {
@@ -420,13 +417,13 @@ fn validate_curve(
         CurveSpec::Cubic { k, c } => {
             pos(*k, "k")?;
             if !c.is_finite() {
-                return Err(format!("curve {d}: c is not finite"));
+                return Err(bad(format!("curve {d}: c is not finite")));
             }
             if *c < 0.0 && !allow_softening {
-                return Err(format!(
+                return Err(bad(format!(
                     "curve {d}: c = {c} < 0 makes k x + c x^3 soften and turn down beyond |x| = {:.4}; pass --allow-softening to accept it",
                     (k / (-3.0 * c)).sqrt()
-                ));
+                )));
             }
             Ok(())
         }
@@ -440,28 +437,28 @@ fn validate_curve(
         }
         CurveSpec::Points { x, y, interp } => {
             if x.len() != y.len() || x.len() < 2 {
-                return Err(format!(
+                return Err(bad(format!(
                     "curve {d}: points need x and y of the same length, at least 2"
-                ));
+                )));
             }
             if !x.iter().chain(y.iter()).all(|v| v.is_finite()) {
-                return Err(format!("curve {d}: points must be finite"));
+                return Err(bad(format!("curve {d}: points must be finite")));
             }
             if let Some(w) = x.windows(2).position(|w| w[1] <= w[0]) {
-                return Err(format!(
+                return Err(bad(format!(
                     "curve {d}: x must be strictly increasing (x[{}] = {} >= x[{}] = {})",
                     w,
                     x[w],
                     w + 1,
                     x[w + 1]
-                ));
+                )));
             }
             if !allow_softening {
                 if let Some(w) = y.windows(2).position(|w| w[1] <= w[0]) {
-                    return Err(format!(
+                    return Err(bad(format!(
                         "curve {d}: y must increase with x (y[{}] = {} >= y[{}] = {}); pass --allow-softening to accept a non-monotone curve",
                         w, y[w], w + 1, y[w + 1]
-                    ));
+                    )));
                 }
                 if *interp == Interp::Spline {
                     let s = CubicSpline::new(x.clone(), y.clone());
@@ -469,7 +466,7 @@ fn validate_curve(
                     for i in 0..=1000 {
                         let t = lo + (hi - lo) * i as f64 / 1000.0;
                         if s.eval_order(t, 1) <= 0.0 {
-                            return Err(format!("curve {d}: the spline through the points is not increasing near x = {t} (overshoot); add points or use interp = \"linear\", or pass --allow-softening"));
+                            return Err(bad(format!("curve {d}: the spline through the points is not increasing near x = {t} (overshoot); add points or use interp = \"linear\", or pass --allow-softening")));
                         }
                     }
                 }
@@ -478,9 +475,9 @@ fn validate_curve(
         }
         CurveSpec::Polynomial { coefficients } => {
             if coefficients.is_empty() || !coefficients.iter().all(|v| v.is_finite()) {
-                return Err(format!(
+                return Err(bad(format!(
                     "curve {d}: coefficients must be finite, at least one"
-                ));
+                )));
             }
             if !allow_softening {
                 let f = OFunction::Polynomial(coefficients.clone());
@@ -488,7 +485,7 @@ fn validate_curve(
                 for i in 0..=1000 {
                     let t = -r + 2.0 * r * i as f64 / 1000.0;
                     if f.d1(t) <= 0.0 {
-                        return Err(format!("curve {d}: the polynomial is not increasing at x = {t} (checked on +-{r}); pass --allow-softening to accept it"));
+                        return Err(bad(format!("curve {d}: the polynomial is not increasing at x = {t} (checked on +-{r}); pass --allow-softening to accept it")));
                     }
                 }
             }
@@ -500,36 +497,40 @@ fn validate_curve(
 /// Check a law: positive stiffness and ratios, non-negative damping,
 /// monotone curves (unless `allow_softening`), symmetric positive-definite
 /// coupled matrices, expressions that parse.
-fn validate_law(law: &LevelLaw, allow_softening: bool) -> std::result::Result<(), String> {
+fn validate_law(law: &LevelLaw, allow_softening: bool, ctx: &str) -> Result<()> {
+    let bad = |m: String| Error::invalid(ctx, m);
     for (i, c) in law.damping().iter().enumerate() {
         if !(c.is_finite() && *c >= 0.0) {
-            return Err(format!("damping {} must be >= 0, got {c}", DOF_NAMES[i]));
+            return Err(bad(format!(
+                "damping {} must be >= 0, got {c}",
+                DOF_NAMES[i]
+            )));
         }
     }
     match law {
         LevelLaw::Linear { k, .. } => {
             for (i, v) in k.iter().enumerate() {
                 if !(v.is_finite() && *v > 0.0) {
-                    return Err(format!(
+                    return Err(bad(format!(
                         "stiffness {} must be positive, got {v}",
                         DOF_NAMES[i]
-                    ));
+                    )));
                 }
             }
         }
         LevelLaw::Nonlinear { curves, .. } => {
             for (i, c) in curves.iter().enumerate() {
-                validate_curve(c, i, allow_softening)?;
+                validate_curve(c, i, allow_softening, ctx)?;
             }
             let has_sinh = curves.iter().any(|c| matches!(c, CurveSpec::Sinh { .. }));
             if has_sinh {
                 if let Some(i) = curves.iter().position(|c| {
                     matches!(c, CurveSpec::Points { .. } | CurveSpec::Polynomial { .. })
                 }) {
-                    return Err(format!(
+                    return Err(bad(format!(
                         "curve {}: a bushing with a sinh curve is written as an ExpressionBasedBushingForce, which cannot hold points or polynomial curves; use linear, cubic, sinh or bilinear curves in this level",
                         DOF_NAMES[i]
-                    ));
+                    )));
                 }
             }
         }
@@ -539,7 +540,7 @@ fn validate_law(law: &LevelLaw, allow_softening: bool) -> std::result::Result<()
             for i in 0..6 {
                 for j in 0..i {
                     if (m[(i, j)] - m[(j, i)]).abs() > 1e-12 * scale {
-                        return Err(format!(
+                        return Err(bad(format!(
                             "matrix is not symmetric: K[{}][{}] = {} but K[{}][{}] = {}",
                             DOF_NAMES[i],
                             DOF_NAMES[j],
@@ -547,21 +548,22 @@ fn validate_law(law: &LevelLaw, allow_softening: bool) -> std::result::Result<()
                             DOF_NAMES[j],
                             DOF_NAMES[i],
                             m[(j, i)]
-                        ));
+                        )));
                     }
                 }
             }
             if m.cholesky().is_none() {
                 let eig = m.symmetric_eigenvalues();
                 let min = eig.iter().fold(f64::INFINITY, |a, v| a.min(*v));
-                return Err(format!(
+                return Err(bad(format!(
                     "matrix is not positive definite (smallest eigenvalue {min:.6e})"
-                ));
+                )));
             }
         }
         LevelLaw::Expression { exprs, .. } => {
             for (i, e) in exprs.iter().enumerate() {
-                Expr::parse(e).map_err(|m| format!("expression {}: '{e}': {m}", DOF_NAMES[i]))?;
+                Expr::parse(e)
+                    .map_err(|m| bad(format!("expression {}: '{e}': {m}", DOF_NAMES[i])))?;
             }
         }
     }
@@ -617,7 +619,7 @@ pub fn resolve(
                 format!("the row gives values the {} form does not use", form.name()),
             ));
         }
-        validate_law(&law, allow_softening).map_err(|m| Error::invalid(&ctx, m))?;
+        validate_law(&law, allow_softening, &ctx)?;
         out.push((l.clone(), law));
     }
     Ok(out)
@@ -1132,17 +1134,19 @@ mod tests {
             r[i] = 10.0;
         }
         let law = |k| LevelLaw::Coupled { k, c: [0.0; 6] };
-        assert!(validate_law(&law(k), false).is_ok());
+        assert!(validate_law(&law(k), false, "t").is_ok());
         let mut asym = k;
         asym[0][1] = 1.0;
-        assert!(validate_law(&law(asym), false)
+        assert!(validate_law(&law(asym), false, "t")
             .unwrap_err()
+            .to_string()
             .contains("symmetric"));
         let mut indef = k;
         indef[0][1] = 20.0;
         indef[1][0] = 20.0;
-        assert!(validate_law(&law(indef), false)
+        assert!(validate_law(&law(indef), false, "t")
             .unwrap_err()
+            .to_string()
             .contains("positive definite"));
     }
 }

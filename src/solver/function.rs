@@ -4,6 +4,7 @@
 
 use super::scalar::Scalar;
 use super::spec::Function;
+use crate::error::DataError;
 
 /// Index `i` of the interval `[x_i, x_{i+1}]` holding `x` (clamped to the
 /// end intervals); `xs` has at least 2 points, strictly increasing.
@@ -80,47 +81,50 @@ impl Function {
     }
 
     /// Check the function's data (lengths, increasing abscissae, finite numbers).
-    pub fn validate(&self) -> Result<(), String> {
-        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        match self {
-            Function::Constant(c) => finite(&[*c]).then_some(()).ok_or("not finite".into()),
-            Function::Linear { slope, intercept } => finite(&[*slope, *intercept])
+    pub fn validate(&self) -> Result<(), DataError> {
+        let finite = |what: &'static str, v: &[f64]| {
+            v.iter()
+                .all(|x| x.is_finite())
                 .then_some(())
-                .ok_or("not finite".into()),
+                .ok_or(DataError::NotFinite(what))
+        };
+        let increasing = |what: &'static str, x: &[f64]| {
+            if x.windows(2).any(|w| w[1] <= w[0]) {
+                return Err(DataError::NotIncreasing(what));
+            }
+            Ok(())
+        };
+        match self {
+            Function::Constant(c) => finite("constant", &[*c]),
+            Function::Linear { slope, intercept } => {
+                finite("linear function", &[*slope, *intercept])
+            }
             Function::Multiplier { scale, inner } => {
-                if !scale.is_finite() {
-                    return Err("scale not finite".into());
-                }
+                finite("multiplier scale", &[*scale])?;
                 inner.validate()
             }
             Function::Cubic { x, y, b, c, d } => {
                 let n = x.len();
                 if n == 0 || y.len() != n || b.len() != n || c.len() != n || d.len() != n {
-                    return Err(format!(
-                        "spline needs equal non-empty coefficient arrays (x has {n})"
-                    ));
+                    return Err(DataError::Lengths { what: "spline", n });
                 }
-                if !(finite(x) && finite(y) && finite(b) && finite(c) && finite(d)) {
-                    return Err("spline coefficients not finite".into());
+                for v in [x, y, b, c, d] {
+                    finite("spline coefficients", v)?;
                 }
-                if x.windows(2).any(|w| w[1] <= w[0]) {
-                    return Err("spline abscissae must be strictly increasing".into());
-                }
-                Ok(())
+                increasing("spline", x)
             }
             Function::PiecewiseLinear { x, y } => {
                 if x.is_empty() || x.len() != y.len() {
-                    return Err("piecewise linear function needs equal non-empty x and y".into());
+                    return Err(DataError::Lengths {
+                        what: "piecewise linear function",
+                        n: x.len(),
+                    });
                 }
-                if !(finite(x) && finite(y)) {
-                    return Err("points not finite".into());
-                }
-                if x.windows(2).any(|w| w[1] <= w[0]) {
-                    return Err("abscissae must be strictly increasing".into());
-                }
-                Ok(())
+                finite("piecewise linear points", x)?;
+                finite("piecewise linear points", y)?;
+                increasing("piecewise linear function", x)
             }
-            Function::Polynomial(cs) => finite(cs).then_some(()).ok_or("not finite".into()),
+            Function::Polynomial(cs) => finite("polynomial coefficients", cs),
         }
     }
 }
@@ -129,6 +133,29 @@ impl Function {
 mod tests {
     use super::*;
     use num_dual::Dual64;
+
+    #[test]
+    fn invalid_data_is_typed() {
+        let pl = |x: Vec<f64>, y: Vec<f64>| Function::PiecewiseLinear { x, y }.validate();
+        assert_eq!(pl(vec![0.0, 1.0], vec![0.0, 1.0]), Ok(()));
+        assert_eq!(
+            pl(vec![0.0, 0.0], vec![0.0, 1.0]),
+            Err(DataError::NotIncreasing("piecewise linear function"))
+        );
+        assert!(matches!(
+            pl(vec![0.0, 1.0], vec![0.0]),
+            Err(DataError::Lengths { n: 2, .. })
+        ));
+        assert!(matches!(
+            pl(vec![0.0, f64::NAN], vec![0.0, 1.0]),
+            Err(DataError::NotFinite(_))
+        ));
+        let m = Function::Multiplier {
+            scale: f64::INFINITY,
+            inner: Box::new(Function::Constant(1.0)),
+        };
+        assert_eq!(m.validate(), Err(DataError::NotFinite("multiplier scale")));
+    }
 
     #[test]
     fn derivatives_agree_with_duals() {

@@ -25,6 +25,7 @@
 use super::expr::Expr;
 use super::scalar::Scalar;
 use super::spec::{BushingModel, Curve};
+use crate::error::DataError;
 use nalgebra::Matrix6;
 
 impl Curve {
@@ -77,24 +78,17 @@ impl Curve {
     }
 
     /// Finite numbers and well-formed data (`a != 0` for sinh).
-    pub fn validate(&self) -> Result<(), String> {
-        let fin = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        match self {
-            Curve::Function(f) => f.validate(),
-            Curve::Sinh { k, a } => {
-                if !fin(&[*k, *a]) || *a == 0.0 {
-                    return Err("sinh curve needs finite k and a non-zero, finite a".into());
-                }
-                Ok(())
-            }
-            c => {
-                if fin(&c.params()) {
-                    Ok(())
-                } else {
-                    Err("curve parameters must be finite".into())
-                }
-            }
+    pub fn validate(&self) -> Result<(), DataError> {
+        if let Curve::Function(f) = self {
+            return f.validate();
         }
+        if !self.params().iter().all(|x| x.is_finite()) {
+            return Err(DataError::NotFinite("curve parameters"));
+        }
+        if matches!(self, Curve::Sinh { a, .. } if *a == 0.0) {
+            return Err(DataError::ZeroSinhScale);
+        }
+        Ok(())
     }
 }
 
@@ -225,30 +219,30 @@ impl BushingModel {
     }
 
     /// Check the law's numbers (finite; curves well formed). Errors say which DoF.
-    pub fn validate(&self) -> Result<(), String> {
-        if !self.damping().iter().all(|v| v.is_finite()) {
-            return Err("damping must be finite".into());
-        }
+    pub fn validate(&self) -> Result<(), DataError> {
+        let finite = |what: &'static str, v: &[f64]| {
+            v.iter()
+                .all(|x| x.is_finite())
+                .then_some(())
+                .ok_or(DataError::NotFinite(what))
+        };
+        finite("damping", &self.damping())?;
         match self {
-            BushingModel::Linear { .. } => {
-                if !self.stiffness_params().iter().all(|v| v.is_finite()) {
-                    return Err("stiffness must be finite".into());
-                }
-            }
+            BushingModel::Linear { .. } => finite("stiffness", &self.stiffness_params()),
             BushingModel::PerDof { curves, .. } => {
-                for (i, c) in curves.iter().enumerate() {
-                    c.validate()
-                        .map_err(|m| format!("curve {}: {m}", super::spec::DOF_NAMES[i]))?;
+                for (c, dof) in curves.iter().zip(super::spec::DOF_NAMES) {
+                    c.validate().map_err(|e| DataError::Curve {
+                        dof,
+                        error: Box::new(e),
+                    })?;
                 }
+                Ok(())
             }
             BushingModel::Coupled { stiffness, .. } => {
-                if !stiffness.iter().all(|v| v.is_finite()) {
-                    return Err("stiffness matrix must be finite".into());
-                }
+                finite("stiffness matrix", stiffness.as_slice())
             }
-            BushingModel::Expression { .. } => {}
+            BushingModel::Expression { .. } => Ok(()),
         }
-        Ok(())
     }
 }
 

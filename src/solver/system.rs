@@ -897,7 +897,7 @@ impl System {
         };
         model
             .validate()
-            .map_err(|m| Error::invalid(format!("bushing '{}'", b.name), m))?;
+            .map_err(|m| Error::invalid(format!("bushing '{}'", b.name), m.to_string()))?;
         b.law = super::law::Law::from_model(&model);
         b.c = model.damping();
         b.model = model;
