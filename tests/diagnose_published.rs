@@ -64,6 +64,14 @@ fn reading(dir: &Path) -> Reading {
             dir.display()
         );
     }
+    // and where its numbers can be read
+    assert!(
+        v.get("source_url")
+            .and_then(|x| x.as_str())
+            .is_some_and(|s| s.starts_with("https://") && s.len() > 12),
+        "{}: reading.toml needs an https `source_url`",
+        dir.display()
+    );
     Reading {
         trend: effects.iter().any(|e| e == "level_dependent_stiffness"),
         effects,
@@ -72,8 +80,8 @@ fn reading(dir: &Path) -> Reading {
 }
 
 #[test]
-fn at_least_one_published_table_is_shipped() {
-    assert!(!cases().is_empty());
+fn at_least_three_published_tables_are_shipped() {
+    assert!(cases().len() >= 3, "{:?}", cases());
 }
 
 #[test]
