@@ -142,6 +142,17 @@ pub enum DataError {
     },
 }
 
+impl DataError {
+    /// `Ok` when every number of `values` is finite, else `NotFinite(what)`.
+    pub fn check_finite(what: &'static str, values: &[f64]) -> std::result::Result<(), DataError> {
+        if values.iter().all(|x| x.is_finite()) {
+            Ok(())
+        } else {
+            Err(DataError::NotFinite(what))
+        }
+    }
+}
+
 impl Error {
     /// I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {

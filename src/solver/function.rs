@@ -82,12 +82,7 @@ impl Function {
 
     /// Check the function's data (lengths, increasing abscissae, finite numbers).
     pub fn validate(&self) -> Result<(), DataError> {
-        let finite = |what: &'static str, v: &[f64]| {
-            v.iter()
-                .all(|x| x.is_finite())
-                .then_some(())
-                .ok_or(DataError::NotFinite(what))
-        };
+        let finite = DataError::check_finite;
         let increasing = |what: &'static str, x: &[f64]| {
             if x.windows(2).any(|w| w[1] <= w[0]) {
                 return Err(DataError::NotIncreasing(what));

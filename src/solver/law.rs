@@ -220,12 +220,7 @@ impl BushingModel {
 
     /// Check the law's numbers (finite; curves well formed). Errors say which DoF.
     pub fn validate(&self) -> Result<(), DataError> {
-        let finite = |what: &'static str, v: &[f64]| {
-            v.iter()
-                .all(|x| x.is_finite())
-                .then_some(())
-                .ok_or(DataError::NotFinite(what))
-        };
+        let finite = DataError::check_finite;
         finite("damping", &self.damping())?;
         match self {
             BushingModel::Linear { .. } => finite("stiffness", &self.stiffness_params()),
