@@ -51,7 +51,19 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
 
 /// Anterior and posterior walls by rays along -X through the body on and
 /// beside the midline; lateral walls by rays along -Z/+Z from outside.
+/// `q` is the query structure of the mesh `lm` was made from, in that
+/// mesh's coordinates (built once per vertebra, whatever the trial frame):
+/// the rays are cast in those coordinates and their crossings mapped back.
 pub(crate) fn find_walls(lm: &LocalMesh, q: &MeshQuery) -> Option<Walls> {
+    // Crossings of the local ray `o + t d` (the same `t` in both frames:
+    // the frame change is rigid), as local points.
+    let crossings = |o: Point3<f64>, d: Vector3<f64>| -> Vec<Point3<f64>> {
+        let (ow, dw) = (lm.to_mesh * o, lm.to_mesh.rotation * d);
+        q.ray_hits(&ow, &dw, f64::MAX)
+            .into_iter()
+            .map(|hit| o + d * hit.t)
+            .collect()
+    };
     let x_max = lm.verts.iter().map(|p| p.x).fold(f64::MIN, f64::max);
     let x_min = lm.verts.iter().map(|p| p.x).fold(f64::MAX, f64::min);
     let span = x_max - x_min;
@@ -73,10 +85,10 @@ pub(crate) fn find_walls(lm: &LocalMesh, q: &MeshQuery) -> Option<Walls> {
     for dy in [-0.25, -0.125, 0.0, 0.125, 0.25] {
         for z in [0.0, 0.12 * h, -0.12 * h] {
             let o = Point3::new(x_max + 0.1 * span, y0 + dy * h, z);
-            let hits = q.ray_hits(&o, &(-Vector3::x()), f64::MAX);
+            let hits = crossings(o, -Vector3::x());
             if hits.len() >= 2 {
-                xa.push(hits[0].point.x);
-                xp.push(hits[1].point.x);
+                xa.push(hits[0].x);
+                xp.push(hits[1].x);
             }
         }
     }
@@ -87,9 +99,9 @@ pub(crate) fn find_walls(lm: &LocalMesh, q: &MeshQuery) -> Option<Walls> {
             .iter()
             .filter_map(|dy| {
                 let o = Point3::new(xc, y0 + dy * h, dir * 2.0 * span);
-                q.ray_hits(&o, &Vector3::new(0.0, 0.0, -dir), f64::MAX)
+                crossings(o, Vector3::new(0.0, 0.0, -dir))
                     .first()
-                    .map(|hit| hit.point.z)
+                    .map(|p| p.z)
             })
             .collect();
         median(zs)

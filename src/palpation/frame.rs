@@ -20,27 +20,37 @@ pub(crate) struct SymmetryPlane {
 /// Number of surface samples mirrored per trial plane.
 const SAMPLES: usize = 300;
 
-/// Mean distance of the mirrored samples to the surface, each capped.
-/// `hints` holds, per sample, the triangle nearest its last mirror image
-/// (it only speeds the search up; the cost is exact).
+/// Mean distance of the mirrored samples to the surface, each capped, or
+/// `None` as soon as it is known to be at least `worse_than` (the distances
+/// are not negative, so a partial sum that reaches it settles the
+/// comparison). `hints` holds, per sample, the triangle nearest its last
+/// mirror image (it only speeds the search up; the cost is exact).
 fn mirror_cost(
     q: &MeshQuery,
     pts: &[Point3<f64>],
     hints: &mut [u32],
-    n: &Vector3<f64>,
-    d: f64,
+    plane: (&Vector3<f64>, f64),
     cap: f64,
-) -> f64 {
-    let sum: f64 = pts
-        .iter()
-        .zip(hints.iter_mut())
-        .map(|(p, hint)| {
-            let m = p - n * (2.0 * (n.dot(&p.coords) - d));
-            q.distance_near(&m, hint, cap)
-        })
-        .sum();
-    sum / pts.len() as f64
+    worse_than: f64,
+) -> Option<f64> {
+    let (n, d) = plane;
+    let limit = worse_than * pts.len() as f64;
+    let mut sum = 0.0;
+    for (p, hint) in pts.iter().zip(hints.iter_mut()) {
+        let m = p - n * (2.0 * (n.dot(&p.coords) - d));
+        sum += q.distance_near(&m, hint, cap);
+        if sum.is_nan() || sum >= limit {
+            return None;
+        }
+    }
+    Some(sum / pts.len() as f64)
 }
+
+/// Most trial planes one pattern search evaluates: bounds its time on any
+/// input (a search that keeps improving by a step would otherwise run up
+/// to 300 rounds of 6 trials). On the dev meshes and label maps a search
+/// evaluates 40-125 planes, so the bound does not cut them short.
+const MAX_EVALS: usize = 150;
 
 /// The normal obtained by tilting `n0` by `a` about `u` and `b` about `v`.
 fn tilted(n0: &Vector3<f64>, u: &Vector3<f64>, v: &Vector3<f64>, a: f64, b: f64) -> Vector3<f64> {
@@ -74,21 +84,34 @@ fn refine(
         let n = tilted(&n0, &u, &v, x[0], x[1]);
         (n, x[2] + n.dot(&mean))
     };
-    let mut eval = |x: &[f64; 3]| {
-        let (n, d) = plane(x);
-        mirror_cost(q, pts, &mut hints, &n, d, cap)
+    let mut evals = 1;
+    let (n, d) = plane(&x);
+    let Some(mut f) = mirror_cost(q, pts, &mut hints, (&n, d), cap, f64::INFINITY) else {
+        return (n, d, f64::INFINITY);
     };
-    let mut f = eval(&x);
     let a0 = steps_deg.0.to_radians();
     let mut step = [a0, a0, 0.04 * size * steps_deg.0 / 8.0];
-    for _ in 0..300 {
+    // Points already evaluated: all but the current one were worse than
+    // the cost at the time, so worse than it now (a search that steps back
+    // to where it came from need not evaluate it again).
+    let mut seen: Vec<[f64; 3]> = vec![x];
+    'search: for _ in 0..300 {
         let mut improved = false;
         for k in 0..3 {
             for s in [1.0, -1.0] {
                 let mut y = x;
                 y[k] += s * step[k];
-                let fy = eval(&y);
-                if fy < f {
+                let same = |p: &[f64; 3]| (0..3).all(|j| (p[j] - y[j]).abs() <= 1e-3 * step[j]);
+                if seen.iter().any(same) {
+                    continue;
+                }
+                if evals >= MAX_EVALS {
+                    break 'search;
+                }
+                evals += 1;
+                seen.push(y);
+                let (n, d) = plane(&y);
+                if let Some(fy) = mirror_cost(q, pts, &mut hints, (&n, d), cap, f) {
                     (x, f, improved) = (y, fy, true);
                     break;
                 }

@@ -3,7 +3,7 @@
 //! right), with per-face normals, areas and centroids, plus plane cuts.
 
 use crate::error::{Error, Result};
-use crate::mesh::{MeshQuery, TriMesh};
+use crate::mesh::TriMesh;
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use std::collections::BTreeMap;
 
@@ -145,14 +145,6 @@ impl LocalMesh {
             }
         }
         out
-    }
-
-    /// Query structure on the whole local mesh.
-    pub fn query(&self) -> Result<MeshQuery> {
-        MeshQuery::new(&TriMesh {
-            vertices: self.verts.clone(),
-            triangles: self.tris.clone(),
-        })
     }
 
     /// Points where the edges of the given faces cross the plane

@@ -194,16 +194,17 @@ pub(crate) struct BodyState {
     pub inf_pts: body::EndplatePoints,
 }
 
-/// Walls, endplates and endplate landmarks in the trial frame `rot`.
+/// Walls, endplates and endplate landmarks in the trial frame `rot`
+/// (`q`: the query structure of `mesh`, shared by every trial frame).
 fn body_in_frame(
     ctx: &str,
     mesh: &TriMesh,
+    q: &MeshQuery,
     rot: Rotation3<f64>,
     origin: Point3<f64>,
 ) -> Result<BodyState> {
     let lm = local::LocalMesh::new(mesh, rot, origin);
-    let q: MeshQuery = lm.query()?;
-    let walls = body::find_walls(&lm, &q).ok_or_else(|| {
+    let walls = body::find_walls(&lm, q).ok_or_else(|| {
         Error::invalid(
             ctx,
             "no vertebral body: rays along the anterior axis do not cross two walls",
@@ -258,7 +259,7 @@ fn estimate_frame(ctx: &str, mesh: &TriMesh, hint: &FrameHint) -> Result<(BodySt
     let trial = |deg: f64| {
         let turn = Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(n), deg.to_radians());
         let rot = local::frame_rotation(&(turn * hint.anterior), &n);
-        body_in_frame(ctx, mesh, rot, origin).map(|st| (rot, st))
+        body_in_frame(ctx, mesh, &q, rot, origin).map(|st| (rot, st))
     };
     let mut best: Option<(Rotation3<f64>, BodyState)> = None;
     let mut first_err = None;
@@ -291,7 +292,7 @@ fn estimate_frame(ctx: &str, mesh: &TriMesh, hint: &FrameHint) -> Result<(BodySt
         let new_rot = local::frame_rotation(&anterior, &n);
         let change = (new_rot * rot.inverse()).angle();
         rot = new_rot;
-        state = body_in_frame(ctx, mesh, rot, origin)?;
+        state = body_in_frame(ctx, mesh, &q, rot, origin)?;
         if change < 0.01f64.to_radians() {
             break;
         }
