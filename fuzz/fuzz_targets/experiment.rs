@@ -7,15 +7,25 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use osim_spine::calibrate::experiment::{parse_cases, parse_experiment_toml, parse_kinematics};
+use osim_spine::calibrate::experiment::{
+    parse_cases, parse_experiment_toml, parse_kinematics, PairError,
+};
 use osim_spine::landmarks::Level;
 use std::path::Path;
 
-fn adjacent(u: &str, l: &str) -> Result<(), String> {
-    let up = Level::from_body_name(u).ok_or_else(|| format!("unknown body '{u}'"))?;
+fn adjacent(u: &str, l: &str) -> Result<(), PairError> {
+    let up = Level::from_body_name(u).ok_or_else(|| PairError::UnknownBody {
+        body: u.into(),
+        column: "upper",
+        known: "the spine's bodies".into(),
+    })?;
     match up.caudal() {
         Some(c) if c.body_name() == l => Ok(()),
-        _ => Err(format!("'{u}' and '{l}' are not an adjacent pair")),
+        _ => Err(PairError::NotAdjacent {
+            upper: u.into(),
+            lower: l.into(),
+            parent: None,
+        }),
     }
 }
 

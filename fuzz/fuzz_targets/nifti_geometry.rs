@@ -28,11 +28,30 @@ fn reference(h: &NiftiHeader) -> [[f64; 4]; 3] {
     }
     let pos = |x: f32| if x > 0.0 { x as f64 } else { 1.0 };
     let (xd, yd) = (pos(h.pixdim[1]), pos(h.pixdim[2]));
-    let zd = if h.pixdim[0] < 0.0 { -pos(h.pixdim[3]) } else { pos(h.pixdim[3]) };
+    let zd = if h.pixdim[0] < 0.0 {
+        -pos(h.pixdim[3])
+    } else {
+        pos(h.pixdim[3])
+    };
     [
-        [(a * a + b * b - c * c - d * d) * xd, 2.0 * (b * c - a * d) * yd, 2.0 * (b * d + a * c) * zd, h.quatern_x as f64],
-        [2.0 * (b * c + a * d) * xd, (a * a + c * c - b * b - d * d) * yd, 2.0 * (c * d - a * b) * zd, h.quatern_y as f64],
-        [2.0 * (b * d - a * c) * xd, 2.0 * (c * d + a * b) * yd, (a * a + d * d - c * c - b * b) * zd, h.quatern_z as f64],
+        [
+            (a * a + b * b - c * c - d * d) * xd,
+            2.0 * (b * c - a * d) * yd,
+            2.0 * (b * d + a * c) * zd,
+            h.quatern_x as f64,
+        ],
+        [
+            2.0 * (b * c + a * d) * xd,
+            (a * a + c * c - b * b - d * d) * yd,
+            2.0 * (c * d - a * b) * zd,
+            h.quatern_y as f64,
+        ],
+        [
+            2.0 * (b * d - a * c) * xd,
+            2.0 * (c * d + a * b) * yd,
+            (a * a + d * d - c * c - b * b) * zd,
+            h.quatern_z as f64,
+        ],
     ]
 }
 
@@ -76,7 +95,11 @@ fuzz_target!(|data: &[u8]| {
         for c in 0..4 {
             let w = want[r][c] * s;
             let tol = 1e-9 * (1.0 + w.abs());
-            assert!((a[(r, c)] - w).abs() <= tol, "({r}, {c}): {} vs {w}", a[(r, c)]);
+            assert!(
+                (a[(r, c)] - w).abs() <= tol,
+                "({r}, {c}): {} vs {w}",
+                a[(r, c)]
+            );
         }
     }
 });

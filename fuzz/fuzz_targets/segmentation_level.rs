@@ -29,7 +29,10 @@ fuzz_target!(|data: &[u8]| {
     let _ = checks::check_shape(Level::L3, &m);
     for level in [Level::L3, Level::S1] {
         if let Ok(p) = palpate_vertebra(&m, level, &FrameHint::body_frame()) {
-            assert!(p.landmarks.values().all(|l| l.point.coords.iter().all(|x| x.is_finite())));
+            assert!(p
+                .landmarks
+                .values()
+                .all(|l| l.point.coords.iter().all(|x| x.is_finite())));
         }
     }
 });
