@@ -189,8 +189,8 @@ pub fn category_svg(c: &CategoryChart) -> String {
         .fold(0.0, f64::max);
     let left = (widest_tick + AXIS_PX * 1.6 + 16.0).ceil() as u32;
     let right = 20;
-    let w = (left + right + c.slot * n as u32).max(c.min_width);
-    let slot = f64::from(w - left - right) / n as f64;
+    let w = (6 + left + right + c.slot * n as u32).max(c.min_width);
+    let slot = f64::from(w - 6 - left - right) / n as f64;
     let widest_name = c
         .categories
         .iter()
@@ -220,6 +220,8 @@ fn draw_categories(
     let (y0, y1) = (ax.map(ax.range.0), ax.map(ax.range.1));
     let chart = ChartBuilder::on(area)
         .margin_top(10)
+        // room for the rotated axis title, which plotters puts at the very edge
+        .margin_left(6)
         .margin_right(right)
         .y_label_area_size(left)
         .x_label_area_size(bottom)
