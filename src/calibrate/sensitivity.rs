@@ -617,43 +617,6 @@ pub fn run(
     })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn anova_separates_additive_effects() {
-        // y = row effect + column effect: no interaction
-        let y: Vec<Vec<f64>> = (0..4)
-            .map(|i| (0..3).map(|j| i as f64 * 2.0 + j as f64).collect())
-            .collect();
-        let (r, c, e) = two_way_anova(&y);
-        assert!(
-            (r - 3.0 * 4.0 * 5.0).abs() < 1e-12 && (c - 4.0 * 2.0).abs() < 1e-12 && e.abs() < 1e-12,
-            "{r} {c} {e}"
-        );
-    }
-
-    #[test]
-    fn frame_noise_scales_with_landmark_sd_and_vanishes_without_it() {
-        let joints = [(Level::L4, Level::L5), (Level::L5, Level::S1)];
-        let zero = frame_perturbations(&joints, 5, 0.0, 1).unwrap();
-        assert!(zero.iter().flatten().all(|p| p
-            .offset
-            .iter()
-            .chain(&p.rotation)
-            .all(|v| v.abs() < 1e-12)));
-        let a = frame_perturbations(&joints, 400, 0.001, 1).unwrap();
-        let b = frame_perturbations(&joints, 400, 0.002, 1).unwrap();
-        let rms = |s: &Vec<Vec<FramePerturbation>>| {
-            (s.iter().map(|v| v[0].offset[0].powi(2)).sum::<f64>() / s.len() as f64).sqrt()
-        };
-        // origin = mean of SEC and IEC, averaged over two vertebrae: SD / 2 per axis
-        assert!((rms(&a) / 0.0005 - 1.0).abs() < 0.1, "{}", rms(&a));
-        assert!((rms(&b) / rms(&a) - 2.0).abs() < 1e-9);
-    }
-}
-
 /// Box plot of each parameter over the reduced dataset, as value /
 /// reference calibration on a log axis: box 25-75%, whiskers 2.5-97.5%,
 /// red median, dots at the minimum and maximum (`spread.svg`).
@@ -731,4 +694,41 @@ pub fn spread_svg(rep: &SensitivityReport, title: &str) -> String {
         min_width: 360,
         plot_h: 260,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn anova_separates_additive_effects() {
+        // y = row effect + column effect: no interaction
+        let y: Vec<Vec<f64>> = (0..4)
+            .map(|i| (0..3).map(|j| i as f64 * 2.0 + j as f64).collect())
+            .collect();
+        let (r, c, e) = two_way_anova(&y);
+        assert!(
+            (r - 3.0 * 4.0 * 5.0).abs() < 1e-12 && (c - 4.0 * 2.0).abs() < 1e-12 && e.abs() < 1e-12,
+            "{r} {c} {e}"
+        );
+    }
+
+    #[test]
+    fn frame_noise_scales_with_landmark_sd_and_vanishes_without_it() {
+        let joints = [(Level::L4, Level::L5), (Level::L5, Level::S1)];
+        let zero = frame_perturbations(&joints, 5, 0.0, 1).unwrap();
+        assert!(zero.iter().flatten().all(|p| p
+            .offset
+            .iter()
+            .chain(&p.rotation)
+            .all(|v| v.abs() < 1e-12)));
+        let a = frame_perturbations(&joints, 400, 0.001, 1).unwrap();
+        let b = frame_perturbations(&joints, 400, 0.002, 1).unwrap();
+        let rms = |s: &Vec<Vec<FramePerturbation>>| {
+            (s.iter().map(|v| v[0].offset[0].powi(2)).sum::<f64>() / s.len() as f64).sqrt()
+        };
+        // origin = mean of SEC and IEC, averaged over two vertebrae: SD / 2 per axis
+        assert!((rms(&a) / 0.0005 - 1.0).abs() < 0.1, "{}", rms(&a));
+        assert!((rms(&b) / rms(&a) - 2.0).abs() < 1e-9);
+    }
 }
