@@ -4,6 +4,7 @@
 //! ([`quantiles`]), the one progress bar ([`progress`]) and the shared SVG
 //! figures ([`svg`]).
 
+pub mod charts;
 pub mod guard;
 pub mod input;
 pub mod messages;

@@ -196,17 +196,13 @@ pub fn fit_svg(pb: &Problem, pred: &[[f64; 6]], title: &str) -> String {
 /// value / nominal on a log axis. Stiffness (log-scale) parameters only:
 /// the dimensionless shape and coupling parameters are in `report.json`.
 pub fn params_svg(cal: &Calibration, title: &str) -> String {
+    use crate::util::charts::{self, Category, CategoryChart, Mark, ValueAxis};
     let shown: Vec<(usize, &super::fit::ParamEstimate)> = cal
         .estimates
         .iter()
         .enumerate()
         .filter(|(_, e)| e.scale == super::family::Scale::Log)
         .collect();
-    let n = shown.len();
-    let (left, right, top, bottom) = (60.0, 20.0, 50.0, 110.0);
-    let slot = 36.0f64.max(600.0 / n.max(1) as f64).min(80.0);
-    let w = left + right + slot * n as f64;
-    let h = 420.0;
     let mut vals: Vec<f64> = Vec::new();
     for &(k, e) in &shown {
         let nom = e.nominal;
@@ -218,73 +214,78 @@ pub fn params_svg(cal: &Calibration, title: &str) -> String {
             }
         }
     }
-    let lmin = vals
-        .iter()
-        .filter(|v| **v > 0.0)
-        .fold(f64::INFINITY, |m, v| m.min(v.log10()))
-        .floor();
-    let lmax = vals
-        .iter()
-        .filter(|v| **v > 0.0)
-        .fold(f64::NEG_INFINITY, |m, v| m.max(v.log10()))
-        .ceil();
+    let positive = || vals.iter().filter(|v| **v > 0.0).map(|v| v.log10());
+    let lmin = positive().fold(f64::INFINITY, f64::min).floor();
+    let lmax = positive().fold(f64::NEG_INFINITY, f64::max).ceil();
     let (lmin, lmax) = if lmin.is_finite() && lmax > lmin {
         (lmin, lmax)
     } else {
         (-1.0, 1.0)
     };
-    let sy =
-        |v: f64| top + (h - top - bottom) * (1.0 - (v.max(1e-300).log10() - lmin) / (lmax - lmin));
-    let mut s = String::new();
-    let (open, head) = crate::util::svg::figure_open(w, h - 40.0, title, "value / nominal (log); dots: end of each start; red: best with 95% CI; grey: literature bounds");
-    s.push_str(&open);
-    let _ = writeln!(s, "<g transform=\"translate(0,{:.1})\">", head - 40.0);
-    let mut e10 = lmin;
-    while e10 <= lmax + 1e-9 {
-        let y = sy(10f64.powf(e10));
-        let _ = writeln!(
-            s,
-            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text>",
-            w - right, left - 4.0, y + 3.0, nice(10f64.powf(e10))
-        );
-        e10 += 1.0;
-    }
-    let y1 = sy(1.0);
-    let _ = writeln!(s, "<line x1=\"{left}\" y1=\"{y1:.1}\" x2=\"{:.1}\" y2=\"{y1:.1}\" stroke=\"#888\" stroke-dasharray=\"4 3\"/>", w - right);
-    for (slot_i, &(k, e)) in shown.iter().enumerate() {
-        let xc = left + slot * (slot_i as f64 + 0.5);
-        let nom = e.nominal;
-        let _ = writeln!(
-            s,
-            "<line x1=\"{xc:.1}\" y1=\"{:.1}\" x2=\"{xc:.1}\" y2=\"{:.1}\" stroke=\"#ccc\" stroke-width=\"6\"/>",
-            sy(e.lower / nom), sy(e.upper / nom)
-        );
-        for st in &cal.starts {
-            if let Some(v) = st.params.get(k) {
-                let _ = writeln!(
-                    s,
-                    "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"2\" fill=\"#1f77b4\"/>",
-                    xc - 6.0,
-                    sy(v / nom)
-                );
-            }
-        }
-        let (lo, hi) = (e.ci95[0], e.ci95[1]);
-        if lo.is_finite() && hi.is_finite() {
-            let _ = writeln!(
-                s,
-                "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"#d62728\" stroke-width=\"2\"/>",
-                xc + 5.0, sy(lo / nom), xc + 5.0, sy(hi / nom)
+    let categories = shown
+        .iter()
+        .map(|&(k, e)| {
+            let nom = e.nominal;
+            let mut marks = vec![Mark::Span {
+                lo: e.lower / nom,
+                hi: e.upper / nom,
+                dx: 0,
+                colour: plotters::style::RGBColor(0xcc, 0xcc, 0xcc),
+                width: 6,
+            }];
+            marks.extend(
+                cal.starts
+                    .iter()
+                    .filter_map(|st| st.params.get(k))
+                    .map(|v| Mark::Dot {
+                        at: v / nom,
+                        dx: -6,
+                        radius: 2,
+                        colour: charts::POINT,
+                        filled: true,
+                    }),
             );
-        }
-        let _ = writeln!(
-            s,
-            "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"3.5\" fill=\"#d62728\"/>\n<text transform=\"translate({:.1},{:.1}) rotate(-60)\" text-anchor=\"end\">{}</text>",
-            xc + 5.0, sy(e.value / nom), xc, h - bottom + 12.0, esc(&e.name)
-        );
-    }
-    s.push_str("</g>\n</svg>\n");
-    s
+            let (lo, hi) = (e.ci95[0], e.ci95[1]);
+            if lo.is_finite() && hi.is_finite() {
+                marks.push(Mark::Span {
+                    lo: lo / nom,
+                    hi: hi / nom,
+                    dx: 5,
+                    colour: charts::HIGHLIGHT,
+                    width: 2,
+                });
+            }
+            marks.push(Mark::Dot {
+                at: e.value / nom,
+                dx: 5,
+                radius: 3,
+                colour: charts::HIGHLIGHT,
+                filled: true,
+            });
+            Category {
+                label: e.name.clone(),
+                marks,
+            }
+        })
+        .collect();
+    let n = shown.len().max(1) as f64;
+    charts::category_svg(&CategoryChart {
+        title: title.to_string(),
+        subtitle: "dots: end of each start; red: best with 95% CI; grey: literature bounds".into(),
+        axis: ValueAxis {
+            label: "value / nominal (log)".into(),
+            range: (10f64.powf(lmin), 10f64.powf(lmax)),
+            ticks: (lmin as i32..=lmax as i32).map(|e| 10f64.powi(e)).collect(),
+            format: nice,
+            log: true,
+            grid: true,
+            reference: Some(1.0),
+        },
+        categories,
+        slot: (600.0 / n).clamp(36.0, 80.0) as u32,
+        min_width: 400,
+        plot_h: 260,
+    })
 }
 
 /// The experiment's model with the calibrated laws of parameters `p`

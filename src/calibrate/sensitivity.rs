@@ -617,6 +617,85 @@ pub fn run(
     })
 }
 
+/// Box plot of each parameter over the reduced dataset, as value /
+/// reference calibration on a log axis: box 25-75%, whiskers 2.5-97.5%,
+/// red median, dots at the minimum and maximum (`spread.svg`).
+pub fn spread_svg(rep: &SensitivityReport, title: &str) -> String {
+    use crate::util::charts::{self, Category, CategoryChart, Mark, ValueAxis};
+    use plotters::style::BLACK;
+    let ratios: Vec<f64> = rep
+        .params
+        .iter()
+        .flat_map(|s| [s.min / s.reference, s.max / s.reference])
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .collect();
+    // 3% of room beyond the extremes so the end dots stay inside
+    let lo = ratios.iter().fold(0.9f64, |m, v| m.min(*v)) / 1.03;
+    let hi = ratios.iter().fold(1.1f64, |m, v| m.max(*v)) * 1.03;
+    let span = |lo: f64, hi: f64, width: u32| Mark::Span {
+        lo,
+        hi,
+        dx: 0,
+        colour: BLACK,
+        width,
+    };
+    let dot = |at: f64| Mark::Dot {
+        at,
+        dx: 0,
+        radius: 2,
+        colour: BLACK,
+        filled: true,
+    };
+    let categories = rep
+        .params
+        .iter()
+        .map(|p| {
+            let r = p.reference;
+            Category {
+                label: p.name.clone(),
+                marks: vec![
+                    span(p.p2_5 / r, p.p97_5 / r, 1),
+                    Mark::Box {
+                        lo: p.p25 / r,
+                        hi: p.p75 / r,
+                        half: 8,
+                        fill: charts::BOX_FILL,
+                    },
+                    Mark::Tick {
+                        at: p.median / r,
+                        half: 8,
+                        colour: charts::HIGHLIGHT,
+                        width: 2,
+                    },
+                    dot(p.min / r),
+                    dot(p.max / r),
+                ],
+            }
+        })
+        .collect();
+    let n = rep.params.len().max(1) as f64;
+    charts::category_svg(&CategoryChart {
+        title: title.to_string(),
+        subtitle: format!(
+            "box 25-75%, whiskers 2.5-97.5%, red: median, dots: min/max ({} of {} samples)",
+            rep.reduced, rep.samples
+        ),
+        axis: ValueAxis {
+            label: "stiffness / reference calibration (log)".into(),
+            range: (lo, hi),
+            ticks: vec![lo, 0.5 * (lo + 1.0), 1.0, 0.5 * (1.0 + hi), hi],
+            format: |v| format!("{v:.3}"),
+            log: true,
+            grid: true,
+            reference: Some(1.0),
+        },
+        categories,
+        slot: (500.0 / n).clamp(50.0, 90.0) as u32,
+        min_width: 360,
+        plot_h: 260,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -7,11 +7,10 @@
 
 use crate::calibrate::experiment::Experiment;
 use crate::calibrate::measure::Convention;
-use crate::calibrate::sensitivity::{self, SensitivityOptions, SensitivityReport};
+use crate::calibrate::sensitivity::{self, SensitivityOptions};
 use crate::calibrate::setup::{self, Setup};
 use crate::util::write_all_or_nothing;
 use clap::Args as ClapArgs;
-use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -99,7 +98,7 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
         },
     )?;
     let json = serde_json::to_string_pretty(&rep)? + "\n";
-    let svg = spread_svg(
+    let svg = sensitivity::spread_svg(
         &rep,
         &format!(
             "{}: joint-pose sensitivity ({} mm)",
@@ -134,60 +133,4 @@ fn run_inner(a: &Args) -> anyhow::Result<i32> {
     }
     crate::errln!("sensitivity: written to {}", a.out.display());
     Ok(0)
-}
-
-/// Box plot of each parameter (value / reference, log axis) over the reduced dataset.
-fn spread_svg(rep: &SensitivityReport, title: &str) -> String {
-    let n = rep.params.len();
-    let (left, top, bottom) = (60.0, 50.0, 100.0);
-    let slot = 50.0f64.max(500.0 / n.max(1) as f64).min(90.0);
-    let w = left + 20.0 + slot * n as f64;
-    let h = 400.0;
-    let ratios: Vec<f64> = rep
-        .params
-        .iter()
-        .flat_map(|s| [s.min / s.reference, s.max / s.reference])
-        .filter(|v| v.is_finite() && *v > 0.0)
-        .collect();
-    let lo = ratios.iter().fold(0.9f64, |m, v| m.min(*v)).log10();
-    let hi = ratios.iter().fold(1.1f64, |m, v| m.max(*v)).log10();
-    let sy = |v: f64| top + (h - top - bottom) * (1.0 - (v.max(1e-300).log10() - lo) / (hi - lo));
-    let mut s = String::new();
-    let (open, head) = crate::util::svg::figure_open(w, h - 40.0, title, &format!("stiffness / reference calibration (log): box 25-75%, whiskers 2.5-97.5%, dots min/max ({} of {} samples)", rep.reduced, rep.samples));
-    s.push_str(&open);
-    let _ = writeln!(s, "<g transform=\"translate(0,{:.1})\">", head - 40.0);
-    for t in [lo, 0.0, hi] {
-        let v = 10f64.powf(t);
-        let y = sy(v);
-        let _ = writeln!(
-            s,
-            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{v:.3}</text>",
-            w - 20.0,
-            left - 4.0,
-            y + 3.0
-        );
-    }
-    for (k, p) in rep.params.iter().enumerate() {
-        let xc = left + slot * (k as f64 + 0.5);
-        let r = p.reference;
-        let _ = writeln!(
-            s,
-            "<line x1=\"{xc:.1}\" y1=\"{:.1}\" x2=\"{xc:.1}\" y2=\"{:.1}\" stroke=\"black\"/>\n<rect x=\"{:.1}\" y=\"{:.1}\" width=\"16\" height=\"{:.1}\" fill=\"#9ecae1\" stroke=\"black\"/>\n<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"#d62728\" stroke-width=\"2\"/>\n<circle cx=\"{xc:.1}\" cy=\"{:.1}\" r=\"2\"/><circle cx=\"{xc:.1}\" cy=\"{:.1}\" r=\"2\"/>\n<text transform=\"translate({xc:.1},{:.1}) rotate(-60)\" text-anchor=\"end\">{}</text>",
-            sy(p.p2_5 / r),
-            sy(p.p97_5 / r),
-            xc - 8.0,
-            sy(p.p75 / r),
-            (sy(p.p25 / r) - sy(p.p75 / r)).max(0.5),
-            xc - 8.0,
-            sy(p.median / r),
-            xc + 8.0,
-            sy(p.median / r),
-            sy(p.min / r),
-            sy(p.max / r),
-            h - bottom + 14.0,
-            p.name
-        );
-    }
-    s.push_str("</g>\n</svg>\n");
-    s
 }

@@ -602,7 +602,7 @@ fn group(kind: &str, within: &str, rows: &[&PalpationModel]) -> GroupSummary {
 /// (Cobb angle, lordosis, deg) and `model_centre_rmse_groups.svg` (centre
 /// RMSE per group).
 pub fn boxplots(p: &ModelPropagation) -> Vec<(String, String)> {
-    use crate::util::svg::{boxplot_svg, boxplot_svg_axis};
+    use crate::util::charts::{boxplot_svg, boxplot_svg_axis};
     let ms: Vec<&ModelMetrics> = p.rows.iter().filter_map(|r| r.metrics.as_ref()).collect();
     let col = |f: &dyn Fn(&ModelMetrics) -> Option<f64>| -> Vec<f64> {
         ms.iter().filter_map(|m| f(m)).collect()

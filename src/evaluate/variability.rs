@@ -29,7 +29,7 @@
 //!   evaluated against the truth or the consensus model, median and IQR
 //!   overall, intra- and inter-operator ([`crate::evaluate::propagation`]).
 //!
-//! Figures: [`crate::util::svg::boxplot_svg`] draws every box plot (the
+//! Figures: [`crate::util::charts::boxplot_svg`] draws every box plot (the
 //! per-landmark IQRs here, the model metrics in
 //! [`crate::evaluate::propagation::boxplots`]).
 
@@ -483,7 +483,7 @@ fn friedman_entries(
 }
 
 /// SVG box plot of the per-landmark IQRs in X, Y, Z and Euclidean
-/// (thesis Figure 5.5), drawn by [`crate::util::svg::boxplot_svg`].
+/// (thesis Figure 5.5), drawn by [`crate::util::charts::boxplot_svg`].
 pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
     let series: Vec<(String, Vec<f64>)> = (0..4)
         .map(|a| {
@@ -498,7 +498,7 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
             )
         })
         .collect();
-    crate::util::svg::boxplot_svg(
+    crate::util::charts::boxplot_svg(
         &format!(
             "IQR of repeated palpations per landmark ({} palpations)",
             report.palpations
