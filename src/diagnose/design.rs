@@ -426,6 +426,18 @@ impl Design {
             effect: LEVEL.into(),
             reason: "a level predicted from a trend fitted to the others tests a stiffness that changes along the spine".into(),
         });
+        // One level and one magnitude: the law is sampled at one deflection
+        // per direction, so there are no different deflections to test it by.
+        const NONLINEAR: &str = "nonlinear_stiffness";
+        if n_levels == 1 {
+            if let Some(k) = self.weakly_tested.iter().position(|(e, _)| e == NONLINEAR) {
+                self.weakly_tested.remove(k);
+                self.untestable.push((
+                    NONLINEAR.into(),
+                    "a single measured level and one magnitude per direction: the law is seen at one deflection per direction, so its shape cannot be tested".into(),
+                ));
+            }
+        }
     }
 
     /// Assign the rows `(case, level, measured DoFs)` of a K-fold design to
@@ -472,6 +484,15 @@ impl Design {
             .map(|i| (rows[i].0, rows[i].1))
             .collect();
         self.folds = used.len();
+        // The planned K-fold text claims every level stays in training; say
+        // what is left when folds were dropped or one level is measured.
+        if !self.by_level && (used.len() != FOLDS || self.levels.len() < 2) {
+            self.rule = format!(
+                "{}-fold cross-validation over (case, level) rows of {} measured level(s) ({FOLDS} folds planned, those with no row to hold out dropped): row (c, l) is held out in fold (c + l) mod {FOLDS}, and every held-out row is predicted once by a fit that never saw it",
+                used.len(),
+                self.levels.len()
+            );
+        }
         if !self.kept.is_empty() {
             let ids: BTreeSet<&str> = self
                 .kept
@@ -902,6 +923,11 @@ mod tests {
         assert!(!d.leave_one_level_out(&[2]));
         d.note_few_levels(1);
         assert!(d.is_untestable("level_dependent_stiffness"));
+        assert!(!d
+            .weakly_tested
+            .iter()
+            .any(|(e, _)| e == "nonlinear_stiffness"));
+        assert!(d.is_untestable("nonlinear_stiffness"));
         assert!(d
             .missing
             .iter()
