@@ -1,9 +1,8 @@
 //! Step 6, the self-check of the generated model: wrap-sphere radii,
 //! muscle paths cleared of the bones, and the base pipeline's checks.
 
-use super::mesh_of;
 use super::{clear, wraps};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::landmarks::Level;
 use crate::mesh::source::MeshSource;
 use crate::mesh::MeshQuery;
@@ -24,17 +23,31 @@ pub(super) fn sphere_radii(model: &Model) -> BTreeMap<String, f64> {
         .collect()
 }
 
+/// The vertebra meshes of `doc`'s bodies with their spatial queries, built
+/// once for the path clearing and the self-check (neither changes a
+/// body's geometry); `None` without meshes.
+pub(super) fn vertebra_queries(
+    doc: &Document,
+    meshes: Option<&dyn MeshSource>,
+) -> Result<Option<Vec<(String, MeshQuery)>>> {
+    let Some(src) = meshes else {
+        return Ok(None);
+    };
+    Ok(Some(crate::base::wrapped::vertebra_meshes(
+        &doc.model()?,
+        src,
+    )?))
+}
+
 /// Step 5b: muscle paths cleared of the vertebra meshes ([`clear`]); no
 /// edits without meshes.
 pub(super) fn clear_muscle_paths(
     doc: &mut Document,
-    meshes: Option<&dyn MeshSource>,
+    vertebrae: Option<&[(String, MeshQuery)]>,
 ) -> Result<Vec<clear::PathEdit>> {
-    let Some(src) = meshes else {
+    let Some(owned) = vertebrae else {
         return Ok(Vec::new());
     };
-    let m = doc.model()?;
-    let owned = crate::base::wrapped::vertebra_meshes(&m, src)?;
     let refs: Vec<(String, &MeshQuery)> = owned.iter().map(|(n, q)| (n.clone(), q)).collect();
     clear::clear_paths(doc, &refs)
 }
@@ -44,24 +57,14 @@ pub(super) fn clear_muscle_paths(
 /// under gravity), with the refitted wrap spheres.
 pub(super) fn self_check(
     out_model: &Model,
-    meshes: Option<&dyn MeshSource>,
+    vertebrae: Option<&[(String, MeshQuery)]>,
     spheres: &[wraps::SphereOut],
 ) -> Result<crate::base::check::SelfCheck> {
-    let mut owned = Vec::new();
-    if let Some(src) = meshes {
-        for b in &out_model.bodies {
-            if Level::from_body_name(&b.name).map(|l| l.is_sacrum()) != Some(false) {
-                continue;
-            }
-            let mut missing = Vec::new();
-            if let Some(m) = mesh_of(b, src, &mut missing)? {
-                let q = MeshQuery::new(&m)
-                    .map_err(|e| Error::invalid(format!("mesh of {}", b.name), e.to_string()))?;
-                owned.push((b.name.clone(), q));
-            }
-        }
-    }
-    let refs: Vec<(String, &MeshQuery)> = owned.iter().map(|(n, q)| (n.clone(), q)).collect();
+    let refs: Vec<(String, &MeshQuery)> = vertebrae
+        .unwrap_or_default()
+        .iter()
+        .map(|(n, q)| (n.clone(), q))
+        .collect();
     let rows: Vec<crate::base::wrap::SphereRow> = spheres
         .iter()
         .map(|s| crate::base::wrap::SphereRow {

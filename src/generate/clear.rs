@@ -231,29 +231,42 @@ fn place_via(
     let v = axis.cross(&u);
     // A detour that clears everything from any start point, else the best
     // graze.
-    let mut found = Vec::new();
+    let mut found: Vec<Detour> = Vec::new();
     for mid in starts {
+        // The first start with a clearing detour decides: the later starts
+        // are only searched when none has cleared yet.
+        if found.iter().any(|d| d.clear.is_some()) {
+            break;
+        }
         found.push(detour_from(
             &mid,
             &u,
             &v,
             x,
-            |p, g| {
+            |p, g, wanted| {
                 // The cheap tests first: outside the muscle's wrap spheres,
                 // then clear of the crossed bone (distance, then inside).
                 if !outside_wraps(g) || !clear_of_bone(mq, p) {
                     return None;
                 }
-                // Each new segment's run inside each other vertebra, once.
+                // Each new segment's run inside each other vertebra, once,
+                // stopping as soon as the point cannot be wanted.
                 let first = runs_inside(a, g, vertebrae, poses, end_bodies.get(..1));
                 let second = runs_inside(g, b, vertebrae, poses, end_bodies.get(1..2));
-                if first.iter().chain(&second).all(|run| *run <= GRAZE) {
-                    Some(Fit::Clear)
-                } else {
-                    Some(Fit::Graze(
-                        first.iter().sum::<f64>() + second.iter().sum::<f64>(),
-                    ))
+                let mut inside = [0.0, 0.0];
+                let mut deep = false;
+                for (k, run) in first.map(|r| (0, r)).chain(second.map(|r| (1, r))) {
+                    deep |= run > GRAZE;
+                    inside[k] += run;
+                    if deep && wanted.past(inside[0] + inside[1]) {
+                        return None;
+                    }
                 }
+                Some(if deep {
+                    Fit::Graze(inside[0] + inside[1])
+                } else {
+                    Fit::Clear
+                })
             },
             a,
             b,
@@ -272,9 +285,7 @@ fn place_via(
     // path's end bodies, if that is shorter than the direct segment's run;
     // the next round clears what its new segments still cross, and the
     // self-check reports what is left.
-    let direct: f64 = runs_inside(a, b, vertebrae, poses, Some(end_bodies))
-        .iter()
-        .sum();
+    let direct: f64 = runs_inside(a, b, vertebrae, poses, Some(end_bodies)).sum();
     let progress = least(|d| d.least).filter(|(inside, _, _)| *inside < direct);
     clear
         .map(|(_, p)| p)
@@ -288,6 +299,31 @@ enum Fit {
     Clear,
     /// Running this length (m) inside them.
     Graze(f64),
+}
+
+/// Which trial points a detour search can still use.
+#[derive(Clone, Copy)]
+enum Wanted {
+    /// Any point: nothing found yet.
+    Any,
+    /// A clearing point, or a graze running less than this (m) inside
+    /// other vertebrae (the least found so far; the fallback graze is then
+    /// that one or none).
+    Below(f64),
+    /// Only a clearing point: one has been found.
+    Clear,
+}
+
+impl Wanted {
+    /// Is a point that does not clear, and runs at least `inside` (m)
+    /// inside other vertebrae, past use?
+    fn past(self, inside: f64) -> bool {
+        match self {
+            Wanted::Any => false,
+            Wanted::Below(least) => inside > least,
+            Wanted::Clear => true,
+        }
+    }
 }
 
 /// A non-clearing detour: (length inside other vertebrae, detour length,
@@ -311,13 +347,14 @@ struct Detour {
 /// [`FALLBACK_INSIDE`] of the self-check's tolerance, and the one running
 /// least inside them at any depth. `score` takes a trial point in the
 /// vertebra frame and in ground, and refuses (`None`) one too close to
-/// the bone or inside a wrap sphere. Ground coordinates.
+/// the bone or inside a wrap sphere, or one that cannot be `wanted` any
+/// more. Ground coordinates.
 fn detour_from(
     mid: &Point3<f64>,
     u: &Vector3<f64>,
     v: &Vector3<f64>,
     x: &nalgebra::Isometry3<f64>,
-    score: impl Fn(&Point3<f64>, &Point3<f64>) -> Option<Fit>,
+    score: impl Fn(&Point3<f64>, &Point3<f64>, Wanted) -> Option<Fit>,
     a: &Point3<f64>,
     b: &Point3<f64>,
 ) -> Detour {
@@ -331,8 +368,20 @@ fn detour_from(
         while t <= MAX_OFFSET {
             let p = mid + d * t;
             let g = x * p;
-            if let Some(fit) = score(&p, &g) {
-                let detour = (g - a).norm() + (b - g).norm();
+            let detour = (g - a).norm() + (b - g).norm();
+            // The detour grows with `t` (the direction is perpendicular to
+            // the chord through `mid`): past the shortest clearing one,
+            // nothing further out can replace it, and the grazes are not
+            // used once a detour clears.
+            if best.is_some_and(|(bd, _)| detour >= bd) {
+                break;
+            }
+            let wanted = match (best, least) {
+                (Some(_), _) => Wanted::Clear,
+                (None, Some((inside, _, _))) => Wanted::Below(inside),
+                (None, None) => Wanted::Any,
+            };
+            if let Some(fit) = score(&p, &g, wanted) {
                 match fit {
                     Fit::Clear => {
                         if best.map(|(bd, _)| detour < bd).unwrap_or(true) {
@@ -364,23 +413,23 @@ fn detour_from(
 }
 
 /// Length (m) of the segment `a`-`b` (ground) inside each vertebra but
-/// those named in `skip`, in the order of `vertebrae`.
-fn runs_inside(
-    a: &Point3<f64>,
-    b: &Point3<f64>,
-    vertebrae: &[(String, &MeshQuery)],
-    poses: &BTreeMap<String, nalgebra::Isometry3<f64>>,
-    skip: Option<&[Option<String>]>,
-) -> Vec<f64> {
+/// those named in `skip`, in the order of `vertebrae`, computed as the
+/// iterator is consumed.
+fn runs_inside<'a>(
+    a: &'a Point3<f64>,
+    b: &'a Point3<f64>,
+    vertebrae: &'a [(String, &MeshQuery)],
+    poses: &'a BTreeMap<String, nalgebra::Isometry3<f64>>,
+    skip: Option<&'a [Option<String>]>,
+) -> impl Iterator<Item = f64> + 'a {
     let skip = skip.unwrap_or(&[]);
     vertebrae
         .iter()
-        .filter(|(n, _)| !skip.iter().flatten().any(|s| s == n))
-        .filter_map(|(n, mq)| {
+        .filter(move |(n, _)| !skip.iter().flatten().any(|s| s == n))
+        .filter_map(move |(n, mq)| {
             let inv = poses.get(n)?.inverse();
             Some(mq.segment_length_inside(&(inv * a), &(inv * b)))
         })
-        .collect()
 }
 
 /// Is `p` (vertebra frame) outside the bone by more than [`CLEARANCE`]?

@@ -72,7 +72,7 @@ use crate::mesh::source::MeshSource;
 use crate::osim::model::Model;
 use crate::osim::Document;
 pub use balance::{AboveFov, AboveFovReport};
-use check::{clear_muscle_paths, self_check, sphere_radii};
+use check::{clear_muscle_paths, self_check, sphere_radii, vertebra_queries};
 use fits::{
     base_body_centres, borrowed_scales, fit_with_protocol_check, landmark_coverage, set_levels,
     FitInput, LevelFits,
@@ -224,7 +224,8 @@ pub fn generate_with_geometry(
     let spheres = wraps::refit_spheres(&mut doc, &scales, &radii, &prefixes)?;
 
     // ---- 5b. muscle paths clear of the vertebrae ([`clear`])
-    let path_edits = clear_muscle_paths(&mut doc, meshes)?;
+    let vertebrae = vertebra_queries(&doc, meshes)?;
+    let path_edits = clear_muscle_paths(&mut doc, vertebrae.as_deref())?;
 
     // ---- 6. report, views, self-check
     let out_model = doc.model()?;
@@ -238,7 +239,7 @@ pub fn generate_with_geometry(
         .map(|l| l.to_string())
         .collect();
     let self_check = if opts.self_check {
-        Some(self_check(&out_model, meshes, &spheres)?)
+        Some(self_check(&out_model, vertebrae.as_deref(), &spheres)?)
     } else {
         None
     };
