@@ -11,7 +11,7 @@ use crate::calibrate::experiment::{Experiment, DOF_NAMES};
 use crate::error::{Error, Result};
 use crate::osim::Document;
 use crate::personalise;
-use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use serde_json::{json, Value};
 use std::fmt::Write as _;
 
@@ -308,22 +308,6 @@ fn remaining_json(o: &Outcome) -> Value {
            "structure": structure})
 }
 
-/// Body-fixed X-Y-Z angles of a rotation (OpenSim `orientation`).
-pub fn xyz_body_fixed(r: &Rotation3<f64>) -> Vector3<f64> {
-    let m = r.matrix();
-    let b = m[(0, 2)].clamp(-1.0, 1.0).asin();
-    let a = (-m[(1, 2)]).atan2(m[(2, 2)]);
-    let c = (-m[(0, 1)]).atan2(m[(0, 0)]);
-    Vector3::new(a, b, c)
-}
-
-/// Rotation of body-fixed X-Y-Z angles.
-pub fn from_xyz_body_fixed(v: &Vector3<f64>) -> Rotation3<f64> {
-    Rotation3::from_axis_angle(&Vector3::x_axis(), v.x)
-        * Rotation3::from_axis_angle(&Vector3::y_axis(), v.y)
-        * Rotation3::from_axis_angle(&Vector3::z_axis(), v.z)
-}
-
 /// Move the PhysicalOffsetFrame a bushing socket points to (`/jointset/J/F`)
 /// by `t`: `X -> X * t`.
 fn move_socket_frame(doc: &mut Document, socket: &str, t: &Isometry3<f64>) -> Result<()> {
@@ -372,10 +356,10 @@ fn move_socket_frame(doc: &mut Document, socket: &str, t: &Isometry3<f64>) -> Re
     let o = nums(f.child_text("orientation"));
     let x = Isometry3::from_parts(
         Translation3::from(p),
-        UnitQuaternion::from_rotation_matrix(&from_xyz_body_fixed(&o)),
+        UnitQuaternion::from_rotation_matrix(&crate::osim::model::body_fixed_xyz(&o)),
     );
     let y = x * t;
-    let ang = xyz_body_fixed(&y.rotation.to_rotation_matrix());
+    let ang = crate::osim::model::xyz_angles(&y.rotation.to_rotation_matrix());
     crate::osim::props::set_vec3(f, "translation", &y.translation.vector);
     crate::osim::props::set_vec3(f, "orientation", &ang);
     Ok(())

@@ -5,6 +5,7 @@
 
 use super::local::{clip_polygon, closest_on_segment, polygon_section, LocalMesh};
 use crate::mesh::{MeshQuery, TriMesh};
+use crate::util::median;
 use nalgebra::{Point3, Vector3};
 use parry3d_f64::query::PointQuery;
 use parry3d_f64::shape::Triangle;
@@ -39,14 +40,6 @@ impl Walls {
         let m = 0.04 * self.depth();
         (self.x_post - m, self.x_ant + m)
     }
-}
-
-fn median(mut v: Vec<f64>) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    Some(v[v.len() / 2])
 }
 
 /// Anterior and posterior walls by rays along -X through the body on and
@@ -92,7 +85,7 @@ pub(crate) fn find_walls(lm: &LocalMesh, q: &MeshQuery) -> Option<Walls> {
             }
         }
     }
-    let (x_ant, x_post) = (median(xa)?, median(xp)?);
+    let (x_ant, x_post) = (median(&xa)?, median(&xp)?);
     let xc = 0.5 * (x_ant + x_post);
     let side = |dir: f64| {
         let zs: Vec<f64> = [-0.15, 0.0, 0.15]
@@ -104,7 +97,7 @@ pub(crate) fn find_walls(lm: &LocalMesh, q: &MeshQuery) -> Option<Walls> {
                     .map(|p| p.z)
             })
             .collect();
-        median(zs)
+        median(&zs)
     };
     Some(Walls {
         x_ant,
