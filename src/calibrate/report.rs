@@ -1,14 +1,13 @@
 //! Calibration outputs: the JSON report structure, per-case errors and the
 //! SVG figures (measured vs predicted per level and DoF; parameter spread
-//! over the multi-start with confidence intervals). SVG is written by hand
-//! so that outputs are byte-stable. [`calibrated_document`] is the
+//! over the multi-start with confidence intervals), drawn with
+//! [`crate::util::charts`]. [`calibrated_document`] is the
 //! calibrated `.osim` (the family's laws written by the stiffness writer).
 
 use super::experiment::DOF_NAMES;
 use super::fit::{Calibration, ErrorTable};
 use super::problem::Problem;
 use serde::Serialize;
-use std::fmt::Write as _;
 
 /// Errors of one load case (experiment units).
 #[derive(Debug, Clone, Serialize)]
@@ -88,8 +87,7 @@ pub struct FitSummary {
     pub per_level_dof: ErrorTable,
 }
 
-use crate::util::svg::esc;
-
+/// A tick label: 3 significant decimals near 1, scientific far from it.
 fn nice(v: f64) -> String {
     let a = v.abs();
     if a == 0.0 {
@@ -108,6 +106,7 @@ fn nice(v: f64) -> String {
 /// Measured vs predicted scatter, one panel per level (pair) and cost DoF,
 /// identity line in each panel, experiment units.
 pub fn fit_svg(pb: &Problem, pred: &[[f64; 6]], title: &str) -> String {
+    use crate::util::charts::{self, Axis, Layer, LayerKind, XyFigure, XyPanel};
     let mut pairs: Vec<(String, String)> = Vec::new();
     for r in &pb.exp.rows {
         let k = (r.upper.clone(), r.lower.clone());
@@ -116,20 +115,9 @@ pub fn fit_svg(pb: &Problem, pred: &[[f64; 6]], title: &str) -> String {
         }
     }
     let dofs = &pb.opts.dofs;
-    let (pw, ph, margin, top) = (190.0, 170.0, 46.0, 50.0);
-    let w = margin + dofs.len() as f64 * (pw + margin);
-    let h = top + pairs.len() as f64 * (ph + margin) + 10.0;
-    let mut s = String::new();
-    let (open, head) = crate::util::svg::figure_open(
-        w,
-        h - 40.0,
-        title,
-        "measured (x) vs predicted (y) per level and DoF; dashed: identity",
-    );
-    s.push_str(&open);
-    let _ = writeln!(s, "<g transform=\"translate(0,{:.1})\">", head - 40.0);
-    for (pi, (u, l)) in pairs.iter().enumerate() {
-        for (di, &d) in dofs.iter().enumerate() {
+    let mut panels = Vec::new();
+    for (u, l) in &pairs {
+        for &d in dofs {
             let f = pb.exp.units.from_si(d);
             let pts: Vec<(f64, f64)> = pb
                 .exp
@@ -139,56 +127,63 @@ pub fn fit_svg(pb: &Problem, pred: &[[f64; 6]], title: &str) -> String {
                 .filter(|(_, r)| &r.upper == u && &r.lower == l)
                 .filter_map(|(ri, r)| Some((r.values[d]? * f, pred.get(ri)?[d] * f)))
                 .collect();
-            let x0 = margin + di as f64 * (pw + margin);
-            let y0 = top + pi as f64 * (ph + margin);
             let unit = if d < 3 {
                 pb.exp.units.angle
             } else {
                 pb.exp.units.length
             };
-            let _ = writeln!(
-                s,
-                "<rect x=\"{x0:.1}\" y=\"{y0:.1}\" width=\"{pw}\" height=\"{ph}\" fill=\"none\" stroke=\"#999\"/>\n<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}/{} {} ({unit})</text>",
-                x0 + pw / 2.0,
-                y0 - 4.0,
-                esc(u),
-                esc(l),
-                DOF_NAMES[d]
-            );
-            if pts.is_empty() {
-                continue;
-            }
-            let mut lo = pts.iter().fold(f64::INFINITY, |m, p| m.min(p.0).min(p.1));
-            let mut hi = pts
+            let lo = pts.iter().fold(f64::INFINITY, |m, p| m.min(p.0).min(p.1));
+            let hi = pts
                 .iter()
                 .fold(f64::NEG_INFINITY, |m, p| m.max(p.0).max(p.1));
-            if hi - lo < 1e-12 {
-                lo -= 1.0;
-                hi += 1.0;
-            }
+            let (lo, hi) = if lo.is_finite() && hi - lo >= 1e-12 {
+                (lo, hi)
+            } else if lo.is_finite() {
+                (lo - 1.0, hi + 1.0)
+            } else {
+                (-1.0, 1.0)
+            };
             let pad = 0.05 * (hi - lo);
-            let (lo, hi) = (lo - pad, hi + pad);
-            let sx = |v: f64| x0 + (v - lo) / (hi - lo) * pw;
-            let sy = |v: f64| y0 + ph - (v - lo) / (hi - lo) * ph;
-            let _ = writeln!(
-                s,
-                "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"#888\" stroke-dasharray=\"4 3\"/>\n<text x=\"{x0:.1}\" y=\"{:.1}\">{}</text><text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text>",
-                sx(lo), sy(lo), sx(hi), sy(hi),
-                y0 + ph + 12.0, nice(lo),
-                x0 + pw, y0 + ph + 12.0, nice(hi)
-            );
-            for (m, p) in pts {
-                let _ = writeln!(
-                    s,
-                    "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"#1f77b4\" fill-opacity=\"0.7\"/>",
-                    sx(m),
-                    sy(p)
-                );
-            }
+            let range = (lo - pad, hi + pad);
+            panels.push(XyPanel {
+                title: format!("{u}/{l} {}", DOF_NAMES[d]),
+                x: Axis {
+                    label: format!("measured ({unit})"),
+                    range,
+                },
+                y: Axis {
+                    label: format!("predicted ({unit})"),
+                    range,
+                },
+                layers: vec![
+                    Layer {
+                        label: "identity (predicted = measured)".into(),
+                        colour: charts::REFERENCE,
+                        kind: LayerKind::Lines {
+                            lines: vec![vec![(range.0, range.0), (range.1, range.1)]],
+                            width: 1,
+                            dashed: true,
+                        },
+                    },
+                    Layer {
+                        label: "load case".into(),
+                        colour: charts::POINT,
+                        kind: LayerKind::Dots {
+                            points: pts,
+                            radius: 3,
+                        },
+                    },
+                ],
+            });
         }
     }
-    s.push_str("</g>\n</svg>\n");
-    s
+    charts::xy_svg(&XyFigure {
+        title: title.to_string(),
+        subtitle: "measured vs predicted per level and DoF, experiment units".into(),
+        panels,
+        columns: dofs.len(),
+        panel: (250, 230),
+    })
 }
 
 /// Parameter spread: per parameter, the end points of every start (dots),

@@ -257,18 +257,14 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
         r.muscles_with_wraps,
         r.markers.len()
     );
-    print_self_check(r);
+    super::print_self_check(&r.self_check);
+    print_guards(r);
     crate::outln!("wrote {} files to {}", files.len(), args.out.display());
     Ok(0)
 }
 
-/// The self-check and every guard result, as the report has them.
-fn print_self_check(r: &crate::base::BaseReport) {
-    let sc = &r.self_check;
-    crate::outln!("{sc}");
-    for w in sc.warnings() {
-        crate::errln!("warning: {w}");
-    }
+/// Every guard result and the palpation's findings, as the report has them.
+fn print_guards(r: &crate::base::BaseReport) {
     for g in &r.guards_checked {
         let fails: Vec<_> = r.guard_failures.iter().filter(|f| f.guard == *g).collect();
         let verdict = if fails.is_empty() {

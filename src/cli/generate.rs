@@ -299,7 +299,7 @@ fn print_summary(r: &GenerateReport, out: &Path) {
     print_above_fov(r.above_fov.as_ref(), r.levels_from_landmarks.is_empty());
     print_shape(&r.shape);
     match &r.self_check {
-        Some(sc) => print_self_check(sc),
+        Some(sc) => super::print_self_check(sc),
         None => crate::outln!("self-check: skipped (--no-self-check)"),
     }
 }
@@ -409,14 +409,6 @@ fn print_shape(s: &crate::landmarks::metrics::Shape) {
         deg(s.kyphosis_t4_t12_deg),
         deg(s.sacral_slope_deg)
     );
-}
-
-/// The self-check, every result stated; muscles through bone are warned.
-fn print_self_check(sc: &crate::base::check::SelfCheck) {
-    crate::outln!("{sc}");
-    for w in sc.warnings() {
-        crate::errln!("warning: {w}");
-    }
 }
 
 /// A model name from a file stem: letters, digits, `_` and `-` kept,

@@ -110,6 +110,15 @@ pub fn warn_missing_meshes(out: &std::path::Path, missing: &[String], kept: bool
     );
 }
 
+/// The self-check of a written model (its `Display`: every result and
+/// the equilibrium verdict) on stdout; muscles through bone warned on stderr.
+pub fn print_self_check(sc: &crate::base::check::SelfCheck) {
+    crate::outln!("{sc}");
+    for w in sc.warnings() {
+        crate::errln!("warning: {w}");
+    }
+}
+
 /// The worker threads for `--jobs requested` on a machine of `cores`
 /// cores: at most the cores (more threads only add memory and switching),
 /// at least one; `None` (all cores) without `--jobs` or with `--jobs 0`.

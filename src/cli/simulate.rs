@@ -67,10 +67,9 @@ fn file_stem(id: &str) -> String {
 
 /// A progress bar over the steps of one dynamic case (on stderr, hidden
 /// when stderr is not a terminal).
-fn step_bar(case: &str, t: f64, dt: f64) -> indicatif::ProgressBar {
+fn step_bar(case: &str, t: f64, dt: f64) -> crate::util::progress::Bar {
     let steps = crate::solver::dynamics::step_count(t, dt).unwrap_or(0) as u64;
-    let bar = crate::util::progress::bar(&format!("case {case}"), steps, "steps", true);
-    bar
+    crate::util::progress::bar(&format!("case {case}"), steps, "steps", true)
 }
 
 /// The library's options from the command line.

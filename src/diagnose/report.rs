@@ -404,35 +404,17 @@ pub fn improved_model(sim: &Sim, exp: &Experiment, v: &Variant) -> Result<Docume
     Ok(doc)
 }
 
-fn color(v: f64) -> String {
-    // diverging: blue (negative) - white - red (positive), v in [-1, 1]
-    let v = v.clamp(-1.0, 1.0);
-    let (r, g, b) = if v >= 0.0 {
-        (255.0, 255.0 * (1.0 - v), 255.0 * (1.0 - v))
-    } else {
-        (255.0 * (1.0 + v), 255.0 * (1.0 + v), 255.0)
-    };
-    format!("rgb({},{},{})", r as u8, g as u8, b as u8)
-}
-
-use crate::util::svg::esc;
-
 /// Residual map (levels x (case, DoF)) of the baseline and the augmented
 /// model on every case, held-out cases marked; colour scaled by the
-/// largest baseline residual of each DoF class, with a colour bar.
+/// largest baseline residual of each DoF class, with a colour scale.
 pub fn residual_map_svg(o: &Outcome, exp: &Experiment) -> String {
+    use crate::util::charts::{self, ColourScale, HeatMap, HeatPanel};
     let sim = &o.sim;
     let dofs: Vec<usize> = (0..6)
         .filter(|d| sim.cells.iter().any(|c| c.dof == *d))
         .collect();
-    let (nc, nl) = (exp.cases.len(), sim.levels.len());
-    let (cw, ch, left) = (6.0, 14.0, 70.0);
-    let panel_w = cw * (nc * dofs.len()) as f64;
-    let panel_h = ch * nl as f64;
-    // Each panel: title, rows, held-out marks and case numbers; then the bar.
-    let block = panel_h + 54.0;
-    let w = (left + panel_w + 20.0).max(360.0);
-    let content_h = 2.0 * block + 50.0;
+    let nc = exp.cases.len();
+    let nd = dofs.len().max(1);
     let scale = |rot: bool| {
         sim.cells
             .iter()
@@ -447,218 +429,163 @@ pub fn residual_map_svg(o: &Outcome, exp: &Experiment) -> String {
         .map(|d| DOF_NAMES[*d])
         .collect::<Vec<_>>()
         .join(", ");
-    let subtitle = format!(
-        "predicted - measured, rows: levels, columns: cases 1..{nc} x DoF ({dof_list}); held-out cases underlined"
-    );
-    let title = format!("{}: residual map", exp.name);
-    let (open, head) = crate::util::svg::figure_open(w, content_h, &title, &subtitle);
-    let mut s = open;
-    let held: Vec<bool> = (0..nc).map(|i| o.design.heldout.contains(&i)).collect();
-    let panels = [
-        ("baseline model", &o.baseline),
-        ("augmented model (chosen effect added)", o.augmented()),
-    ];
-    for (pi, (name, fit)) in panels.iter().enumerate() {
-        let y0 = head + 16.0 + pi as f64 * block;
-        let _ = write!(
-            s,
-            r#"<text x="{left}" y="{:.1}" font-size="11">{name}</text>"#,
-            y0 - 5.0
-        );
-        residual_rows(&mut s, o, fit, &dofs, (left, y0), (sr, st));
-        residual_marks(&mut s, &held, dofs.len(), (left, y0 + panel_h));
+    let panel = |title: &str, fit: &crate::diagnose::fit::Fitted| HeatPanel {
+        title: title.to_string(),
+        cells: sim
+            .cells
+            .iter()
+            .enumerate()
+            .filter_map(|(ci, c)| {
+                let dk = dofs.iter().position(|d| *d == c.dof)?;
+                let r = fit.residual(sim, ci) / if c.dof < 3 { sr } else { st };
+                Some((c.level, c.case * nd + dk, r))
+            })
+            .collect(),
+    };
+    // every case numbered when a case is wide enough, else every fifth
+    let every = if 6 * nd >= 14 { 1 } else { 5 };
+    let column_ticks = (0..nc)
+        .filter(|i| i % every == every - 1 || *i == 0)
+        .map(|i| ((i as f64 + 0.5) * nd as f64, (i + 1).to_string()))
+        .collect();
+    let ticks = vec![-1.0, -0.5, 0.0, 0.5, 1.0];
+    let labels = |s: f64| ticks.iter().map(|t| format!("{:+.3}", t * s)).collect();
+    let mut rows = Vec::new();
+    if dofs.iter().any(|d| *d < 3) {
+        rows.push(("rotations (deg)".to_string(), labels(sr)));
     }
-    colour_bar(&mut s, (left, head + 2.0 * block + 8.0), (sr, st));
-    s.push_str("</svg>\n");
-    s
-}
-
-/// One residual panel: level names and one cell per (level, case, DoF).
-fn residual_rows(
-    s: &mut String,
-    o: &Outcome,
-    fit: &crate::diagnose::fit::Fitted,
-    dofs: &[usize],
-    (left, y0): (f64, f64),
-    (sr, st): (f64, f64),
-) {
-    let (cw, ch) = (6.0, 14.0);
-    let sim = &o.sim;
-    for (li, l) in sim.levels.iter().enumerate() {
-        let y = y0 + ch * (li as f64 + 0.75);
-        let _ = write!(s, r#"<text x="4" y="{y:.1}">{}</text>"#, esc(&l.name));
+    if dofs.iter().any(|d| *d >= 3) {
+        rows.push(("translations (mm)".to_string(), labels(st)));
     }
-    for (ci, c) in sim.cells.iter().enumerate() {
-        let Some(dk) = dofs.iter().position(|d| *d == c.dof) else {
-            continue;
-        };
-        let x = left + cw * (c.case * dofs.len() + dk) as f64;
-        let y = y0 + ch * c.level as f64;
-        let r = fit.residual(sim, ci) / if c.dof < 3 { sr } else { st };
-        let _ = write!(
-            s,
-            r#"<rect x="{x:.1}" y="{y:.1}" width="{cw}" height="{ch}" fill="{}"/>"#,
-            color(r)
-        );
-    }
-}
-
-/// Below a panel: held-out cases underlined, and the case numbers (every
-/// case when they fit, else every fifth).
-fn residual_marks(s: &mut String, held: &[bool], ndof: usize, (left, y): (f64, f64)) {
-    let step = 6.0 * ndof as f64;
-    let every = if step >= 14.0 { 1 } else { 5 };
-    for (i, hd) in held.iter().enumerate() {
-        let x = left + step * i as f64;
-        if *hd {
-            let _ = write!(
-                s,
-                r#"<rect x="{x:.1}" y="{:.1}" width="{step:.1}" height="3" fill="black"/>"#,
-                y + 2.0
-            );
-        }
-        if (i + 1) % every == 0 || i == 0 {
-            let _ = write!(
-                s,
-                r#"<text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="8">{}</text>"#,
-                x + step / 2.0,
-                y + 14.0,
-                i + 1
-            );
-        }
-    }
-    let _ = write!(
-        s,
-        r#"<text x="4" y="{:.1}" font-size="8">case</text>"#,
-        y + 14.0
-    );
-}
-
-/// The colour scale: blue (model below the measurement) to red (above),
-/// labelled in degrees (rotations) and millimetres (translations).
-fn colour_bar(s: &mut String, (left, y): (f64, f64), (sr, st): (f64, f64)) {
-    let n = 21;
-    for k in 0..n {
-        let v = -1.0 + 2.0 * k as f64 / (n - 1) as f64;
-        let _ = write!(
-            s,
-            r#"<rect x="{:.1}" y="{y:.1}" width="10" height="10" fill="{}"/>"#,
-            left + 10.0 * k as f64,
-            color(v)
-        );
-    }
-    let right = left + 10.0 * n as f64;
-    let unit = |v: f64| format!("{:.3} deg / {:.3} mm", v * sr, v * st);
-    let _ = write!(
-        s,
-        r#"<text x="{left:.1}" y="{:.1}" font-size="8">{}</text><text x="{right:.1}" y="{:.1}" text-anchor="end" font-size="8">+{}</text>"#,
-        y + 22.0,
-        unit(-1.0),
-        y + 34.0,
-        unit(1.0)
-    );
-    let _ = write!(
-        s,
-        r#"<text x="4" y="{:.1}" font-size="8">colour</text>"#,
-        y + 8.0
-    );
+    charts::heatmap_svg(&HeatMap {
+        title: format!("{}: residual map", exp.name),
+        subtitle: format!(
+            "predicted - measured; rows: levels; columns: cases 1..{nc}, each DoF {dof_list} in turn; held-out cases underlined"
+        ),
+        rows: sim.levels.iter().map(|l| l.name.clone()).collect(),
+        columns: nc * nd,
+        cell: (6, 14),
+        x_label: "load case".into(),
+        column_ticks,
+        marked: o
+            .design
+            .heldout
+            .iter()
+            .map(|&i| (i * nd, (i + 1) * nd))
+            .collect(),
+        panels: vec![
+            panel("baseline model", &o.baseline),
+            panel("augmented model (chosen effect added)", o.augmented()),
+        ],
+        scale: ColourScale {
+            title: "colour: blue, model below the measurement; red, above (scaled by the largest baseline residual)".into(),
+            ticks,
+            rows,
+        },
+    })
 }
 
 /// Measured vs predicted total rotation (sum over levels of the primary
 /// DoF) against the signed moment, one panel per load axis, pure-moment
-/// cases and each follower load separately.
-pub fn curves_svg(o: &Outcome, _exp: &Experiment) -> String {
+/// cases and each follower load as a separate line.
+pub fn curves_svg(o: &Outcome, exp: &Experiment) -> String {
+    use crate::util::charts::{self, XyFigure};
+    let panels = (0..3).map(|a| curve_panel(o, a)).collect();
+    charts::xy_svg(&XyFigure {
+        title: format!("{}: load-displacement curves", exp.name),
+        subtitle: "total rotation over the levels against the signed moment; each follower load its own line".into(),
+        panels,
+        columns: 3,
+        panel: (280, 250),
+    })
+}
+
+/// The curves of one load axis: measured totals (dots; held-out cases
+/// larger), the baseline and augmented predictions (lines).
+fn curve_panel(o: &Outcome, a: usize) -> crate::util::charts::XyPanel {
+    use crate::util::charts::{self, Axis, Layer, LayerKind, XyPanel};
     let sim = &o.sim;
     let info = &o.design.cases;
-    let pw = 260.0;
-    let ph = 200.0;
-    let mut s = String::new();
-    let _ = write!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{:.0}" height="{:.0}" font-family="sans-serif" font-size="10">"#,
-        3.0 * (pw + 40.0) + 20.0,
-        ph + 80.0
-    );
-    let _ = write!(s, r#"<rect width="100%" height="100%" fill="white"/>"#);
-    let fits = [
-        ("measured", None, "black"),
-        ("baseline", Some(&o.baseline), "#1f77b4"),
-        ("augmented", Some(o.augmented()), "#d62728"),
-    ];
-    for a in 0..3 {
-        let x0 = 40.0 + a as f64 * (pw + 40.0);
-        let y0 = 30.0;
-        // (signed moment, follower, total) per case per series
-        let mut pts: Vec<Vec<(f64, f64, f64, bool)>> = vec![Vec::new(); 3];
-        for (ci, c) in info.iter().enumerate() {
-            if c.axis != Some(a) {
-                continue;
-            }
-            let m = c.sign as f64 * c.magnitude;
-            for (k, (_, f, _)) in fits.iter().enumerate() {
-                let tot: f64 = sim
-                    .cells
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, x)| x.case == ci && x.dof == a)
-                    .map(|(_, x)| match f {
-                        None => x.measured,
-                        Some(f) => f.pred[x.row][x.dof],
-                    })
-                    .sum();
-                pts[k].push((m, c.follower, tot, o.design.heldout.contains(&ci)));
-            }
+    // (signed moment, follower, total, held out) per case, per source
+    let sources = [None, Some(&o.baseline), Some(o.augmented())];
+    let mut pts: Vec<Vec<(f64, f64, f64, bool)>> = vec![Vec::new(); 3];
+    for (ci, c) in info.iter().enumerate() {
+        if c.axis != Some(a) {
+            continue;
         }
-        let mx = pts.iter().flatten().map(|p| p.0.abs()).fold(1e-9, f64::max);
-        let my = pts.iter().flatten().map(|p| p.2.abs()).fold(1e-9, f64::max);
-        let px = |m: f64| x0 + pw * (0.5 + 0.5 * m / mx);
-        let py = |v: f64| y0 + ph * (0.5 - 0.5 * v / my);
-        let _ = write!(
-            s,
-            r#"<rect x="{x0}" y="{y0}" width="{pw}" height="{ph}" fill="none" stroke="gray"/>"#
-        );
-        let _ = write!(
-            s,
-            r#"<text x="{x0}" y="{:.0}">{} moment (N m, +-{:.1}) vs total {} (deg, +-{:.2})</text>"#,
-            y0 - 8.0,
-            super::design::AXIS_NAMES[a],
-            mx,
-            DOF_NAMES[a],
-            my
-        );
-        for (k, (_, _, col)) in fits.iter().enumerate() {
-            let mut series = pts[k].clone();
-            series.sort_by(|p, q| p.1.total_cmp(&q.1).then(p.0.total_cmp(&q.0)));
-            if k == 0 {
-                for p in &series {
-                    let r = if p.3 { 3.5 } else { 2.0 };
-                    let _ = write!(
-                        s,
-                        r#"<circle cx="{:.1}" cy="{:.1}" r="{r}" fill="{col}"/>"#,
-                        px(p.0),
-                        py(p.2)
-                    );
-                }
-            } else {
-                let mut fl = f64::NAN;
-                let mut path = String::new();
-                for p in &series {
-                    let cmd = if p.1 != fl { "M" } else { "L" };
-                    fl = p.1;
-                    let _ = write!(path, "{cmd}{:.1},{:.1} ", px(p.0), py(p.2));
-                }
-                let _ = write!(s, r#"<path d="{path}" fill="none" stroke="{col}"/>"#);
-            }
+        let m = c.sign as f64 * c.magnitude;
+        for (k, f) in sources.iter().enumerate() {
+            let tot: f64 = sim
+                .cells
+                .iter()
+                .filter(|x| x.case == ci && x.dof == a)
+                .map(|x| match f {
+                    None => x.measured,
+                    Some(f) => f.pred[x.row][x.dof],
+                })
+                .sum();
+            pts[k].push((m, c.follower, tot, o.design.heldout.contains(&ci)));
         }
     }
-    let _ = write!(
-        s,
-        r##"<text x="40" y="{:.0}">black dots: measured (large: held out); blue: baseline; red: augmented ({})</text>"##,
-        ph + 60.0,
-        esc(&o.augmented().family.label())
-    );
-    s.push_str("</svg>\n");
-    s
+    let mx = pts.iter().flatten().map(|p| p.0.abs()).fold(1e-9, f64::max) * 1.08;
+    let my = pts.iter().flatten().map(|p| p.2.abs()).fold(1e-9, f64::max) * 1.08;
+    let dots = |held: bool, label: &str, radius: u32| Layer {
+        label: label.into(),
+        colour: plotters::style::colors::BLACK,
+        kind: LayerKind::Dots {
+            points: pts[0]
+                .iter()
+                .filter(|p| p.3 == held)
+                .map(|p| (p.0, p.2))
+                .collect(),
+            radius,
+        },
+    };
+    let line = |k: usize, label: String, colour| {
+        let mut series = pts[k].clone();
+        series.sort_by(|p, q| p.1.total_cmp(&q.1).then(p.0.total_cmp(&q.0)));
+        let mut lines: Vec<Vec<(f64, f64)>> = Vec::new();
+        let mut fl = f64::NAN;
+        for p in series {
+            if p.1 != fl || lines.is_empty() {
+                lines.push(Vec::new());
+                fl = p.1;
+            }
+            if let Some(l) = lines.last_mut() {
+                l.push((p.0, p.2));
+            }
+        }
+        Layer {
+            label,
+            colour,
+            kind: LayerKind::Lines {
+                lines,
+                width: 2,
+                dashed: false,
+            },
+        }
+    };
+    XyPanel {
+        title: format!("{} ({})", super::design::AXIS_NAMES[a], DOF_NAMES[a]),
+        x: Axis {
+            label: "moment (N m)".into(),
+            range: (-mx, mx),
+        },
+        y: Axis {
+            label: format!("total {} (deg)", DOF_NAMES[a]),
+            range: (-my, my),
+        },
+        layers: vec![
+            line(1, "baseline".into(), charts::POINT),
+            line(
+                2,
+                format!("augmented ({})", o.augmented().family.label()),
+                charts::HIGHLIGHT,
+            ),
+            dots(false, "measured (fitted)", 2),
+            dots(true, "measured (held out)", 4),
+        ],
+    }
 }
 
 /// Which candidate effects the design's held-out split can test, and for

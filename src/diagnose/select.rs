@@ -577,7 +577,7 @@ impl Setup {
     }
 
     /// The progress bar over every fit of every run.
-    fn progress(&self, opts: &Options) -> indicatif::ProgressBar {
+    fn progress(&self, opts: &Options) -> crate::util::progress::Bar {
         let n_kinds: usize = kinds(self.design.has_follower, self.table.as_deref())
             .into_iter()
             .map(|k| match self.table {
@@ -597,7 +597,7 @@ impl Setup {
     }
 
     /// The fits' shared data: the training cells of the design.
-    fn ctx<'a>(&'a self, opts: &Options, pb: &'a indicatif::ProgressBar) -> FitCtx<'a> {
+    fn ctx<'a>(&'a self, opts: &Options, pb: &'a crate::util::progress::Bar) -> FitCtx<'a> {
         FitCtx {
             sim: &self.sim,
             train_cells: self.split.train.clone(),

@@ -38,7 +38,7 @@ impl Split {
 }
 
 /// The progress bar (hidden without `opts.progress`).
-pub fn progress_bar(opts: &Options, len: u64) -> indicatif::ProgressBar {
+pub fn progress_bar(opts: &Options, len: u64) -> crate::util::progress::Bar {
     let pb = crate::util::progress::bar("diagnose", len, "fits", opts.progress);
     pb.set_message("baseline");
     pb
@@ -52,7 +52,7 @@ pub struct FitCtx<'a> {
     pub has_follower: bool,
     pub w: Weights,
     pub max_iterations: usize,
-    pub pb: &'a indicatif::ProgressBar,
+    pub pb: &'a crate::util::progress::Bar,
     /// A published table's leave-one-level-out design: the effects it
     /// cannot test (see [`kinds`]); `None` otherwise.
     pub table: Option<&'a [String]>,

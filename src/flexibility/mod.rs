@@ -196,7 +196,12 @@ pub fn flexibility(
     opts: &FlexibilityOptions,
 ) -> Result<Flexibility> {
     let bm0 = BendModel::new(model)?;
-    let bar = progress(opts.progress, 2 * films.len() + 3 * predict.len() + 1);
+    let bar = crate::util::progress::bar(
+        "flexibility",
+        (2 * films.len() + 3 * predict.len() + 1) as u64,
+        "fits",
+        opts.progress,
+    );
     // 1. Films checked against the model and placed on its pelvis.
     let mut all: Vec<Film> = Vec::new();
     for (r, role) in films
@@ -280,7 +285,7 @@ fn uniform_fits(
     bm: &BendModel,
     all: &mut [Film],
     opts: &FlexibilityOptions,
-    bar: &indicatif::ProgressBar,
+    bar: &crate::util::progress::Bar,
 ) -> Result<()> {
     let ones = vec![1.0; bm.joints.len()];
     for f in all.iter_mut() {
@@ -317,16 +322,6 @@ fn calibration_findings(cal: &neutral::NeutralCalibration, findings: &mut Vec<St
             far.join("; ")
         ));
     }
-}
-
-/// A progress bar on stderr (hidden unless asked for).
-fn progress(show: bool, n: usize) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
-    }
-    let b = indicatif::ProgressBar::new(n as u64);
-    b.set_message("film fits");
-    b
 }
 
 /// The film's points checked against the model, its loaded level, its

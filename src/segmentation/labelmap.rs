@@ -230,7 +230,7 @@ fn extract_levels(
     findings: &mut Vec<Finding>,
     cut: &mut Vec<Level>,
 ) -> Vec<LevelInput> {
-    let bar = progress_bar(wanted.len(), progress);
+    let bar = crate::util::progress::bar("surfaces", wanted.len() as u64, "labels", progress);
     // Levels cut by the field of view are left out, named.
     let mut inside = Vec::new();
     for (&level, labels) in wanted {
@@ -277,9 +277,4 @@ fn only_inferior_cut(map: &LabelMap, b: &LabelStats) -> bool {
         let high = b.max[k] + 1 == map.dims[k] && axis.z > -0.5;
         !low && !high
     })
-}
-
-/// The surfaces' progress bar (hidden when not wanted or not a terminal).
-fn progress_bar(n: usize, show: bool) -> indicatif::ProgressBar {
-    crate::util::progress::bar("surfaces", n as u64, "labels", show)
 }

@@ -10,6 +10,10 @@
 //!   dots). Category names are written under the slots, rotated when long.
 //! - [`boxplot_svg`], [`boxplot_svg_axis`]: box-and-whisker plots (type 7
 //!   quartiles, Tukey whiskers) on [`category_svg`].
+//! - [`xy_svg`]: a grid of x-y panels (dots, solid or dashed polylines),
+//!   each titled with labelled axes, and one legend under them.
+//! - [`heatmap_svg`]: cell grids of the same rows and columns, one panel
+//!   under the other, with a red-white-blue colour scale ([`diverging`]).
 //!
 //! Font sizes are given as rendered pixels; plotters' SVG backend writes
 //! `size / 1.24`, which [`font`] compensates.
@@ -516,6 +520,423 @@ pub fn boxplot_svg_axis(
     category_svg(&chart)
 }
 
+/// Red-white-blue of a value in [-1, 1] (clamped): blue below 0, white at
+/// 0, red above.
+pub fn diverging(v: f64) -> RGBColor {
+    let v = if v.is_finite() {
+        v.clamp(-1.0, 1.0)
+    } else {
+        0.0
+    };
+    let fade = |k: f64| (255.0 * k).round() as u8;
+    if v >= 0.0 {
+        RGBColor(255, fade(1.0 - v), fade(1.0 - v))
+    } else {
+        RGBColor(fade(1.0 + v), fade(1.0 + v), 255)
+    }
+}
+
+/// A tick label formatter for values `step` apart: as many decimals as the
+/// step needs, no `-0`.
+fn decimals_for(step: f64) -> usize {
+    (-step.log10().floor()).clamp(0.0, 6.0) as usize
+}
+
+fn tick_label(v: f64, decimals: usize) -> String {
+    let t = format!("{v:.decimals$}");
+    if t.trim_start_matches('-')
+        .chars()
+        .all(|c| c == '0' || c == '.')
+    {
+        t.trim_start_matches('-').to_string()
+    } else {
+        t
+    }
+}
+
+/// One axis of an x-y panel: its title (with the unit) and plotted range.
+#[derive(Debug, Clone)]
+pub struct Axis {
+    pub label: String,
+    pub range: (f64, f64),
+}
+
+/// How a layer of an x-y panel is drawn.
+#[derive(Debug, Clone)]
+pub enum LayerKind {
+    /// Filled dots of `radius` px.
+    Dots {
+        points: Vec<(f64, f64)>,
+        radius: u32,
+    },
+    /// Polylines, each its own path.
+    Lines {
+        lines: Vec<Vec<(f64, f64)>>,
+        width: u32,
+        dashed: bool,
+    },
+}
+
+/// One layer of an x-y panel; layers of the same `label` share a legend
+/// entry (an empty label has none).
+#[derive(Debug, Clone)]
+pub struct Layer {
+    pub label: String,
+    pub colour: RGBColor,
+    pub kind: LayerKind,
+}
+
+/// One x-y panel: a titled chart with two labelled axes.
+#[derive(Debug, Clone)]
+pub struct XyPanel {
+    pub title: String,
+    pub x: Axis,
+    pub y: Axis,
+    pub layers: Vec<Layer>,
+}
+
+/// A figure of x-y panels on a grid (row by row), with one legend under
+/// them for every labelled layer.
+#[derive(Debug, Clone)]
+pub struct XyFigure {
+    pub title: String,
+    pub subtitle: String,
+    pub panels: Vec<XyPanel>,
+    /// Panels per row.
+    pub columns: usize,
+    /// Size of one panel with its axes (px).
+    pub panel: (u32, u32),
+}
+
+const PANEL_TITLE_PX: f64 = 11.0;
+const TICK_PX: f64 = 10.0;
+const LEGEND_PX: f64 = 10.0;
+const LEGEND_ROW: u32 = 18;
+
+/// The legend's entries: the first layer of each label, in order.
+fn legend_entries(f: &XyFigure) -> Vec<&Layer> {
+    let mut out: Vec<&Layer> = Vec::new();
+    for l in f.panels.iter().flat_map(|p| p.layers.iter()) {
+        if !l.label.is_empty() && !out.iter().any(|o| o.label == l.label) {
+            out.push(l);
+        }
+    }
+    out
+}
+
+/// Entries laid out in rows within `max` px: (row, x) of each.
+fn legend_layout(labels: &[&str], max: f64) -> Vec<(u32, f64)> {
+    let (mut row, mut x) = (0u32, 0.0);
+    let mut out = Vec::new();
+    for l in labels {
+        let w = 24.0 + text_width(l, LEGEND_PX);
+        if x > 0.0 && x + w > max {
+            row += 1;
+            x = 0.0;
+        }
+        out.push((row, x));
+        x += w + 16.0;
+    }
+    out
+}
+
+/// Draw an x-y figure: each panel's title, axes with tick labels and
+/// titles, light grid, layers in order; the legend below the panels.
+pub fn xy_svg(f: &XyFigure) -> String {
+    let cols = f.columns.max(1);
+    let rows = f.panels.len().div_ceil(cols).max(1);
+    let w = (cols as u32 * f.panel.0 + 20).max(360);
+    let entries = legend_entries(f);
+    let labels: Vec<&str> = entries.iter().map(|l| l.label.as_str()).collect();
+    let layout = legend_layout(&labels, f64::from(w) - 20.0);
+    let legend_rows = layout.last().map_or(0, |(r, _)| r + 1);
+    let grid_h = rows as u32 * f.panel.1;
+    let body_h = grid_h + legend_rows * LEGEND_ROW + 10;
+    figure(w, body_h, &f.title, &f.subtitle, |area| {
+        for (k, p) in f.panels.iter().enumerate() {
+            let (r, c) = ((k / cols) as u32, (k % cols) as u32);
+            let x0 = 10 + c * f.panel.0;
+            let y0 = r * f.panel.1;
+            let cell = area.clone().shrink((x0, y0), f.panel);
+            draw_panel(&cell, p);
+        }
+        for (l, (row, x)) in entries.iter().zip(layout) {
+            let y = (grid_h + row * LEGEND_ROW + LEGEND_ROW / 2) as i32;
+            draw_key(area, l, (10 + x as i32, y));
+        }
+    })
+}
+
+/// A legend entry: the layer's key (a dot or a line) and its label, the
+/// key's left end at `at`.
+fn draw_key(area: &Area, l: &Layer, (x, y): (i32, i32)) {
+    let _ = match &l.kind {
+        LayerKind::Dots { radius, .. } => area.draw(&Circle::new(
+            (x + 8, y),
+            (*radius).max(2),
+            l.colour.filled(),
+        )),
+        LayerKind::Lines { width, dashed, .. } if *dashed => area
+            .draw(&PathElement::new(
+                [(x, y), (x + 6, y)],
+                l.colour.stroke_width(*width),
+            ))
+            .and_then(|_| {
+                area.draw(&PathElement::new(
+                    [(x + 10, y), (x + 16, y)],
+                    l.colour.stroke_width(*width),
+                ))
+            }),
+        LayerKind::Lines { width, .. } => area.draw(&PathElement::new(
+            [(x, y), (x + 16, y)],
+            l.colour.stroke_width(*width),
+        )),
+    };
+    let style = font(LEGEND_PX).pos(Pos::new(HPos::Left, VPos::Center));
+    let _ = area.draw(&Text::new(l.label.clone(), (x + 24, y), style));
+}
+
+/// The range of an axis, widened when empty or not finite.
+fn axis_range(a: &Axis) -> (f64, f64) {
+    let (lo, hi) = a.range;
+    if !(lo.is_finite() && hi.is_finite()) {
+        return (0.0, 1.0);
+    }
+    if hi - lo < 1e-12 {
+        (lo - 1.0, hi + 1.0)
+    } else {
+        (lo, hi)
+    }
+}
+
+/// One panel of an x-y figure in its area.
+fn draw_panel(area: &Area, p: &XyPanel) {
+    let (x0, x1) = axis_range(&p.x);
+    let (y0, y1) = axis_range(&p.y);
+    let (dx, dy) = (
+        decimals_for(nice_step(x1 - x0)),
+        decimals_for(nice_step(y1 - y0)),
+    );
+    let widest = [y0, y1, 0.5 * (y0 + y1)]
+        .iter()
+        .map(|v| text_width(&tick_label(*v, dy), TICK_PX) + text_width("-", TICK_PX))
+        .fold(0.0, f64::max);
+    let left = (widest + AXIS_PX * 1.6 + 10.0).ceil() as u32;
+    let chart = ChartBuilder::on(area)
+        .caption(p.title.as_str(), font(PANEL_TITLE_PX))
+        .margin_top(6)
+        .margin_left(4)
+        .margin_right(16)
+        .margin_bottom(4)
+        .y_label_area_size(left)
+        .x_label_area_size((TICK_PX + AXIS_PX * 2.4) as u32)
+        .build_cartesian_2d(x0..x1, y0..y1);
+    let Ok(mut chart) = chart else {
+        return;
+    };
+    let fx = move |v: &f64| tick_label(*v, dx);
+    let fy = move |v: &f64| tick_label(*v, dy);
+    let _ = chart
+        .configure_mesh()
+        .x_labels(5)
+        .y_labels(5)
+        .x_desc(p.x.label.as_str())
+        .y_desc(p.y.label.as_str())
+        .x_label_formatter(&fx)
+        .y_label_formatter(&fy)
+        .label_style(font(TICK_PX))
+        .axis_desc_style(font(AXIS_PX))
+        .bold_line_style(GRID)
+        .light_line_style(TRANSPARENT)
+        .draw();
+    for l in &p.layers {
+        let _ = match &l.kind {
+            LayerKind::Dots { points, radius } => chart.draw_series(
+                points
+                    .iter()
+                    .map(|&q| Circle::new(q, *radius, l.colour.filled())),
+            ),
+            LayerKind::Lines {
+                lines,
+                width,
+                dashed: true,
+            } => chart.draw_series(lines.iter().flat_map(|line| {
+                DashedLineSeries::new(line.clone(), 4, 3, l.colour.stroke_width(*width))
+            })),
+            LayerKind::Lines { lines, width, .. } => chart.draw_series(
+                lines
+                    .iter()
+                    .map(|line| PathElement::new(line.clone(), l.colour.stroke_width(*width))),
+            ),
+        };
+    }
+}
+
+/// One panel of a heat map: cells `(row, column, value in [-1, 1])`.
+#[derive(Debug, Clone)]
+pub struct HeatPanel {
+    pub title: String,
+    pub cells: Vec<(usize, usize, f64)>,
+}
+
+/// The colour scale of a heat map: the bar from -1 (blue) to +1 (red),
+/// ticks at `ticks` (in [-1, 1]), and per row of tick labels its caption
+/// (e.g. a unit) and one label per tick.
+#[derive(Debug, Clone)]
+pub struct ColourScale {
+    pub title: String,
+    pub ticks: Vec<f64>,
+    pub rows: Vec<(String, Vec<String>)>,
+}
+
+/// Heat maps of the same rows and columns, one panel under the other, and
+/// their colour scale ([`diverging`]) at the bottom.
+#[derive(Debug, Clone)]
+pub struct HeatMap {
+    pub title: String,
+    pub subtitle: String,
+    /// Row names, top to bottom.
+    pub rows: Vec<String>,
+    pub columns: usize,
+    /// Size of one cell (px).
+    pub cell: (u32, u32),
+    /// Title of the horizontal axis.
+    pub x_label: String,
+    /// Labels under the columns: (centre in columns, text).
+    pub column_ticks: Vec<(f64, String)>,
+    /// Column ranges `[a, b)` underlined under each panel.
+    pub marked: Vec<(usize, usize)>,
+    pub panels: Vec<HeatPanel>,
+    pub scale: ColourScale,
+}
+
+const HEAT_TICK_PX: f64 = 8.0;
+const SCALE_SWATCH: u32 = 12;
+const SCALE_STEPS: u32 = 21;
+
+/// Draw a heat map: per panel its title, row names at the left, one
+/// rectangle per cell, the marked column ranges underlined, the column
+/// labels and the axis title; then the colour scale with its tick labels.
+pub fn heatmap_svg(h: &HeatMap) -> String {
+    let left = h
+        .rows
+        .iter()
+        .map(|r| text_width(r, TICK_PX))
+        .fold(0.0, f64::max)
+        .ceil() as u32
+        + 16;
+    let (cw, ch) = h.cell;
+    let grid_w = cw * h.columns as u32;
+    let panel_h = PANEL_TITLE_PX as u32 + 8 + ch * h.rows.len() as u32 + 6 + 2 * AXIS_PX as u32 + 8;
+    let captions = h
+        .scale
+        .rows
+        .iter()
+        .map(|(c, _)| text_width(c, HEAT_TICK_PX))
+        .fold(0.0, f64::max)
+        .ceil() as u32;
+    let bar_x = (captions + 20).max(left);
+    let bar_w = SCALE_SWATCH * SCALE_STEPS;
+    let w = (left + grid_w + 20).max(bar_x + bar_w + 40).max(360);
+    let scale_title = wrap(&h.scale.title, f64::from(w) - 20.0, TICK_PX);
+    let scale_h =
+        scale_title.len() as u32 * 14 + SCALE_SWATCH + 4 + h.scale.rows.len() as u32 * 12 + 8;
+    let body_h = h.panels.len() as u32 * panel_h + scale_h;
+    figure(w, body_h, &h.title, &h.subtitle, |area| {
+        for (k, p) in h.panels.iter().enumerate() {
+            draw_heat_panel(area, h, p, (left, k as u32 * panel_h));
+        }
+        let y = h.panels.len() as u32 * panel_h;
+        draw_scale(area, &h.scale, &scale_title, (bar_x, y));
+    })
+}
+
+/// One heat-map panel with its top-left corner at `(left, y0)` (`left`:
+/// where the cells start).
+fn draw_heat_panel(area: &Area, h: &HeatMap, p: &HeatPanel, (left, y0): (u32, u32)) {
+    let (cw, ch) = (h.cell.0 as i32, h.cell.1 as i32);
+    let (left, y0) = (left as i32, y0 as i32);
+    let title = font(PANEL_TITLE_PX).pos(Pos::new(HPos::Left, VPos::Top));
+    let _ = area.draw(&Text::new(p.title.clone(), (left, y0), title));
+    let top = y0 + PANEL_TITLE_PX as i32 + 8;
+    let name = font(TICK_PX).pos(Pos::new(HPos::Right, VPos::Center));
+    for (r, row) in h.rows.iter().enumerate() {
+        let y = top + ch * r as i32 + ch / 2;
+        let _ = area.draw(&Text::new(row.clone(), (left - 6, y), name.clone()));
+    }
+    for &(r, c, v) in &p.cells {
+        let (x, y) = (left + cw * c as i32, top + ch * r as i32);
+        let _ = area.draw(&Rectangle::new(
+            [(x, y), (x + cw, y + ch)],
+            diverging(v).filled(),
+        ));
+    }
+    let bottom = top + ch * h.rows.len() as i32;
+    let grid_w = cw * h.columns as i32;
+    let _ = area.draw(&Rectangle::new(
+        [(left, top), (left + grid_w, bottom)],
+        REFERENCE.stroke_width(1),
+    ));
+    for &(a, b) in &h.marked {
+        let _ = area.draw(&Rectangle::new(
+            [
+                (left + cw * a as i32, bottom + 2),
+                (left + cw * b as i32, bottom + 5),
+            ],
+            BLACK.filled(),
+        ));
+    }
+    let tick = font(HEAT_TICK_PX).pos(Pos::new(HPos::Center, VPos::Top));
+    for (at, label) in &h.column_ticks {
+        let x = left + (at * f64::from(cw)).round() as i32;
+        let _ = area.draw(&Text::new(label.clone(), (x, bottom + 7), tick.clone()));
+    }
+    let desc = font(AXIS_PX).pos(Pos::new(HPos::Center, VPos::Top));
+    let _ = area.draw(&Text::new(
+        h.x_label.clone(),
+        (left + grid_w / 2, bottom + 8 + HEAT_TICK_PX as i32 + 4),
+        desc,
+    ));
+}
+
+/// The colour scale: its title, the bar from `bar_x`, and the rows of
+/// tick labels with their captions at the left edge.
+fn draw_scale(area: &Area, s: &ColourScale, title: &[String], (bar_x, y0): (u32, u32)) {
+    let (bar_x, mut y) = (bar_x as i32, y0 as i32);
+    let head = font(TICK_PX).pos(Pos::new(HPos::Left, VPos::Top));
+    for line in title {
+        let _ = area.draw(&Text::new(line.clone(), (10, y), head.clone()));
+        y += 14;
+    }
+    let sw = SCALE_SWATCH as i32;
+    for k in 0..SCALE_STEPS as i32 {
+        let v = -1.0 + 2.0 * f64::from(k) / f64::from(SCALE_STEPS - 1);
+        let x = bar_x + sw * k;
+        let _ = area.draw(&Rectangle::new(
+            [(x, y), (x + sw, y + sw)],
+            diverging(v).filled(),
+        ));
+    }
+    let bar_w = sw * SCALE_STEPS as i32;
+    let at = |t: f64| bar_x + ((t.clamp(-1.0, 1.0) + 1.0) * 0.5 * f64::from(bar_w)).round() as i32;
+    for t in &s.ticks {
+        let _ = area.draw(&PathElement::new(
+            [(at(*t), y + sw), (at(*t), y + sw + 3)],
+            BLACK.stroke_width(1),
+        ));
+    }
+    y += sw + 4;
+    let caption = font(HEAT_TICK_PX).pos(Pos::new(HPos::Left, VPos::Top));
+    let label = font(HEAT_TICK_PX).pos(Pos::new(HPos::Center, VPos::Top));
+    for (name, labels) in &s.rows {
+        let _ = area.draw(&Text::new(name.clone(), (10, y), caption.clone()));
+        for (t, l) in s.ticks.iter().zip(labels) {
+            let _ = area.draw(&Text::new(l.clone(), (at(*t), y), label.clone()));
+        }
+        y += 12;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -594,5 +1015,103 @@ mod tests {
         assert_eq!(nice_step(4.0), 1.0);
         assert_eq!(nice_step(0.04), 0.01);
         assert_eq!(nice_step(30.0), 10.0);
+    }
+
+    /// The numeric attribute `name` of an SVG element's text.
+    fn attr(el: &str, name: &str) -> f64 {
+        let k = el.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
+        el[k..k + el[k..].find('"').unwrap()].parse().unwrap()
+    }
+
+    /// Every element of `tag` whose text contains `needle`.
+    fn elements<'a>(svg: &'a str, tag: &str, needle: &str) -> Vec<&'a str> {
+        svg.split('<')
+            .filter(|e| e.starts_with(tag) && e.contains(needle))
+            .collect()
+    }
+
+    #[test]
+    fn xy_dots_sit_at_their_ticks_and_the_legend_names_each_label_once() {
+        let dots = |points: Vec<(f64, f64)>| Layer {
+            label: "cases".into(),
+            colour: POINT,
+            kind: LayerKind::Dots { points, radius: 3 },
+        };
+        let axis = |label: &str| Axis {
+            label: label.into(),
+            range: (0.0, 1.0),
+        };
+        let panel = |title: &str, points| XyPanel {
+            title: title.into(),
+            x: axis("measured (deg)"),
+            y: axis("predicted (deg)"),
+            layers: vec![dots(points)],
+        };
+        let svg = xy_svg(&XyFigure {
+            title: "t".into(),
+            subtitle: "s".into(),
+            panels: vec![
+                panel("first", vec![(0.0, 0.0), (1.0, 1.0)]),
+                panel("second", vec![(0.5, 0.5)]),
+            ],
+            columns: 2,
+            panel: (250, 230),
+        });
+        assert!(svg.contains("\nfirst\n") && svg.contains("\nsecond\n"));
+        assert_eq!(svg.matches("\ncases\n").count(), 1, "one legend entry");
+        let fill = format!("fill=\"#{:02X}{:02X}{:02X}\"", POINT.0, POINT.1, POINT.2);
+        let circles = elements(&svg, "circle", &fill);
+        // three data dots and the legend's key
+        assert_eq!(circles.len(), 4);
+        let (a, b) = (circles[0], circles[1]);
+        // the x tick "1.0" of the first panel stands under the dot at x = 1
+        let tick = elements(&svg, "text", "text-anchor=\"middle\"")
+            .into_iter()
+            .find(|t| t.ends_with(">\n1.0\n"))
+            .unwrap();
+        assert!((attr(b, "cx") - attr(tick, "x")).abs() <= 1.0);
+        assert!(attr(b, "cx") > attr(a, "cx") && attr(b, "cy") < attr(a, "cy"));
+    }
+
+    #[test]
+    fn heat_cells_take_their_row_column_and_colour() {
+        let svg = heatmap_svg(&HeatMap {
+            title: "map".into(),
+            subtitle: String::new(),
+            rows: vec!["L4_L5".into(), "L5_S1".into()],
+            columns: 3,
+            cell: (6, 14),
+            x_label: "case".into(),
+            column_ticks: vec![(0.5, "1".into())],
+            marked: vec![(1, 2)],
+            panels: vec![HeatPanel {
+                title: "fit".into(),
+                cells: vec![(0, 0, -1.0), (1, 2, 2.0)],
+            }],
+            scale: ColourScale {
+                title: "colour".into(),
+                ticks: vec![-1.0, 0.0, 1.0],
+                rows: vec![("deg".into(), vec!["-1".into(), "0".into(), "+1".into()])],
+            },
+        });
+        assert_eq!(diverging(0.0), WHITE);
+        assert_eq!(diverging(f64::NAN), WHITE);
+        let cell = |fill: &str| {
+            let r = elements(&svg, "rect", fill)
+                .into_iter()
+                .find(|r| attr(r, "width") == 6.0)
+                .unwrap();
+            (attr(r, "x"), attr(r, "y"))
+        };
+        let (blue, red) = (cell("fill=\"#0000FF\""), cell("fill=\"#FF0000\""));
+        assert_eq!((red.0 - blue.0, red.1 - blue.1), (12.0, 14.0));
+        // the marked column: a black bar under the second column
+        let bar = elements(&svg, "rect", "fill=\"#000000\"");
+        assert_eq!(bar.len(), 1);
+        assert_eq!(attr(bar[0], "x"), blue.0 + 6.0);
+        assert!(attr(bar[0], "y") > red.1 + 14.0);
+        for t in ["L4_L5", "L5_S1", "case", "+1"] {
+            assert!(svg.contains(&format!("\n{t}\n")), "{t}");
+        }
     }
 }

@@ -1,10 +1,13 @@
 //! The crate's one progress bar: every long run (surfaces of a label map,
 //! calibration starts, sensitivity samples, variability models, diagnosis
-//! fits, dynamic steps) shows the same line on stderr,
+//! fits, flexibility film fits, dynamic steps) shows the same line on stderr,
 //! `<what> [bar] done/total <unit> (eta) <message>`, and nothing when it is
 //! not wanted (indicatif hides it when stderr is not a terminal).
 
 use indicatif::{ProgressBar, ProgressStyle};
+
+/// The bar every long run reports to (an `indicatif` bar).
+pub type Bar = ProgressBar;
 
 /// A bar of `len` steps of `unit` (e.g. `fits`, `steps`), labelled `what`;
 /// hidden when `show` is false.

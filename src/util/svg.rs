@@ -12,9 +12,8 @@
 //! one rectangle per run of covered cells in a row, so a figure of many
 //! meshes stays small (tens of kB instead of a dot per vertex).
 //!
-//! Also the one SVG escaper ([`esc`]), text measuring and wrapping
-//! ([`text_width`], [`wrap`]) for the charts of [`crate::util::charts`],
-//! and the opening of hand-laid figures ([`figure_open`]).
+//! Also text measuring and wrapping ([`text_width`], [`wrap`]) for the
+//! charts of [`crate::util::charts`].
 
 use nalgebra::Point3;
 use plotters::prelude::*;
@@ -392,15 +391,6 @@ fn legend_corner(
         .unwrap_or(SeriesLabelPosition::UpperLeft)
 }
 
-/// Escape text for SVG character data and attribute values: the crate's
-/// one SVG escaper.
-pub fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-}
-
 /// Width (px) that `text` may take at `font_px` in the sans-serif fonts
 /// figures are viewed with: 0.62 em per character bounds DejaVu Sans and
 /// Arial for the mixed text of titles (a layout estimate, on the safe side).
@@ -422,33 +412,6 @@ pub fn wrap(text: &str, max_px: f64, font_px: f64) -> Vec<String> {
         }
     }
     lines
-}
-
-/// Opening of a hand-laid figure of width `w`: the caller closes it. The
-/// `<svg>` element (sans-serif, 10 px), a white background, the title
-/// (14 px) and the subtitle (10 px), each centred and wrapped to the
-/// canvas. Returns the text and the height the header takes, so the
-/// content starts below it; `h` is the figure's height without the header.
-pub fn figure_open(w: f64, h: f64, title: &str, subtitle: &str) -> (String, f64) {
-    let max = w - 20.0;
-    let mut body = String::new();
-    let mut y = 8.0;
-    for (text, size) in [(title, 14.0), (subtitle, 10.0)] {
-        for line in wrap(text, max, size) {
-            y += size * 1.4;
-            body.push_str(&format!(
-                "<text x=\"{:.0}\" y=\"{y:.1}\" text-anchor=\"middle\" font-size=\"{size}\">{}</text>\n",
-                w / 2.0,
-                esc(&line)
-            ));
-        }
-    }
-    let head = y + 8.0;
-    let total = h + head;
-    let open = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{total:.0}\" viewBox=\"0 0 {w:.0} {total:.0}\" font-family=\"sans-serif\" font-size=\"10\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
-    );
-    (open + &body, head)
 }
 
 #[cfg(test)]
