@@ -1,8 +1,8 @@
 //! Small shared helpers: the input gate every reader goes through
 //! ([`input`]), atomic output, deterministic number formatting,
 //! reports at a stated precision ([`report`]), the one quantile helper
-//! ([`quantiles`]), the one progress bar ([`progress`]) and the shared SVG
-//! figures ([`svg`]).
+//! ([`quantiles`]), the one progress bar ([`progress`]), the one CSV layer
+//! ([`table`]) and the shared SVG figures ([`svg`]).
 
 pub mod charts;
 pub mod guard;
@@ -13,6 +13,7 @@ pub mod progress;
 pub mod quantiles;
 pub mod report;
 pub mod svg;
+pub mod table;
 
 pub use input::{read_bytes_capped, read_text_capped};
 pub use quantiles::{iqr, median, quantile};
