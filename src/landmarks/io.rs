@@ -31,7 +31,7 @@
 pub use super::raw::{FileFormat, Palpation, RawLandmarks, RawPoint};
 use super::{Frame, LandmarkId, LandmarkSet, Units};
 use crate::error::{Error, Result};
-use crate::util::table::{comment_value, strip_bom, unquote, CsvItem, CsvReader};
+use crate::util::table::{comment_value, strip_bom, unquote, CsvReader};
 use crate::util::{fmt_f64, write_atomic};
 use std::path::Path;
 
@@ -242,12 +242,8 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
     // Palpations in order of first appearance.
     let mut groups: Vec<((String, u32), Vec<RawPoint>)> = Vec::new();
     for item in CsvReader::new(text, path) {
-        let rec = match item? {
-            CsvItem::Comment(c) => {
-                header.read(&c.text, c.line as usize, path)?;
-                continue;
-            }
-            CsvItem::Record(rec) => rec,
+        let Some(rec) = item?.record_or(|c| header.read(&c.text, c.line as usize, path))? else {
+            continue;
         };
         let line_no = rec.line() as usize;
         // Trailing empty cells (spreadsheet exports write `a,b,c,`) are not fields.

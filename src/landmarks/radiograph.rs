@@ -25,7 +25,7 @@
 use super::io::parse_number;
 use super::{Code, LandmarkId, Level, Units};
 use crate::error::{Error, Result};
-use crate::util::table::{comment_value, CsvItem, CsvReader};
+use crate::util::table::{comment_value, CsvReader};
 use nalgebra::Vector2;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -302,12 +302,8 @@ pub fn parse(text: &str, path: &Path) -> Result<Radiograph> {
     let mut seen_columns = false;
     let mut raw: BTreeMap<FilmPoint, (Vector2<f64>, usize)> = BTreeMap::new();
     for item in CsvReader::new(text, path) {
-        let rec = match item? {
-            CsvItem::Comment(c) => {
-                header.read(&c.text, c.line as usize, path)?;
-                continue;
-            }
-            CsvItem::Record(rec) => rec,
+        let Some(rec) = item?.record_or(|c| header.read(&c.text, c.line as usize, path))? else {
+            continue;
         };
         let line_no = rec.line() as usize;
         let err = |msg: String| rec.error(path, msg);

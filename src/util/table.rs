@@ -151,6 +151,20 @@ pub enum CsvItem {
     Record(CsvRecord),
 }
 
+impl CsvItem {
+    /// The row, or None after handing the comment to `on_comment` (which
+    /// reads the `#` lines the format defines).
+    pub fn record_or(
+        self,
+        on_comment: impl FnOnce(&CsvComment) -> Result<()>,
+    ) -> Result<Option<CsvRecord>> {
+        match self {
+            CsvItem::Record(r) => Ok(Some(r)),
+            CsvItem::Comment(c) => on_comment(&c).map(|()| None),
+        }
+    }
+}
+
 /// Reads the comments and rows of a CSV text (see the module docs).
 /// Iterate it for both in file order, or call [`CsvReader::records`] for
 /// the rows alone. After an error it yields nothing more.
