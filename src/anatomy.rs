@@ -12,6 +12,7 @@
 //! model generator.
 
 use crate::error::{Error, Result};
+use crate::util::table::CsvReader;
 use std::fmt;
 use std::path::Path;
 use std::str::FromStr;
@@ -186,13 +187,10 @@ impl DimensionTable {
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
         let mut header: Option<Vec<String>> = None;
         let mut rows = Vec::new();
-        for (i, raw) in text.lines().enumerate() {
-            let line_no = i + 1;
-            let line = raw.trim();
-            if line.is_empty() || line.starts_with('#') {
-                continue;
-            }
-            let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        for rec in CsvReader::new(text, path).records() {
+            let rec = rec?;
+            let line_no = rec.line();
+            let fields: Vec<&str> = rec.cells().collect();
             let Some(h) = &header else {
                 header = Some(fields.iter().map(|s| s.to_string()).collect());
                 continue;
@@ -298,6 +296,43 @@ impl DimensionTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_table_with_bom_crlf_and_quotes_reads_as_the_embedded_one() {
+        let want = DimensionTable::embedded().unwrap();
+        let path = Path::new("dims.csv");
+        let lines: Vec<String> = EMBEDDED_CSV.lines().map(String::from).collect();
+        let first = lines.iter().position(|l| l.starts_with("level")).unwrap() + 1;
+        // the first row with its first two cells quoted (one with blanks around)
+        let quoted = |row: usize, cell: usize, new: &str| {
+            let mut v = lines.clone();
+            let mut cells: Vec<String> = v[row].split(',').map(String::from).collect();
+            cells[cell] = new.replace('@', &cells[cell]);
+            v[row] = cells.join(",");
+            v
+        };
+        let mut v = quoted(first, 0, "\"@\"");
+        v[first] = v[first].replacen(',', ", \"", 1);
+        let (head, tail) = v[first].split_once(", \"").unwrap();
+        v[first] = format!("{head}, \"{}", tail.replacen(',', "\" ,", 1));
+        let text = format!("\u{feff}{}\r\n", v.join("\r\n"));
+        assert!(text.contains("\"T1\", \""), "{}", &v[first]);
+        assert_eq!(DimensionTable::parse(&text, path).unwrap(), want);
+        // a quoted comma is one cell: the row keeps its width and the cell
+        // is refused as a number, on the file's line
+        let bad = quoted(first + 2, 1, "\"@,5\"");
+        let e = DimensionTable::parse(&bad.join("\r\n"), path)
+            .unwrap_err()
+            .to_string();
+        let cell = lines[first + 2].split(',').nth(1).unwrap().to_string();
+        let line = first + 3;
+        assert!(
+            e.contains(&format!(
+                "dims.csv: line {line}: column `sup_ep_width`: expected a number, found `{cell},5`"
+            )),
+            "{e}"
+        );
+    }
 
     #[test]
     fn embedded_table_parses_and_is_anatomically_ordered() {

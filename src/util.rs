@@ -1,8 +1,8 @@
 //! Small shared helpers: the input gate every reader goes through
 //! ([`input`]), atomic output, deterministic number formatting,
 //! reports at a stated precision ([`report`]), the one quantile helper
-//! ([`quantiles`]), the one progress bar ([`progress`]) and the shared SVG
-//! figures ([`svg`]).
+//! ([`quantiles`]), the one progress bar ([`progress`]), the one CSV layer
+//! ([`table`]) and the shared SVG figures ([`svg`]).
 
 pub mod charts;
 pub mod guard;
@@ -13,6 +13,7 @@ pub mod progress;
 pub mod quantiles;
 pub mod report;
 pub mod svg;
+pub mod table;
 
 pub use input::{read_bytes_capped, read_text_capped};
 pub use quantiles::{iqr, median, quantile};
@@ -148,67 +149,6 @@ pub fn fmt_f64(x: f64) -> String {
     }
 }
 
-/// `text` with every line whose first non-blank character is `#` made
-/// empty (line ends kept), so a CSV reader that skips empty lines still
-/// reports the file's own line numbers (the csv crate does not count
-/// comment lines it skips itself).
-pub fn blank_comment_lines(text: &str) -> String {
-    let mut out = String::with_capacity(text.len());
-    for l in text.split_inclusive('\n') {
-        if l.trim_start().starts_with('#') {
-            if l.ends_with("\r\n") {
-                out.push_str("\r\n");
-            } else if l.ends_with('\n') {
-                out.push('\n');
-            }
-        } else {
-            out.push_str(l);
-        }
-    }
-    out
-}
-
-/// The 1-based line of `text` on which a csv-crate record starts (see
-/// [`CsvLines`], which answers many such questions in linear time).
-pub fn csv_line(text: &str, pos: &csv::Position) -> u64 {
-    CsvLines::new(text).line(pos)
-}
-
-/// The lines of a CSV text, indexed once. The csv crate's own
-/// `Position::line` miscounts CRLF files and skipped blank lines, and its
-/// byte offset may point at the line end before the record: the newlines
-/// before the offset are counted (a binary search), then line ends stepped
-/// over.
-pub struct CsvLines<'a> {
-    text: &'a [u8],
-    /// Byte offsets of the `\n`s.
-    newlines: Vec<usize>,
-}
-
-impl<'a> CsvLines<'a> {
-    pub fn new(text: &'a str) -> Self {
-        let text = text.as_bytes();
-        let newlines = (0..text.len()).filter(|&i| text[i] == b'\n').collect();
-        CsvLines { text, newlines }
-    }
-
-    /// The 1-based line on which the record at `pos` starts.
-    pub fn line(&self, pos: &csv::Position) -> u64 {
-        let b = usize::try_from(pos.byte())
-            .unwrap_or(usize::MAX)
-            .min(self.text.len());
-        let mut line = self.newlines.partition_point(|&o| o < b) as u64 + 1;
-        for &c in &self.text[b..] {
-            match c {
-                b'\n' => line += 1,
-                b'\r' => {}
-                _ => break,
-            }
-        }
-        line
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -239,32 +179,5 @@ mod tests {
             assert_eq!(fmt_f64(x).parse::<f64>().unwrap(), x);
         }
         assert_eq!(fmt_f64(-0.0), "0");
-    }
-
-    #[test]
-    fn csv_lines_are_the_file_lines() {
-        for text in [
-            "\r\nh,a\r\nx,1\r\n# c\r\n,\r\nz,3\r\n",
-            "\nh,a\nx,1\n# c\n,\nz,3\n",
-            "h,a\r\n\r\nx,1\r\n\r\n\r\n,\nz,3",
-        ] {
-            let blank = blank_comment_lines(text);
-            // where each record starts, by hand: the line holding its first cell
-            let want: Vec<u64> = blank
-                .split('\n')
-                .enumerate()
-                .filter(|(_, l)| !l.trim_end_matches('\r').is_empty())
-                .map(|(i, _)| i as u64 + 1)
-                .collect();
-            let mut r = csv::ReaderBuilder::new()
-                .flexible(true)
-                .has_headers(false)
-                .from_reader(blank.as_bytes());
-            let got: Vec<u64> = r
-                .records()
-                .map(|rec| csv_line(&blank, rec.unwrap().position().unwrap()))
-                .collect();
-            assert_eq!(got, want, "{text:?}");
-        }
     }
 }

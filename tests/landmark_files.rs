@@ -335,6 +335,50 @@ fn repeated_palpation_csv_is_split_by_operator_and_repetition() {
 }
 
 #[test]
+fn quoted_commas_bom_and_crlf_in_a_palpation_study() {
+    // Operators named "Last, First" (a quoted cell holding a comma), a
+    // byte-order mark, CRLF line ends and comment/blank lines between rows.
+    let d = tempfile::tempdir().unwrap();
+    let truth = clean();
+    let rows = lps_mm_rows(&truth);
+    let mut text = String::from(
+        "\u{feff}# units: mm\r\n# frame: LPS\r\n\r\noperator,repetition,name,x,y,z\r\n",
+    );
+    for op in ["Smith, J", "Doe, A"] {
+        text.push_str("# next operator\r\n");
+        for (n, [x, y, z]) in &rows {
+            text.push_str(&format!("\"{op}\",1,{n},{x},{y},{z}\r\n"));
+        }
+    }
+    let pals = read_palpations(&write(d.path(), "study.csv", &text)).unwrap();
+    let ops: Vec<&str> = pals.iter().map(|p| p.operator.as_str()).collect();
+    assert_eq!(ops, ["Smith, J", "Doe, A"]);
+    for p in &pals {
+        let set = p.raw.to_set().unwrap();
+        assert!(max_dist(&set, &truth) < 1e-12, "{}", max_dist(&set, &truth));
+    }
+    // A bad cell on the second operator's third row: the file's own line
+    // (BOM, 2 header comments, a blank line, the header, a comment, the
+    // first operator's rows, a comment, 3 rows), and the quoted `1,5` is one
+    // cell, not a sixth field.
+    let (n, [_, y, z]) = &rows[2];
+    let bad_row = format!("\"Doe, A\",1,{n},\"1,5\",{y},{z}\r\n");
+    let good_row = format!("\"Doe, A\",1,{n},{},{y},{z}\r\n", rows[2].1[0]);
+    let bad = text.replacen(&good_row, &bad_row, 1);
+    assert_ne!(bad, text);
+    let line = 4 + 1 + rows.len() + 1 + 3;
+    let e = read_palpations(&write(d.path(), "bad.csv", &bad))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(&format!(
+            "bad.csv: line {line}: column `x`: expected a number, found `1,5`"
+        )),
+        "{e}"
+    );
+}
+
+#[test]
 fn cli_check_exit_codes_and_github_format() {
     let d = tempfile::tempdir().unwrap();
     let truth = clean();

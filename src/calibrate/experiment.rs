@@ -7,6 +7,7 @@
 use crate::error::{Error, Result};
 use crate::osim::Document;
 use crate::solver::{Load, LoadFrame, System, SystemSpec};
+use crate::util::table::{strip_bom, CsvReader, CsvRecord};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
@@ -413,11 +414,6 @@ fn measurement_info(
     })
 }
 
-/// Strip a UTF-8 byte-order mark (spreadsheet and Windows editors write one).
-fn strip_bom(text: &str) -> &str {
-    text.strip_prefix('\u{feff}').unwrap_or(text)
-}
-
 /// Parse the text of an `experiment.toml` (`file` names it in messages):
 /// `[specimen]`, `[units]` and at least one `[[case]]`, ids unique. Unit
 /// names are matched without regard to case (`"deg"`, `"DEG"`).
@@ -675,10 +671,10 @@ pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
 /// order, names matched without regard to case; other columns are ignored).
 /// Optional columns `sd_rx` .. `sd_tz` give each cell's standard deviation
 /// in the same units (> 0; empty = unknown).
-/// Cells are trimmed and may be quoted; an empty cell, or a cell missing at
-/// the end of a short row, is "not measured"; cells beyond the header must
-/// be empty (trailing commas). Lines starting with `#` are comments; a
-/// UTF-8 byte-order mark and CRLF line ends are accepted. `cases` are the
+/// Cells, comments, a byte-order mark and line ends as [`crate::util::table`]
+/// reads them (trimmed, may be quoted; `#` lines are comments); an empty
+/// cell, or a cell missing at the end of a short row, is "not measured";
+/// cells beyond the header must be empty (trailing commas). `cases` are the
 /// experiment's load cases, `check_pair` validates each `upper`/`lower`.
 pub fn parse_kinematics(
     text: &str,
@@ -687,22 +683,15 @@ pub fn parse_kinematics(
     units: &Units,
     check_pair: &PairCheck,
 ) -> Result<Vec<Measurement>> {
-    let text = strip_bom(text);
-    // `#` comment lines blanked here: the csv crate would not count them in
-    // its line numbers.
-    let text = crate::util::blank_comment_lines(text);
-    let lines = crate::util::CsvLines::new(&text);
-    let line_at = |p: &csv::Position| lines.line(p);
-    let mut rdr = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .flexible(true)
-        .trim(csv::Trim::All)
-        .from_reader(text.as_bytes());
-    let headers = rdr
-        .headers()
-        .map_err(|e| Error::parse(path, "line 1", format!("cannot read the header: {e}")))?
-        .clone();
-    let header_line = headers.position().map(line_at).unwrap_or(1);
+    let mut rows = CsvReader::new(text, path).records();
+    let Some(headers) = rows.next().transpose()? else {
+        return Err(Error::parse(
+            path,
+            "line 1",
+            "missing column 'case' (expected case,upper,lower,rx,ry,rz,tx,ty,tz): no header row",
+        ));
+    };
+    let header_line = headers.line();
     let mut col = [0usize; 9];
     for (k, name) in ["case", "upper", "lower"]
         .iter()
@@ -710,7 +699,7 @@ pub fn parse_kinematics(
         .enumerate()
     {
         let hits: Vec<usize> = headers
-            .iter()
+            .cells()
             .enumerate()
             .filter(|(_, h)| h.eq_ignore_ascii_case(name))
             .map(|(i, _)| i)
@@ -718,21 +707,14 @@ pub fn parse_kinematics(
         match hits.as_slice() {
             [one] => col[k] = *one,
             [] => {
-                return Err(Error::parse(
+                return Err(headers.error(
                     path,
-                    format!("line {header_line}"),
                     format!(
                         "missing column '{name}' (expected case,upper,lower,rx,ry,rz,tx,ty,tz)"
                     ),
                 ))
             }
-            _ => {
-                return Err(Error::parse(
-                    path,
-                    format!("line {header_line}"),
-                    format!("column '{name}' appears more than once"),
-                ))
-            }
+            _ => return Err(headers.error(path, format!("column '{name}' appears more than once"))),
         }
     }
     let sd_col = sd_columns(&headers, path, header_line)?;
@@ -743,21 +725,15 @@ pub fn parse_kinematics(
         .collect();
     let mut out = Vec::new();
     let mut seen: BTreeMap<(usize, String, String), u64> = BTreeMap::new();
-    for rec in rdr.records() {
-        let rec = rec.map_err(|e| {
-            let at = e
-                .position()
-                .map(|p| format!("line {}", line_at(p)))
-                .unwrap_or_else(|| "file".into());
-            Error::parse(path, at, e.to_string())
-        })?;
-        let line = rec.position().map(line_at).unwrap_or(0);
-        let at = format!("line {line}");
-        if rec.iter().all(str::is_empty) {
+    for rec in rows {
+        let rec = rec?;
+        let line = rec.line();
+        let at = rec.at();
+        if rec.all_empty() {
             continue; // a row of empty cells (spreadsheet export)
         }
         if let Some((k, cell)) = rec
-            .iter()
+            .cells()
             .enumerate()
             .skip(headers.len())
             .find(|(_, c)| !c.is_empty())
@@ -772,7 +748,7 @@ pub fn parse_kinematics(
                 ),
             ));
         }
-        let field = |k: usize| rec.get(col[k]).unwrap_or("");
+        let field = |k: usize| rec.cell(col[k]);
         let id = field(0);
         let Some(&ci) = case_idx.get(id) else {
             return Err(Error::parse(
@@ -788,7 +764,7 @@ pub fn parse_kinematics(
         let mut sd = [None; 6];
         for d in 0..6 {
             values[d] = parse_value(field(3 + d), d, units, path, &at)?;
-            let s = sd_col[d].and_then(|k| rec.get(k)).unwrap_or("");
+            let s = sd_col[d].map_or("", |k| rec.cell(k));
             sd[d] = parse_sd(s, d, units, path, &at)?;
         }
         if let Some(prev) = seen.insert((ci, upper.clone(), lower.clone()), line) {
@@ -816,16 +792,12 @@ pub fn parse_kinematics(
 }
 
 /// The optional uncertainty columns `sd_rx` .. `sd_tz` (by name, any case).
-fn sd_columns(
-    headers: &csv::StringRecord,
-    path: &Path,
-    header_line: u64,
-) -> Result<[Option<usize>; 6]> {
+fn sd_columns(headers: &CsvRecord, path: &Path, header_line: u64) -> Result<[Option<usize>; 6]> {
     let mut out = [None; 6];
     for (d, slot) in out.iter_mut().enumerate() {
         let name = format!("sd_{}", DOF_NAMES[d]);
         let hits: Vec<usize> = headers
-            .iter()
+            .cells()
             .enumerate()
             .filter(|(_, h)| h.eq_ignore_ascii_case(&name))
             .map(|(i, _)| i)
@@ -1161,6 +1133,17 @@ follower_load = 400.0
             (rows[0].upper.as_str(), rows[0].lower.as_str()),
             ("lumbar5", "sacrum")
         );
+        // a quoted note holding commas stays one (ignored) cell; a bad cell
+        // names its line of the file (BOM, comment, CRLF, blank line counted)
+        let text = "\u{feff}# rig\r\ncase,upper,lower,rx,ry,rz,tx,ty,tz,note\r\n\r\nLB,lumbar5,sacrum,1,2,3,,,,\"a, b, c\"\r\nFE_neg_7.5,lumbar5,sacrum,\"4,5\",6,7\r\n";
+        let e = kin(text).unwrap_err().to_string();
+        assert!(
+            e.contains("kinematics.csv: line 5: column rx: '4,5' is not a number"),
+            "{e}"
+        );
+        let q = kin(&text.replace("\"4,5\"", "4.5")).unwrap();
+        assert_eq!((q.len(), q[0].line, q[1].line), (2, 4, 5));
+        assert!((q[1].values[0].unwrap() - 4.5 * d2r).abs() < 1e-15);
         assert_eq!(rows[0].case, 0);
         assert_eq!(rows[2].case, 1);
         for (r, want) in rows

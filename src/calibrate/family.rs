@@ -1042,38 +1042,31 @@ pub fn read_ratio_table(path: &std::path::Path) -> Result<RatioTable> {
             )?;
         }
     } else {
-        let mut rdr = csv::ReaderBuilder::new()
-            .trim(csv::Trim::All)
-            .from_reader(text.as_bytes());
-        let headers = rdr
-            .headers()
-            .map_err(|e| Error::parse(path, "line 1", e.to_string()))?
-            .clone();
-        let col = |n: &str| headers.iter().position(|h| h == n);
-        let Some(lc) = col("level") else {
+        let mut rows = crate::util::table::CsvReader::new(&text, path).records();
+        let Some(headers) = rows.next().transpose()? else {
             return Err(Error::parse(
                 path,
                 "line 1",
-                "missing column 'level' (expected level,rx,ry,rz)",
+                "missing column 'level' (expected level,rx,ry,rz): no header row",
             ));
+        };
+        let col = |n: &str| headers.cells().position(|h| h == n);
+        let Some(lc) = col("level") else {
+            return Err(headers.error(path, "missing column 'level' (expected level,rx,ry,rz)"));
         };
         let cols: Vec<Option<usize>> = DOF_NAMES.iter().map(|d| col(d)).collect();
         if cols.iter().all(|c| c.is_none()) {
-            return Err(Error::parse(
-                path,
-                "line 1",
-                "no DoF column (rx, ry, rz, tx, ty, tz)",
-            ));
+            return Err(headers.error(path, "no DoF column (rx, ry, rz, tx, ty, tz)"));
         }
-        for rec in rdr.records() {
-            let rec = rec.map_err(|e| Error::parse(path, "file", e.to_string()))?;
-            let line = rec.position().map(|p| p.line()).unwrap_or(0);
-            let at = format!("line {line}");
-            let name = rec.get(lc).unwrap_or("").to_string();
+        for rec in rows {
+            let rec = rec?;
+            let at = rec.at();
+            rec.check_width(&headers, path)?;
+            let name = rec.cell(lc).to_string();
             let mut vals = [None; 6];
             for (d, c) in cols.iter().enumerate() {
                 let Some(c) = c else { continue };
-                let s = rec.get(*c).unwrap_or("");
+                let s = rec.cell(*c);
                 if s.is_empty() {
                     continue;
                 }
@@ -1155,5 +1148,23 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("twice"));
+        // BOM, comments, CRLF, quoted cells; a bad cell names its file line
+        std::fs::write(
+            &p,
+            "\u{feff}# ratios\r\nlevel,rx,ry\r\n\r\n\"L4_L5\",\"1\",2\r\nL5_S1,\"1,5\",2\r\n",
+        )
+        .unwrap();
+        let e = read_ratio_table(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("line 5: column rx: '1,5' is not a number"),
+            "{e}"
+        );
+        std::fs::write(
+            &p,
+            "\u{feff}# ratios\r\nlevel,rx,ry\r\n\r\n\"L4_L5\",\"1\",2\r\n",
+        )
+        .unwrap();
+        let t = read_ratio_table(&p).unwrap();
+        assert_eq!(t["L4L5"][..2], [Some(1.0), Some(2.0)]);
     }
 }

@@ -50,6 +50,7 @@ use crate::error::{Error, Result};
 use crate::generate::Registration;
 use crate::landmarks::{Frame, LandmarkSet, Level, Units};
 use crate::osim::Document;
+use crate::util::table::{comment_value, CsvItem, CsvReader};
 use nalgebra::{Isometry3, Point3};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -148,57 +149,48 @@ pub fn parse_centres_csv(text: &str, path: &Path) -> Result<BTreeMap<Level, Poin
     let mut frame = None;
     let mut header = false;
     let mut out = BTreeMap::new();
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    for (i, line) in text.lines().enumerate() {
-        let ln = i + 1;
-        let t = line.trim();
-        if t.is_empty() {
-            continue;
-        }
-        if let Some(c) = t.strip_prefix('#') {
-            if let Some((k, v)) = c.split_once(':') {
-                match k.trim().to_ascii_lowercase().as_str() {
-                    "units" => {
-                        units = Some(Units::parse_label(v).ok_or_else(|| {
-                            Error::parse(
-                                path,
-                                format!("line {ln}"),
-                                format!("unknown units `{}` (mm or m)", v.trim()),
-                            )
-                        })?)
-                    }
-                    "frame" => {
-                        frame = Some(Frame::parse_label(v).ok_or_else(|| {
-                            Error::parse(
-                                path,
-                                format!("line {ln}"),
-                                format!("unknown frame `{}` (LPS, RAS or opensim)", v.trim()),
-                            )
-                        })?)
-                    }
-                    _ => {}
+    for item in CsvReader::new(text, path) {
+        let rec = match item? {
+            CsvItem::Comment(c) => {
+                let ln = c.line;
+                if let Some(v) = comment_value(&c.text, "units") {
+                    units = Some(Units::parse_label(v).ok_or_else(|| {
+                        Error::parse(
+                            path,
+                            format!("line {ln}"),
+                            format!("unknown units `{v}` (mm or m)"),
+                        )
+                    })?)
+                } else if let Some(v) = comment_value(&c.text, "frame") {
+                    frame = Some(Frame::parse_label(v).ok_or_else(|| {
+                        Error::parse(
+                            path,
+                            format!("line {ln}"),
+                            format!("unknown frame `{v}` (LPS, RAS or opensim)"),
+                        )
+                    })?)
                 }
+                continue;
             }
-            continue;
-        }
-        let f: Vec<&str> = t.split(',').map(|s| s.trim()).collect();
+            CsvItem::Record(rec) => rec,
+        };
+        let ln = rec.line();
+        let f: Vec<&str> = rec.cells().collect();
         if !header {
             if f.len() != 4 || !f[0].eq_ignore_ascii_case("level") {
-                return Err(Error::parse(
+                return Err(rec.error(
                     path,
-                    format!("line {ln}"),
-                    format!("expected the header `level,x,y,z`, found `{t}`"),
+                    format!(
+                        "expected the header `level,x,y,z`, found `{}`",
+                        rec.source()
+                    ),
                 ));
             }
             header = true;
             continue;
         }
         if f.len() != 4 {
-            return Err(Error::parse(
-                path,
-                format!("line {ln}"),
-                format!("expected 4 fields, found {}", f.len()),
-            ));
+            return Err(rec.error(path, format!("expected 4 fields, found {}", f.len())));
         }
         let level: Level = f[0].parse().map_err(|_| {
             Error::parse(
@@ -962,4 +954,27 @@ fn poly_curve(c: &BTreeMap<Level, Point3<f64>>) -> Vec<Point3<f64>> {
             Point3::new(px.eval(y), y, pz.eval(y))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn centres_csv_with_bom_crlf_quotes_and_the_line_of_a_bad_cell() {
+        let text = "\u{feff}# units: mm\r\n# frame: opensim\r\n\r\nlevel,x,y,z\r\n\"L1\", \"1\" ,2,3\r\n# the next level\r\nL2,4,5,6\r\n";
+        let c = parse_centres_csv(text, Path::new("c.csv")).unwrap();
+        assert_eq!(c.len(), 2);
+        assert!((c[&Level::L1] - Point3::new(1e-3, 2e-3, 3e-3)).norm() < 1e-15);
+        assert!((c[&Level::L2] - Point3::new(4e-3, 5e-3, 6e-3)).norm() < 1e-15);
+        // `"4,5"` is one cell (not a fifth field), refused as a number on line 7
+        let bad = text.replace("L2,4,5,6", "L2,\"4,5\",6,7");
+        let e = parse_centres_csv(&bad, Path::new("c.csv"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("c.csv: line 7: column 2: expected a finite number, found `4,5`"),
+            "{e}"
+        );
+    }
 }

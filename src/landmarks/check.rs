@@ -75,6 +75,7 @@ use super::synth::local_position;
 use super::{Code, LandmarkId, LandmarkSet, Level};
 use crate::anatomy::DimensionTable;
 use crate::util::messages::shown;
+use crate::util::table::CsvReader;
 use nalgebra::{DMatrix, Point3, Vector3};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -902,8 +903,12 @@ pub fn base_layout() -> &'static BTreeMap<Level, BTreeMap<Code, Vector3<f64>>> {
         std::sync::OnceLock::new();
     LAYOUT.get_or_init(|| {
         let mut out: BTreeMap<Level, BTreeMap<Code, Vector3<f64>>> = BTreeMap::new();
-        for line in LAYOUT_CSV.lines().filter(|l| !l.starts_with('#')).skip(1) {
-            let f: Vec<&str> = line.split(',').collect();
+        let path = Path::new("templates/landmark_layout.csv");
+        let rows = CsvReader::new(LAYOUT_CSV, path)
+            .records()
+            .map_while(Result::ok);
+        for row in rows.skip(1) {
+            let f: Vec<&str> = row.cells().collect();
             let [lev, code, x, y, z] = f.as_slice() else {
                 continue;
             };

@@ -24,12 +24,14 @@
 //!   and named in the notes; duplicate names are detected (not silently
 //!   merged).
 //! - Every reader accepts a UTF-8 byte-order mark and CRLF line ends; CSV
-//!   cells may be quoted and rows may end with empty cells (trailing commas).
+//!   is split by [`crate::util::table`] (cells may be quoted, and a quoted
+//!   cell may hold commas); rows may end with empty cells (trailing commas).
 //! - Files larger than [`MAX_FILE_BYTES`] are refused before reading.
 
 pub use super::raw::{FileFormat, Palpation, RawLandmarks, RawPoint};
 use super::{Frame, LandmarkId, LandmarkSet, Units};
 use crate::error::{Error, Result};
+use crate::util::table::{comment_value, strip_bom, unquote, CsvReader};
 use crate::util::{fmt_f64, write_atomic};
 use std::path::Path;
 
@@ -93,20 +95,8 @@ pub fn load(path: &Path) -> Result<LandmarkSet> {
     read_path(path)?.to_set()
 }
 
-/// Strip a UTF-8 byte-order mark (spreadsheet and Windows editors write one).
-pub(crate) fn strip_bom(text: &str) -> &str {
-    text.strip_prefix('\u{feff}').unwrap_or(text)
-}
-
-pub(crate) fn strip_quotes(s: &str) -> &str {
-    let t = s.trim();
-    t.strip_prefix('"')
-        .and_then(|x| x.strip_suffix('"'))
-        .unwrap_or(t)
-}
-
 pub(crate) fn parse_number(s: &str, path: &Path, line: usize, col: &str) -> Result<f64> {
-    let t = strip_quotes(s);
+    let t = unquote(s);
     let v: f64 = t.parse().map_err(|_| {
         Error::parse(
             path,
@@ -124,16 +114,6 @@ pub(crate) fn parse_number(s: &str, path: &Path, line: usize, col: &str) -> Resu
     Ok(v)
 }
 
-pub(crate) fn header_value<'a>(comment: &'a str, key: &str) -> Option<&'a str> {
-    let c = comment.trim_start_matches('#').trim();
-    let (k, v) = c.split_once(':')?;
-    if k.trim().eq_ignore_ascii_case(key) {
-        Some(v.trim())
-    } else {
-        None
-    }
-}
-
 /// The `#` header lines of a landmark CSV seen so far.
 #[derive(Default)]
 struct CsvHeader {
@@ -147,20 +127,20 @@ impl CsvHeader {
     /// Take one `# key: value` line (other comments are ignored).
     fn read(&mut self, line: &str, line_no: usize, path: &Path) -> Result<()> {
         let err = |msg: String| Error::parse(path, format!("line {line_no}"), msg);
-        if let Some(v) = header_value(line, "units") {
+        if let Some(v) = comment_value(line, "units") {
             self.units = Some(
                 Units::parse_label(v)
                     .ok_or_else(|| err(format!("`# units: {v}`: expected `mm` or `m`")))?,
             );
-        } else if let Some(v) = header_value(line, "frame") {
+        } else if let Some(v) = comment_value(line, "frame") {
             self.frame = Some(Frame::parse_label(v).ok_or_else(|| {
                 err(format!(
                     "`# frame: {v}`: expected `LPS`, `RAS` or `opensim`"
                 ))
             })?);
-        } else if let Some(v) = header_value(line, "operator") {
+        } else if let Some(v) = comment_value(line, "operator") {
             self.operator = Some(v.to_string());
-        } else if let Some(v) = header_value(line, "repetition") {
+        } else if let Some(v) = comment_value(line, "repetition") {
             self.repetition =
                 Some(v.parse().map_err(|_| {
                     err(format!("`# repetition: {v}`: expected a positive integer"))
@@ -261,30 +241,20 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Vec<Palpation>> {
     let mut columns: Option<CsvColumns> = None;
     // Palpations in order of first appearance.
     let mut groups: Vec<((String, u32), Vec<RawPoint>)> = Vec::new();
-    for (i, raw_line) in strip_bom(text).lines().enumerate() {
-        let line_no = i + 1;
-        let line = raw_line.trim();
-        if line.is_empty() {
+    for item in CsvReader::new(text, path) {
+        let Some(rec) = item?.record_or(|c| header.read(&c.text, c.line as usize, path))? else {
             continue;
-        }
-        if line.starts_with('#') {
-            header.read(line, line_no, path)?;
-            continue;
-        }
-        let mut fields: Vec<&str> = line.split(',').map(strip_quotes).collect();
+        };
+        let line_no = rec.line() as usize;
         // Trailing empty cells (spreadsheet exports write `a,b,c,`) are not fields.
-        let keep = columns.map(|c| c.n).unwrap_or(1);
-        while fields.len() > keep && fields.last().is_some_and(|f| f.is_empty()) {
-            fields.pop();
-        }
+        let fields = rec.cells_trimmed(columns.map(|c| c.n).unwrap_or(1));
         let Some(cols) = columns else {
-            columns = Some(csv_columns(&fields, line, line_no, path)?);
+            columns = Some(csv_columns(&fields, rec.source(), line_no, path)?);
             continue;
         };
         if fields.len() != cols.n {
-            return Err(Error::parse(
+            return Err(rec.error(
                 path,
-                format!("line {line_no}"),
                 format!(
                     "expected {} comma-separated fields, found {}",
                     cols.n,

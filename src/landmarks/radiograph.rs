@@ -22,9 +22,10 @@
 //! dividing by the [`Projection::magnification`] brings them to the
 //! patient's scale.
 
-use super::io::{header_value, parse_number, strip_bom, strip_quotes};
+use super::io::parse_number;
 use super::{Code, LandmarkId, Level, Units};
 use crate::error::{Error, Result};
+use crate::util::table::{comment_value, CsvReader};
 use nalgebra::Vector2;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -205,16 +206,16 @@ struct Header {
 impl Header {
     fn read(&mut self, line: &str, line_no: usize, path: &Path) -> Result<()> {
         let err = |msg: String| Error::parse(path, format!("line {line_no}"), msg);
-        if let Some(v) = header_value(line, "units") {
+        if let Some(v) = comment_value(line, "units") {
             self.units = Some(
                 Units::parse_label(v)
                     .ok_or_else(|| err(format!("`# units: {v}`: expected `mm` or `m`")))?,
             );
-        } else if let Some(v) = header_value(line, "projection") {
+        } else if let Some(v) = comment_value(line, "projection") {
             self.projection = Some(parse_projection(v, &err)?);
-        } else if let Some(v) = header_value(line, "axes") {
+        } else if let Some(v) = comment_value(line, "axes") {
             self.axes = Some(parse_axes(v, &err)?);
-        } else if let Some(v) = header_value(line, "film") {
+        } else if let Some(v) = comment_value(line, "film") {
             self.film = Some(v.to_string());
         }
         Ok(())
@@ -300,26 +301,19 @@ pub fn parse(text: &str, path: &Path) -> Result<Radiograph> {
     let mut header = Header::default();
     let mut seen_columns = false;
     let mut raw: BTreeMap<FilmPoint, (Vector2<f64>, usize)> = BTreeMap::new();
-    for (i, raw_line) in strip_bom(text).lines().enumerate() {
-        let line_no = i + 1;
-        let line = raw_line.trim();
-        if line.is_empty() {
+    for item in CsvReader::new(text, path) {
+        let Some(rec) = item?.record_or(|c| header.read(&c.text, c.line as usize, path))? else {
             continue;
-        }
-        if line.starts_with('#') {
-            header.read(line, line_no, path)?;
-            continue;
-        }
-        let err = |msg: String| Error::parse(path, format!("line {line_no}"), msg);
-        let mut fields: Vec<&str> = line.split(',').map(strip_quotes).collect();
-        while fields.len() > 3 && fields.last().is_some_and(|f| f.is_empty()) {
-            fields.pop();
-        }
+        };
+        let line_no = rec.line() as usize;
+        let err = |msg: String| rec.error(path, msg);
+        let fields = rec.cells_trimmed(3);
         if !seen_columns {
             let lower: Vec<String> = fields.iter().map(|f| f.to_ascii_lowercase()).collect();
             if lower != ["name", "u", "v"] {
                 return Err(err(format!(
-                    "expected the header `name,u,v`, found `{line}`"
+                    "expected the header `name,u,v`, found `{}`",
+                    rec.source()
                 )));
             }
             seen_columns = true;
@@ -536,5 +530,20 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("D > d"), "{e}");
+    }
+
+    #[test]
+    fn bom_crlf_quotes_and_the_line_of_a_bad_cell() {
+        let t = "\u{feff}# units: mm\r\n# projection: orthographic\r\n\r\nname,u,v\r\n\"T1_SR\",\"10\",20\r\nFH_L,100,-3\r\n";
+        let r = p(t).unwrap();
+        let got = r.get(FilmPoint::parse("T1_SR").unwrap()).unwrap();
+        assert!((got - Vector2::new(0.01, 0.02)).norm() < 1e-15, "{got}");
+        // `"12,5"` is one cell (a decimal comma), refused on line 6
+        let bad = t.replace("FH_L,100,", "FH_L,\"12,5\",");
+        let e = p(&bad).unwrap_err().to_string();
+        assert!(
+            e.contains("film.csv: line 6: column `u`: expected a number, found `12,5`"),
+            "{e}"
+        );
     }
 }

@@ -12,6 +12,7 @@
 use crate::error::{Error, Result};
 use crate::osim::physics::MAX_STIFFNESS;
 use crate::solver::spec::DOF_NAMES;
+use crate::util::table::{strip_bom, CsvReader, CsvRecord};
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -504,7 +505,7 @@ fn toml_row(path: &Path, loc: String, r: &TomlRow, units: &Units) -> Result<Row>
 
 /// Parse a TOML table (`path` names it in messages).
 pub fn parse_toml(text: &str, path: &Path) -> Result<Table> {
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let text = strip_bom(text);
     let f: TomlFile = toml::from_str(text)
         .map_err(|e| Error::parse(path, "TOML", e.to_string().trim_end().to_string()))?;
     if let Some(fmt) = &f.format {
@@ -579,33 +580,20 @@ pub fn parse_toml(text: &str, path: &Path) -> Result<Table> {
 /// columns `ratio_rx .. ratio_tz` (unit `1`), then one row per level (`*`:
 /// every level). Empty cells are "not given". Linear form only.
 pub fn parse_csv(text: &str, path: &Path) -> Result<Table> {
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    // `#` comment lines blanked here: the csv crate would not count them in
-    // its line numbers.
-    let text = crate::util::blank_comment_lines(text);
-    let lines = crate::util::CsvLines::new(&text);
-    let line_at = |p: &csv::Position| lines.line(p);
-    let mut rdr = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .flexible(false)
-        .trim(csv::Trim::All)
-        .from_reader(text.as_bytes());
-    let mut records = rdr.records();
+    let mut records = CsvReader::new(text, path).records();
     // The header row: what each column holds, in which unit.
-    let header = match records.next() {
-        Some(Ok(h)) => h,
-        Some(Err(e)) => return Err(Error::parse(path, "line 1", e.to_string())),
-        None => return Err(Error::parse(path, "line 1", "empty table (no header row)")),
+    let Some(header) = records.next().transpose()? else {
+        return Err(Error::parse(path, "line 1", "empty table (no header row)"));
     };
-    let hline = header.position().map(line_at).unwrap_or(1);
+    let hline = header.line();
     let cols = csv_columns(&header, hline, path)?;
     // One row per level; the `*` row (at most one) is `[all]`.
     let mut all = None;
     let mut levels = Vec::new();
     for rec in records {
-        let rec = rec.map_err(|e| Error::parse(path, "CSV", e.to_string()))?;
-        let line = rec.position().map(line_at).unwrap_or(0);
-        let mut row = csv_row(&rec, line, &cols, path)?;
+        let rec = rec?;
+        rec.check_width(&header, path)?;
+        let mut row = csv_row(&rec, rec.line(), &cols, path)?;
         if row.name == "*" {
             if all.is_some() {
                 return Err(Error::parse(path, &row.location, "a second `*` row"));
@@ -636,14 +624,10 @@ type CsvColumn = (CsvKind, usize, f64);
 
 /// The columns of the header row at line `hline` (`None` for `level`):
 /// known names, each once, with an accepted unit.
-fn csv_columns(
-    header: &csv::StringRecord,
-    hline: u64,
-    path: &Path,
-) -> Result<Vec<Option<CsvColumn>>> {
+fn csv_columns(header: &CsvRecord, hline: u64, path: &Path) -> Result<Vec<Option<CsvColumn>>> {
     let mut cols: Vec<Option<CsvColumn>> = Vec::new();
     let mut seen = std::collections::BTreeSet::new();
-    for (ci, h) in header.iter().enumerate() {
+    for (ci, h) in header.cells().enumerate() {
         let loc = format!("line {hline}, column {}", ci + 1);
         if ci == 0 {
             if h != "level" {
@@ -732,13 +716,8 @@ fn csv_unit_factor(
 
 /// The level row of record `rec` at `line`: its name and the non-empty
 /// cells of the value columns, converted to SI.
-fn csv_row(
-    rec: &csv::StringRecord,
-    line: u64,
-    cols: &[Option<CsvColumn>],
-    path: &Path,
-) -> Result<Row> {
-    let name = rec.get(0).unwrap_or("").to_string();
+fn csv_row(rec: &CsvRecord, line: u64, cols: &[Option<CsvColumn>], path: &Path) -> Result<Row> {
+    let name = rec.cell(0).to_string();
     if name.is_empty() {
         return Err(Error::parse(
             path,
@@ -753,7 +732,7 @@ fn csv_row(
         form: Some(Form::Linear),
         ..Row::default()
     };
-    for (ci, cell) in rec.iter().enumerate().skip(1) {
+    for (ci, cell) in rec.cells().enumerate().skip(1) {
         let Some(Some((kind, i, f))) = cols.get(ci) else {
             continue;
         };
@@ -1041,6 +1020,28 @@ mod tests {
         let bad = format!("# a\n{head}# b\nL5_S1,68.8,149\nL4_L5,x,149\n");
         let e = parse_csv(&bad, Path::new("t.csv")).unwrap_err().to_string();
         assert!(e.contains("line 5"), "{e}");
+        // CRLF, a blank line, a quoted cell: `"68,8"` is one cell (not a
+        // fourth column), refused as a number on its own line
+        let crlf =
+            format!("\u{feff}# a\r\n{head}\r\n\"L4_L5\",\"68,8\",149\r\n").replace("]\n", "]\r\n");
+        let e = parse_csv(&crlf, Path::new("t.csv"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("t.csv: line 4 'L4_L5': column 2: '68,8' is not a number"),
+            "{e}"
+        );
+        // a row of another width than the header names its line
+        let e = parse_csv(
+            &format!("{head}L5_S1,68.8,149\nL4_L5,1\n"),
+            Path::new("t.csv"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("t.csv: line 3: 2 cells, but the header row (line 1) has 3"),
+            "{e}"
+        );
     }
 
     #[test]
