@@ -99,6 +99,87 @@ impl FromStr for Level {
     }
 }
 
+/// Serialised as its name (`T12`), as in every report.
+impl serde::Serialize for Level {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Level {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let s = String::deserialize(d)?;
+        s.parse().map_err(|()| {
+            serde::de::Error::custom(format!(
+                "'{s}' is not a vertebral level (T1..T12, L1..L5, S1)"
+            ))
+        })
+    }
+}
+
+/// Suffix of a bushing's name that its level name drops.
+pub const BUSHING_SUFFIX: &str = "_bushing";
+
+/// The level name of a bushing, the one naming rule of intervertebral
+/// levels: its name without a trailing `_bushing` (`L5_S1_bushing` ->
+/// `L5_S1`), else its name (also when nothing would be left).
+pub fn bushing_level_name(bushing: &str) -> &str {
+    bushing
+        .strip_suffix(BUSHING_SUFFIX)
+        .filter(|s| !s.is_empty())
+        .unwrap_or(bushing)
+}
+
+/// An intervertebral level (motion segment): two adjacent vertebral levels,
+/// the cranial one first. Named `<upper>_<lower>` (`T12_L1`), its bushing
+/// `<upper>_<lower>_bushing` ([`bushing_level_name`] gives the name back).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct MotionSegment {
+    /// The cranial vertebra.
+    pub upper: Level,
+    /// The caudal vertebra ([`Level::caudal`] of `upper`).
+    pub lower: Level,
+}
+
+impl MotionSegment {
+    /// The segment below `upper` (None for S1).
+    pub fn below(upper: Level) -> Option<MotionSegment> {
+        Some(MotionSegment {
+            upper,
+            lower: upper.caudal()?,
+        })
+    }
+
+    /// The name of its bushing.
+    pub fn bushing_name(self) -> String {
+        format!("{self}{BUSHING_SUFFIX}")
+    }
+}
+
+impl fmt::Display for MotionSegment {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}_{}", self.upper, self.lower)
+    }
+}
+
+impl FromStr for MotionSegment {
+    type Err = ();
+    /// Parses `<upper>_<lower>` of two adjacent levels, cranial first (`T12_L1`, case-insensitive).
+    fn from_str(s: &str) -> Result<Self, ()> {
+        let (u, l) = s.trim().split_once('_').ok_or(())?;
+        let upper: Level = u.parse()?;
+        MotionSegment::below(upper)
+            .filter(|m| Ok(m.lower) == l.parse())
+            .ok_or(())
+    }
+}
+
+impl serde::Serialize for MotionSegment {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
 /// The embedded CSV text.
 pub const EMBEDDED_CSV: &str = include_str!("../templates/vertebra_dimensions.csv");
 
@@ -360,5 +441,35 @@ mod tests {
         let text = EMBEDDED_CSV.replace("T5,28.5", "T5,abc");
         let e = DimensionTable::parse(&text, Path::new("t.csv")).unwrap_err();
         assert!(e.to_string().contains("expected a number"), "{e}");
+    }
+
+    #[test]
+    fn level_serialises_as_its_name_and_back() {
+        for l in Level::ALL {
+            let json = serde_json::to_string(&l).unwrap();
+            assert_eq!(json, format!("\"{l}\""));
+            assert_eq!(serde_json::from_str::<Level>(&json).unwrap(), l);
+        }
+        assert!(serde_json::from_str::<Level>("\"pelvis\"").is_err());
+    }
+
+    #[test]
+    fn motion_segments_follow_the_bushing_naming_rule() {
+        let m: MotionSegment = "t12_L1".parse().unwrap();
+        assert_eq!((m.upper, m.lower), (Level::T12, Level::L1));
+        assert_eq!(m.to_string(), "T12_L1");
+        assert_eq!(m.bushing_name(), "T12_L1_bushing");
+        assert_eq!(bushing_level_name(&m.bushing_name()), "T12_L1");
+        assert_eq!(bushing_level_name("_bushing"), "_bushing");
+        assert_eq!(bushing_level_name("disc"), "disc");
+        // not adjacent, caudal first, S1 has no segment below
+        for bad in ["T11_L1", "L1_T12", "S1_S2", "L5", "L5_S1_x"] {
+            assert!(bad.parse::<MotionSegment>().is_err(), "{bad}");
+        }
+        assert_eq!(MotionSegment::below(Level::S1), None);
+        assert_eq!(
+            serde_json::to_string(&MotionSegment::below(Level::L5).unwrap()).unwrap(),
+            "\"L5_S1\""
+        );
     }
 }

@@ -129,6 +129,9 @@ pub enum DataError {
     /// The named function's abscissae do not strictly increase.
     #[error("{0} abscissae must be strictly increasing")]
     NotIncreasing(&'static str),
+    /// A function of an OpenSim class that is not evaluated (its class).
+    #[error("function class {0} is not supported")]
+    Unsupported(String),
     /// A sinh curve's scale `a` is zero.
     #[error("sinh curve needs a non-zero scale a")]
     ZeroSinhScale,

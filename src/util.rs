@@ -12,6 +12,7 @@ pub mod output;
 pub mod progress;
 pub mod quantiles;
 pub mod report;
+pub mod scalar;
 pub mod svg;
 pub mod table;
 

@@ -251,7 +251,7 @@ fn posed_base_round_trip_gives_back_its_meshes_and_joints() {
     .unwrap();
     let mut cworst = 0.0f64;
     for (l, c) in base_centres.iter().filter(|(l, _)| !l.is_sacrum()) {
-        let rule = geo.meshes.iter().find(|r| r.level == l.to_string());
+        let rule = geo.meshes.iter().find(|r| r.level == *l);
         assert_eq!(
             rule.and_then(|r| r.sphere_centre_rule),
             Some(osim_spine::generate::geometry::CentreRule::CarriedFromBase),

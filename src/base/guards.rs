@@ -48,7 +48,7 @@ impl Guard {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct GuardFailure {
     pub guard: Guard,
-    pub level: String,
+    pub level: Level,
     pub landmark: Option<String>,
     /// The offending distance (mm).
     pub distance_mm: f64,
@@ -67,7 +67,7 @@ impl std::fmt::Display for GuardFailure {
 fn fail(guard: Guard, level: Level, code: Option<Code>, d: f64, message: String) -> GuardFailure {
     GuardFailure {
         guard,
-        level: level.to_string(),
+        level,
         landmark: code.map(|c| c.to_string()),
         distance_mm: d * 1e3,
         message,

@@ -132,7 +132,7 @@ pub(crate) fn body_sphere(
         source.push_str("; the body-only mesh given is not used for the centre");
     }
     wrap::SphereRow {
-        level: v.level.to_string(),
+        level: Some(v.level),
         body: v.body.clone(),
         name: format!("{}_body_sphere", v.level),
         centre: [p.centre.x, p.centre.y, p.centre.z],

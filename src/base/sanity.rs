@@ -19,6 +19,7 @@
 //! The shared `geometry/` meshes of the cyclist model fail rule 1 by
 //! centimetres; `geometry-bodyframe/` passes.
 
+use crate::anatomy::Level;
 use crate::mesh::MeshQuery;
 use nalgebra::{Point3, Vector3};
 
@@ -54,7 +55,7 @@ impl Segment {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SanityRow {
     /// Level name (T1..L5).
-    pub level: String,
+    pub level: Level,
     /// Body name.
     pub body: String,
     /// Mesh file as referenced by the model.
@@ -77,7 +78,7 @@ pub struct SanityRow {
 
 /// Check one mesh (in its body frame) against its segment.
 pub fn check_vertebra(
-    level: &str,
+    level: Level,
     body: &str,
     mesh_file: &str,
     q: &MeshQuery,
@@ -132,7 +133,7 @@ pub fn check_vertebra(
         ));
     }
     SanityRow {
-        level: level.to_string(),
+        level,
         body: body.to_string(),
         mesh_file: mesh_file.to_string(),
         segment_height: h,

@@ -179,15 +179,7 @@ fn vertebra_segments(
 fn check_geometry(vs: &[Vert], gfile: &str) -> Result<Vec<SanityRow>> {
     let sanity: Vec<SanityRow> = vs
         .iter()
-        .map(|v| {
-            sanity::check_vertebra(
-                &v.level.to_string(),
-                &v.body,
-                &v.mesh_file,
-                &v.query,
-                &v.seg,
-            )
-        })
+        .map(|v| sanity::check_vertebra(v.level, &v.body, &v.mesh_file, &v.query, &v.seg))
         .collect();
     let bad: Vec<String> = sanity
         .iter()

@@ -29,6 +29,7 @@
 //!   the whole path (range -1 -1).
 
 use super::kin::{point_segment_distance, Values};
+use crate::anatomy::Level;
 use nalgebra::Point3;
 
 /// Extra reach of the crossing rule beyond the radius (m).
@@ -43,7 +44,8 @@ pub const TEST_FE: f64 = 10.0 * std::f64::consts::PI / 180.0;
 /// One fitted sphere, body frame.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SphereRow {
-    pub level: String,
+    /// The vertebra (None: a sphere of a model on another body, refitted by `generate`).
+    pub level: Option<Level>,
     pub body: String,
     /// WrapSphere name (`<LEVEL>_body_sphere`).
     pub name: String,

@@ -23,6 +23,7 @@
 //! they are ([`Scale::Linear`], neutral value 0 inside the bounds).
 
 use super::forms::{self, CurveForm};
+use crate::anatomy::bushing_level_name;
 use crate::calibrate::experiment::DOF_NAMES;
 use crate::error::{Error, Result};
 use crate::solver::scalar::Scalar;
@@ -196,9 +197,10 @@ fn stiffness_unit(d: usize) -> &'static str {
     }
 }
 
-/// An intervertebral level: a linear bushing between an adjacent pair.
+/// An intervertebral level of a system: a bushing between a parent-child
+/// pair of bodies, named by [`bushing_level_name`].
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Level {
+pub struct BushingLevel {
     /// Level name: the bushing name without a `_bushing` suffix (e.g. `L4_L5`).
     pub name: String,
     /// Bushing index in the system.
@@ -224,7 +226,7 @@ fn level_key(name: &str) -> String {
 /// The levels of `sys` on the paths between `fixed` and each of `loaded`
 /// (system body indices), cranial to caudal order of the bushing list.
 /// A level is a bushing whose two bodies are a parent-child pair of the tree.
-pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<Level> {
+pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<BushingLevel> {
     let mut on_path = vec![false; sys.n_bodies()];
     for &b in loaded {
         // bodies from b up to (excluding) the common ancestor with fixed
@@ -266,8 +268,8 @@ pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<
         if !(on_path[upper.0] && on_path[lower.0]) {
             continue;
         }
-        let name = bname.strip_suffix("_bushing").unwrap_or(bname).to_string();
-        out.push(Level {
+        let name = bushing_level_name(bname).to_string();
+        out.push(BushingLevel {
             name,
             bushing: BushingIndex(i),
             upper,
@@ -360,7 +362,7 @@ pub struct StiffnessFamily {
     /// Reference rotation (rad) of the stiffening parameters per rotational DoF.
     theta_ref: [f64; 3],
     /// The levels the family acts on.
-    pub levels: Vec<Level>,
+    pub levels: Vec<BushingLevel>,
     /// The stiffness DoFs that are parameters.
     pub dofs: Vec<usize>,
 }
@@ -377,7 +379,7 @@ fn geomean(v: &[f64]) -> f64 {
 /// nominal values from the bushings' `nominal` stiffness.
 fn linear_params(
     kind: &Parameterisation,
-    levels: &[Level],
+    levels: &[BushingLevel],
     dofs: &[usize],
     nominal: &[[f64; 6]],
 ) -> Result<ParamMap> {
@@ -455,7 +457,7 @@ fn linear_params(
 /// The ratio of DoF `d` of each level in a ratio table (present, positive).
 fn table_ratios(
     table: &BTreeMap<String, [Option<f64>; 6]>,
-    levels: &[Level],
+    levels: &[BushingLevel],
     d: usize,
 ) -> Result<Vec<f64>> {
     let mut raw = Vec::new();
@@ -596,7 +598,7 @@ impl NominalLaws {
 
     /// Every level's bushing is linear, with a positive nominal stiffness
     /// in each DoF of `dofs`.
-    fn check_levels(&self, levels: &[Level], dofs: &[usize]) -> Result<()> {
+    fn check_levels(&self, levels: &[BushingLevel], dofs: &[usize]) -> Result<()> {
         for l in levels {
             if !self.linear.get(l.bushing.0).copied().unwrap_or(false) {
                 return Err(Error::invalid(
@@ -632,7 +634,7 @@ impl StiffnessFamily {
     /// Bounds are the literature ranges ([`LITERATURE_BOUNDS`]).
     pub fn new(
         sys: &System,
-        levels: Vec<Level>,
+        levels: Vec<BushingLevel>,
         dofs: &[usize],
         kind: &Parameterisation,
     ) -> Result<StiffnessFamily> {

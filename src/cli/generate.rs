@@ -276,7 +276,14 @@ fn print_summary(r: &GenerateReport, out: &Path) {
         if r.filled_levels.is_empty() {
             String::new()
         } else {
-            format!(" ({})", r.filled_levels.join(" "))
+            format!(
+                " ({})",
+                r.filled_levels
+                    .iter()
+                    .map(|l| l.to_string())
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            )
         },
         r.levels_from_base.len()
     );

@@ -4,7 +4,7 @@
 //! nominal one), with warm starts so repeated evaluations are cheap.
 
 use crate::calibrate::experiment::Experiment;
-use crate::calibrate::family::{find_levels, Level};
+use crate::calibrate::family::{find_levels, BushingLevel};
 use crate::calibrate::measure::{pair_increment, Convention};
 use crate::error::{Error, Result};
 use crate::solver::kinematics;
@@ -47,7 +47,7 @@ pub struct Sim {
     pub base: System,
     /// Intervertebral levels between the fixed and the loaded bodies, in
     /// bushing order.
-    pub levels: Vec<Level>,
+    pub levels: Vec<BushingLevel>,
     /// Nominal law of each level.
     pub nominal: Vec<BushingModel>,
     /// Nominal linear stiffness `(rx .. tz)` of each level.
@@ -325,7 +325,7 @@ fn tree_distance(sys: &System, a: BodyIndex, b: BodyIndex) -> usize {
 /// The spread over the levels of the angle (deg) between each ground axis
 /// and the level's own joint axis at the default pose (the first bushing
 /// frame carried by its body).
-fn axis_tilt_spread(sys: &System, levels: &[Level]) -> [f64; 3] {
+fn axis_tilt_spread(sys: &System, levels: &[BushingLevel]) -> [f64; 3] {
     let mut kb = KinBuf::<f64>::new(sys);
     let q = sys.default_q();
     kb.q.copy_from_slice(q.as_slice());
@@ -352,7 +352,7 @@ fn axis_tilt_spread(sys: &System, levels: &[Level]) -> [f64; 3] {
 
 /// Each level's position along the spine from the fixed body (the joints
 /// between its nearer body and the fixed one).
-fn level_positions(sys: &System, fixed: BodyIndex, levels: &[Level]) -> Vec<f64> {
+fn level_positions(sys: &System, fixed: BodyIndex, levels: &[BushingLevel]) -> Vec<f64> {
     levels
         .iter()
         .map(|l| {
@@ -390,7 +390,7 @@ fn case_loads(
 #[allow(clippy::type_complexity)]
 fn nominal_levels(
     base: &System,
-    levels: &[Level],
+    levels: &[BushingLevel],
     ctx: &str,
 ) -> Result<(
     Vec<BushingModel>,

@@ -423,7 +423,7 @@ pub enum Align {
 /// Per-level errors (model - truth, mm).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LevelError {
-    pub level: String,
+    pub level: Level,
     pub ap_mm: f64,
     pub is_mm: f64,
     pub rl_mm: f64,
@@ -566,7 +566,7 @@ pub fn evaluate_model(
         .map(|l| {
             let d = m.centres[l] - tc[l];
             LevelError {
-                level: l.to_string(),
+                level: *l,
                 ap_mm: d.x * 1e3,
                 is_mm: d.y * 1e3,
                 rl_mm: d.z * 1e3,
@@ -675,7 +675,7 @@ pub fn mean_sd(v: &[f64]) -> Option<MeanSd> {
 /// Per-level absolute errors across models (Table 5.7).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LevelSummary {
-    pub level: String,
+    pub level: Level,
     pub ap_abs_mm: MedIqr,
     pub is_abs_mm: MedIqr,
     pub rl_abs_mm: MedIqr,
@@ -705,12 +705,10 @@ pub fn summarise(all: &[ModelMetrics]) -> Summary {
     let mut per: BTreeMap<Level, [Vec<f64>; 3]> = BTreeMap::new();
     for m in all {
         for e in &m.levels {
-            if let Ok(l) = e.level.parse::<Level>() {
-                let s = per.entry(l).or_default();
-                s[0].push(e.ap_mm.abs());
-                s[1].push(e.is_mm.abs());
-                s[2].push(e.rl_mm.abs());
-            }
+            let s = per.entry(e.level).or_default();
+            s[0].push(e.ap_mm.abs());
+            s[1].push(e.is_mm.abs());
+            s[2].push(e.rl_mm.abs());
         }
     }
     let mut apex_counts = BTreeMap::new();
@@ -730,7 +728,7 @@ pub fn summarise(all: &[ModelMetrics]) -> Summary {
             .iter()
             .filter_map(|(l, v)| {
                 Some(LevelSummary {
-                    level: l.to_string(),
+                    level: *l,
                     ap_abs_mm: med_iqr(&v[0])?,
                     is_abs_mm: med_iqr(&v[1])?,
                     rl_abs_mm: med_iqr(&v[2])?,

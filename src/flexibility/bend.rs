@@ -14,6 +14,7 @@
 //! those of the projected markers by six-direction dual numbers through the
 //! kinematics.
 
+use crate::anatomy::{bushing_level_name, MotionSegment};
 use crate::error::{Error, Result};
 use crate::landmarks::radiograph::FilmPoint;
 use crate::landmarks::{Code, LandmarkId, Level};
@@ -70,11 +71,8 @@ pub struct BendModel {
 }
 
 /// The joint of a bushing named `<UP>_<LOW>_bushing` between two levels.
-fn joint_levels(name: &str) -> Option<(Level, Level)> {
-    let base = name.strip_suffix("_bushing").unwrap_or(name);
-    let (u, l) = base.split_once('_')?;
-    let (u, l): (Level, Level) = (u.parse().ok()?, l.parse().ok()?);
-    (l.index() == u.index() + 1).then_some((u, l))
+fn joint_levels(name: &str) -> Option<MotionSegment> {
+    bushing_level_name(name).parse().ok()
 }
 
 impl BendModel {
@@ -93,7 +91,7 @@ impl BendModel {
                 .as_ref()
                 .map(|m| m.n_stiffness_params())
                 .unwrap_or(0);
-            if let Some((upper, _)) = joint_levels(name) {
+            if let Some(MotionSegment { upper, .. }) = joint_levels(name) {
                 let Some(BushingModel::Linear {
                     rot_stiffness: r,
                     trans_stiffness: t,
@@ -106,7 +104,7 @@ impl BendModel {
                     ));
                 };
                 joints.push(Joint {
-                    name: name.strip_suffix("_bushing").unwrap_or(name).to_string(),
+                    name: bushing_level_name(name).to_string(),
                     upper,
                     bushing: BushingIndex(i),
                     k: [r.x, r.y, r.z, t.x, t.y, t.z],

@@ -68,9 +68,7 @@ pub(super) fn self_check(
     let rows: Vec<crate::base::wrap::SphereRow> = spheres
         .iter()
         .map(|s| crate::base::wrap::SphereRow {
-            level: Level::from_body_name(&s.body)
-                .map(|l| l.to_string())
-                .unwrap_or_default(),
+            level: Level::from_body_name(&s.body),
             body: s.body.clone(),
             name: s.name.clone(),
             centre: s.centre,

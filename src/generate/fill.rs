@@ -26,9 +26,9 @@ use std::collections::BTreeMap;
 /// A level placed from its neighbours.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FilledLevel {
-    pub level: String,
+    pub level: Level,
     /// The measured levels (or the sacrum) it was placed between.
-    pub between: [String; 2],
+    pub between: [Level; 2],
     /// Its scale factors X (depth), Y (height), Z (width).
     pub scale: [f64; 3],
 }
@@ -75,8 +75,8 @@ pub fn fill_gaps(
         let placed = fill_run(&run, up, down, fits, sacrum, poses0, joints);
         for (l, f) in run.iter().zip(placed) {
             out.push(FilledLevel {
-                level: l.to_string(),
-                between: [up.to_string(), down.to_string()],
+                level: *l,
+                between: [up, down],
                 scale: [f.scale.x, f.scale.y, f.scale.z],
             });
             fits.insert(*l, f);

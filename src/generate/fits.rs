@@ -95,7 +95,7 @@ pub(super) fn landmark_coverage(
             ));
         }
         reduced.push(ReducedFit {
-            level: l.to_string(),
+            level: *l,
             missing,
             used,
             borrowed_scale: Vec::new(),
@@ -132,7 +132,7 @@ pub(super) fn borrowed_scales(
         markers.iter().map(|(l, (_, p))| (*l, p.clone())).collect();
     let all = pose::borrowed_scales(vert_levels, patient, &model);
     for r in reduced.iter_mut() {
-        let Some((b, from)) = r.level.parse::<Level>().ok().and_then(|l| all.get(&l)) else {
+        let Some((b, from)) = all.get(&r.level) else {
             continue;
         };
         let from: Vec<String> = from.iter().map(Level::to_string).collect();
@@ -447,7 +447,7 @@ pub(super) fn apply_posterior(
         .filter_map(|(code, p)| Some((*code, (landmarks.get(code)? - pose * p).norm())))
         .collect();
     SmoothingLevel {
-        level: level.to_string(),
+        level,
         fit_sd_deg: raw_sd.map(f64::to_degrees),
         posterior_sd_deg: posterior_sd.map(f64::to_degrees),
         correction_deg: before.angle_to(&pose.rotation).to_degrees(),

@@ -270,7 +270,7 @@ impl MeshSource for Overlay<'_> {
 /// One patient mesh in the model.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MeshRow {
-    pub level: String,
+    pub level: Level,
     pub body: String,
     pub mesh_file: String,
     /// File or label of the segmentation.
@@ -500,7 +500,7 @@ fn wear(
     set_markers(doc, model, l, &body, x, at)?;
     out.meshes.insert(mesh_file.clone(), mesh);
     Ok(MeshRow {
-        level: l.to_string(),
+        level: l,
         body,
         mesh_file,
         origin: pl.origin.clone(),

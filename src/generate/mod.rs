@@ -279,7 +279,7 @@ pub fn generate_with_geometry(
         self_check,
         above_fov,
         reduced_fits,
-        filled_levels: filled.iter().map(|f| f.level.clone()).collect(),
+        filled_levels: filled.iter().map(|f| f.level).collect(),
         filled,
         shape,
         landmark_residuals,

@@ -85,7 +85,7 @@ impl Registration {
 /// One fitted vertebra in the report.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct VertebraRow {
-    pub level: String,
+    pub level: Level,
     pub body: String,
     /// Scale factors X (depth), Y (height), Z (width).
     pub scale: [f64; 3],
@@ -151,7 +151,7 @@ pub struct GenerateReport {
     pub reduced_fits: Vec<ReducedFit>,
     /// Levels missing between measured ones, placed from their neighbours
     /// ([`fill`]), cranial to caudal; empty for a set without gaps.
-    pub filled_levels: Vec<String>,
+    pub filled_levels: Vec<Level>,
     /// How each of them was placed.
     pub filled: Vec<fill::FilledLevel>,
     /// The generated model's spine shape from its markers and centres at
@@ -195,7 +195,7 @@ pub struct SmoothingReport {
 /// One vertebra of [`SmoothingReport`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SmoothingLevel {
-    pub level: String,
+    pub level: Level,
     /// SD of the fitted orientation (deg) about the ground X, Y, Z axes.
     pub fit_sd_deg: [f64; 3],
     /// Posterior SD (deg) about the ground X, Y, Z axes.
@@ -219,7 +219,7 @@ pub struct Generated {
 /// A level fitted on fewer landmarks than the protocol's.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ReducedFit {
-    pub level: String,
+    pub level: Level,
     /// The protocol's landmarks missing from the set.
     pub missing: Vec<String>,
     /// Landmarks the fit used (before outlier rejection).
@@ -254,7 +254,7 @@ pub(super) fn vertebra_rows(
         }
         let x = poses2.get(&l.body_name()).copied().unwrap_or(f.pose);
         rows.push(VertebraRow {
-            level: l.to_string(),
+            level: *l,
             body: l.body_name(),
             scale: [f.scale.x, f.scale.y, f.scale.z],
             origin: [
@@ -269,7 +269,7 @@ pub(super) fn vertebra_rows(
             outlier_error_mm: f.outlier.map(|(_, e)| e * 1e3),
             loo_max_mm: f.loo_max.map(|(_, e, _)| e * 1e3),
             loo_threshold_mm: f.loo_max.map(|(_, _, t)| t * 1e3),
-            filled: filled.iter().any(|x| x.level == l.to_string()),
+            filled: filled.iter().any(|x| x.level == *l),
         });
     }
     let landmark_rms =

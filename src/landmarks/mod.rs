@@ -382,4 +382,4 @@ macro_rules! serialize_as_display {
         }
     )*};
 }
-serialize_as_display!(Level, Code, LandmarkId);
+serialize_as_display!(Code, LandmarkId);

@@ -17,7 +17,8 @@
 
 use super::props::{fixed_prop, loc, opt_numbers};
 use super::xml::Element;
-use crate::error::{Error, Result};
+use crate::error::{DataError, Error, Result};
+use crate::util::scalar::Scalar;
 use std::path::Path;
 
 /// Tags of the OpenSim function classes (used to find a function element).
@@ -138,44 +139,51 @@ impl CubicSpline {
         opensim_segment(&self.x, x)
     }
 
-    /// Derivative of order 0, 1 or 2.
+    /// Derivative of order 0, 1 or 2 (2 for any higher order).
     pub fn eval_order(&self, x: f64, order: usize) -> f64 {
+        let [v, d1, d2] = self.eval_all(x);
+        match order {
+            0 => v,
+            1 => d1,
+            _ => d2,
+        }
+    }
+
+    /// Value, first and second derivative at `x`, generic over the scalar
+    /// (a dual number carries its derivative through). Outside the knots the
+    /// value is extrapolated linearly with the end slope (second derivative
+    /// 0); an abscissa within round-off of an end knot is that knot. NaN
+    /// below 2 knots.
+    pub fn eval_all<T: Scalar>(&self, x: T) -> [T; 3] {
         let n = self.x.len();
         if n < 2 {
-            return f64::NAN;
+            return [T::c(f64::NAN); 3];
         }
+        let xr = x.re();
         let (x0, xn) = (self.x[0], self.x[n - 1]);
-        if x < x0 {
-            return match order {
-                0 => self.y[0] + (x - x0) * self.b[0],
-                1 => self.b[0],
-                _ => 0.0,
-            };
-        }
-        if x > xn {
-            return match order {
-                0 => self.y[n - 1] + (x - xn) * self.b[n - 1],
-                1 => self.b[n - 1],
-                _ => 0.0,
-            };
-        }
-        for &(xe, i) in &[(x0, 0usize), (xn, n - 1)] {
-            if (x - xe).abs() <= ROUNDOFF {
-                return match order {
-                    0 => self.y[i],
-                    1 => self.b[i],
-                    _ => 2.0 * self.c[i],
-                };
+        for (outside, i) in [(xr < x0, 0), (xr > xn, n - 1)] {
+            if outside {
+                let b = T::c(self.b[i]);
+                return [T::c(self.y[i]) + (x - T::c(self.x[i])) * b, b, T::zero()];
             }
         }
-        let k = self.segment(x);
-        let t = x - self.x[k];
-        let (b, c, d) = (self.b[k], self.c[k], self.d[k]);
-        match order {
-            0 => self.y[k] + t * (b + t * (c + t * d)),
-            1 => b + t * (2.0 * c + 3.0 * t * d),
-            _ => 2.0 * c + 6.0 * t * d,
-        }
+        // At an end knot (within round-off) t is 0 in value, keeping x's derivative part.
+        let (k, t) = match [(x0, 0usize), (xn, n - 1)]
+            .into_iter()
+            .find(|&(xe, _)| (xr - xe).abs() <= ROUNDOFF)
+        {
+            Some((_, i)) => (i, x - T::c(xr)),
+            None => {
+                let k = self.segment(xr);
+                (k, x - T::c(self.x[k]))
+            }
+        };
+        let (b, c, d) = (T::c(self.b[k]), T::c(self.c[k]), T::c(self.d[k]));
+        [
+            T::c(self.y[k]) + t * (b + t * (c + t * d)),
+            b + t * (T::c(2.0) * c + T::c(3.0) * t * d),
+            T::c(2.0) * c + T::c(6.0) * t * d,
+        ]
     }
 }
 
@@ -304,12 +312,12 @@ impl Function {
 
     /// Value at `x`.
     pub fn eval(&self, x: f64) -> f64 {
-        self.derivative(x, 0)
+        self.value_slope(x).0
     }
 
     /// First derivative d/dx at `x`.
     pub fn d1(&self, x: f64) -> f64 {
-        self.derivative(x, 1)
+        self.value_slope(x).1
     }
 
     /// Second derivative d2/dx2 at `x`.
@@ -317,41 +325,104 @@ impl Function {
         self.derivative(x, 2)
     }
 
-    /// Derivative of order 0, 1 or 2 (higher orders are 0 except polynomials).
-    pub fn derivative(&self, x: f64, order: usize) -> f64 {
+    /// Value and first derivative at `x`, generic over the scalar so that
+    /// dual numbers carry exact higher derivatives through (the solver's
+    /// kinematics and bushing curves). NaN for an unsupported class.
+    pub fn value_slope<T: Scalar>(&self, x: T) -> (T, T) {
         match self {
-            Function::Constant(c) => {
-                if order == 0 {
-                    *c
-                } else {
-                    0.0
-                }
+            Function::Constant(c) => (T::c(*c), T::zero()),
+            Function::Linear { slope, intercept } => {
+                (T::c(*slope) * x + T::c(*intercept), T::c(*slope))
             }
-            Function::Linear { slope, intercept } => match order {
-                0 => slope * x + intercept,
-                1 => *slope,
-                _ => 0.0,
-            },
-            Function::Polynomial(c) => {
-                // Differentiate the coefficient list `order` times, then Horner.
-                let deg = c.len() - 1;
-                let mut acc = 0.0;
-                for (i, &ci) in c.iter().enumerate() {
-                    let p = deg - i; // power of this term
-                    if p < order {
-                        break;
-                    }
-                    let factor: f64 = (0..order).map(|k| (p - k) as f64).product();
-                    acc = acc * x + ci * factor;
-                }
-                acc
+            Function::Polynomial(c) => (polynomial(c, x, 0), polynomial(c, x, 1)),
+            Function::Multiplier { scale, inner } => {
+                let (v, d) = inner.value_slope(x);
+                (T::c(*scale) * v, T::c(*scale) * d)
             }
-            Function::Multiplier { scale, inner } => scale * inner.derivative(x, order),
-            Function::Spline { spline, .. } => spline.eval_order(x, order),
-            Function::PiecewiseLinear { x: xs, y: ys } => piecewise_linear(xs, ys, x, order),
-            Function::Unsupported { .. } => f64::NAN,
+            Function::Spline { spline, .. } => {
+                let [v, d, _] = spline.eval_all(x);
+                (v, d)
+            }
+            Function::PiecewiseLinear { x: xs, y: ys } => piecewise_linear(xs, ys, x),
+            Function::Unsupported { .. } => (T::c(f64::NAN), T::c(f64::NAN)),
         }
     }
+
+    /// Derivative of order 0, 1 or 2 (higher orders are 0 except polynomials).
+    pub fn derivative(&self, x: f64, order: usize) -> f64 {
+        match (self, order) {
+            (_, 0) => self.value_slope(x).0,
+            (_, 1) => self.value_slope(x).1,
+            (Function::Polynomial(c), _) => polynomial(c, x, order),
+            (Function::Multiplier { scale, inner }, _) => scale * inner.derivative(x, order),
+            (Function::Spline { spline, .. }, _) => spline.eval_order(x, order),
+            (Function::Unsupported { .. }, _) => f64::NAN,
+            _ => 0.0,
+        }
+    }
+
+    /// Check the function's data for evaluation (lengths, strictly
+    /// increasing abscissae, finite numbers, a supported class).
+    pub fn validate(&self) -> std::result::Result<(), DataError> {
+        let finite = DataError::check_finite;
+        let increasing = |what: &'static str, x: &[f64]| {
+            if x.windows(2).any(|w| w[1] <= w[0]) {
+                return Err(DataError::NotIncreasing(what));
+            }
+            Ok(())
+        };
+        match self {
+            Function::Constant(c) => finite("constant", &[*c]),
+            Function::Linear { slope, intercept } => {
+                finite("linear function", &[*slope, *intercept])
+            }
+            Function::Multiplier { scale, inner } => {
+                finite("multiplier scale", &[*scale])?;
+                inner.validate()
+            }
+            Function::Spline { spline, .. } => {
+                let n = spline.x.len();
+                if n < 2 || spline.y.len() != n {
+                    return Err(DataError::Lengths { what: "spline", n });
+                }
+                for v in [&spline.x, &spline.y, &spline.b, &spline.c, &spline.d] {
+                    finite("spline coefficients", v)?;
+                }
+                increasing("spline", &spline.x)
+            }
+            Function::PiecewiseLinear { x, y } => {
+                if x.is_empty() || x.len() != y.len() {
+                    return Err(DataError::Lengths {
+                        what: "piecewise linear function",
+                        n: x.len(),
+                    });
+                }
+                finite("piecewise linear points", x)?;
+                finite("piecewise linear points", y)?;
+                increasing("piecewise linear function", x)
+            }
+            Function::Polynomial(cs) => finite("polynomial coefficients", cs),
+            Function::Unsupported { class } => Err(DataError::Unsupported(class.clone())),
+        }
+    }
+}
+
+/// Derivative of order `order` of the polynomial with coefficients `c`
+/// (highest order first): the coefficient list differentiated, then Horner.
+fn polynomial<T: Scalar>(c: &[f64], x: T, order: usize) -> T {
+    let Some(deg) = c.len().checked_sub(1) else {
+        return T::zero();
+    };
+    let mut acc = T::zero();
+    for (i, &ci) in c.iter().enumerate() {
+        let p = deg - i; // power of this term
+        if p < order {
+            break;
+        }
+        let factor: f64 = (0..order).map(|k| (p - k) as f64).product();
+        acc = acc * x + T::c(ci * factor);
+    }
+    acc
 }
 
 /// The segment k (x_k <= x <= x_k+1) OpenSim's bisection picks for x inside
@@ -383,21 +454,24 @@ fn opensim_segment(xs: &[f64], x: f64) -> usize {
         .min(n - 2)
 }
 
-fn piecewise_linear(xs: &[f64], ys: &[f64], x: f64, order: usize) -> f64 {
+/// Value and slope of linear interpolation through the knots, extrapolated
+/// with the end segments' slopes; NaN without knots.
+fn piecewise_linear<T: Scalar>(xs: &[f64], ys: &[f64], x: T) -> (T, T) {
     let n = xs.len();
     if n == 0 {
-        return f64::NAN;
+        return (T::c(f64::NAN), T::c(f64::NAN));
     }
     if n == 1 {
-        return if order == 0 { ys[0] } else { 0.0 };
+        return (T::c(ys[0]), T::zero());
     }
+    let xr = x.re();
     // Outside the knots the first/last segment extrapolates.
-    let k = if x < xs[0] {
+    let k = if xr < xs[0] {
         0
-    } else if x > xs[n - 1] {
+    } else if xr > xs[n - 1] {
         n - 2
     } else {
-        opensim_segment(xs, x)
+        opensim_segment(xs, xr)
     };
     let dx = xs[k + 1] - xs[k];
     let slope = if dx > 0.0 {
@@ -405,11 +479,7 @@ fn piecewise_linear(xs: &[f64], ys: &[f64], x: f64, order: usize) -> f64 {
     } else {
         0.0
     };
-    match order {
-        0 => ys[k] + slope * (x - xs[k]),
-        1 => slope,
-        _ => 0.0,
-    }
+    (T::c(ys[k]) + T::c(slope) * (x - T::c(xs[k])), T::c(slope))
 }
 
 fn knots(e: &Element, file: &Path) -> Result<(Vec<f64>, Vec<f64>)> {
@@ -513,6 +583,81 @@ mod tests {
         // interpolation, end-slope extrapolation).
         for (x, v) in [(-1.0, -1.0), (0.5, 0.5), (3.0, 1.5), (5.0, 4.5)] {
             assert!((pl.eval(x) - v).abs() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn invalid_data_is_typed() {
+        let pl = |x: Vec<f64>, y: Vec<f64>| Function::PiecewiseLinear { x, y }.validate();
+        assert_eq!(pl(vec![0.0, 1.0], vec![0.0, 1.0]), Ok(()));
+        assert_eq!(
+            pl(vec![0.0, 0.0], vec![0.0, 1.0]),
+            Err(DataError::NotIncreasing("piecewise linear function"))
+        );
+        assert!(matches!(
+            pl(vec![0.0, 1.0], vec![0.0]),
+            Err(DataError::Lengths { n: 2, .. })
+        ));
+        assert!(matches!(
+            pl(vec![0.0, f64::NAN], vec![0.0, 1.0]),
+            Err(DataError::NotFinite(_))
+        ));
+        let m = Function::Multiplier {
+            scale: f64::INFINITY,
+            inner: Box::new(Function::Constant(1.0)),
+        };
+        assert_eq!(m.validate(), Err(DataError::NotFinite("multiplier scale")));
+        let spline = |x: Vec<f64>| Function::Spline {
+            class: "SimmSpline".into(),
+            spline: CubicSpline::new(x, vec![0.0, 1.0, 0.5]),
+        };
+        assert_eq!(spline(vec![0.0, 1.0, 2.0]).validate(), Ok(()));
+        assert_eq!(
+            spline(vec![0.0, 1.0, 1.0]).validate(),
+            Err(DataError::NotIncreasing("spline"))
+        );
+        let sine = Function::Multiplier {
+            scale: 1.0,
+            inner: Box::new(Function::Unsupported {
+                class: "Sine".into(),
+            }),
+        };
+        assert_eq!(sine.validate(), Err(DataError::Unsupported("Sine".into())));
+    }
+
+    /// The generic evaluation: with a dual number its derivative part is the
+    /// slope, and its value and slope are those of the f64 evaluation, for
+    /// every class, inside and outside the knots and at the end knots.
+    #[test]
+    fn value_slope_agrees_with_duals_and_f64() {
+        use num_dual::Dual64;
+        let fs = [
+            Function::Linear {
+                slope: 2.0,
+                intercept: -1.0,
+            },
+            Function::Polynomial(vec![0.5, -1.0, 2.0, 3.0]),
+            Function::Multiplier {
+                scale: 1.5,
+                inner: Box::new(Function::Polynomial(vec![1.0, 0.0, 0.0])),
+            },
+            Function::Spline {
+                class: "NaturalCubicSpline".into(),
+                spline: CubicSpline::new(vec![0.0, 1.0, 2.0, 2.5], vec![0.0, 1.0, 0.5, 0.7]),
+            },
+            Function::PiecewiseLinear {
+                x: vec![0.0, 1.0, 3.0],
+                y: vec![0.0, 2.0, 3.0],
+            },
+        ];
+        for f in &fs {
+            for &x in &[-0.5, 0.0, 0.3, 1.4, 2.5, 2.7] {
+                let (v, dv) = f.value_slope(Dual64::new(x, 1.0));
+                assert_eq!(v.re, f.eval(x), "{f:?} at {x}");
+                assert_eq!(dv.re, f.d1(x), "{f:?} at {x}");
+                assert!((v.eps - f.d1(x)).abs() < 1e-12, "{f:?} at {x}");
+                assert!((dv.eps - f.d2(x)).abs() < 1e-12, "{f:?} at {x}");
+            }
         }
     }
 }

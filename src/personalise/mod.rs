@@ -32,6 +32,7 @@ pub mod table;
 
 pub use table::{read_table, CurveSpec, Form, Interp, LevelLaw, Row, Table};
 
+use crate::anatomy::bushing_level_name;
 use crate::error::{Error, Result};
 use crate::osim::function::{CubicSpline, Function as OFunction};
 use crate::osim::model::{Force, Model};
@@ -44,9 +45,10 @@ use crate::solver::spec::DOF_NAMES;
 use crate::util::fmt_f64;
 use std::path::Path;
 
-/// A level of a model: one bushing.
+/// A level of a model: one bushing of its ForceSet, named by
+/// [`bushing_level_name`].
 #[derive(Debug, Clone, PartialEq)]
-pub struct Level {
+pub struct ModelLevel {
     /// Level name (the bushing's name without `_bushing`).
     pub name: String,
     /// Anatomical alias `<upper>_<lower>`, when both bodies have vertebral names.
@@ -95,13 +97,13 @@ fn alias(b1: &str, b2: &str) -> Option<String> {
 }
 
 /// The levels of a model, in ForceSet order.
-pub fn levels(doc: &Document) -> Result<Vec<Level>> {
+pub fn levels(doc: &Document) -> Result<Vec<ModelLevel>> {
     let model = doc.model()?;
     levels_of(&model)
 }
 
-fn levels_of(model: &Model) -> Result<Vec<Level>> {
-    let mut out: Vec<Level> = Vec::new();
+fn levels_of(model: &Model) -> Result<Vec<ModelLevel>> {
+    let mut out: Vec<ModelLevel> = Vec::new();
     for f in &model.forces {
         let (name, class, s1, s2) = match f {
             Force::Bushing(b) => (&b.name, "BushingForce", &b.socket_frame1, &b.socket_frame2),
@@ -116,10 +118,7 @@ fn levels_of(model: &Model) -> Result<Vec<Level>> {
         let owner = format!("/forceset/{name}");
         let (b1, _) = model.resolve_frame(&owner, s1)?;
         let (b2, _) = model.resolve_frame(&owner, s2)?;
-        let lname = name
-            .strip_suffix("_bushing")
-            .filter(|s| !s.is_empty())
-            .unwrap_or(name);
+        let lname = bushing_level_name(name);
         if let Some(o) = out.iter().find(|l| l.name == lname) {
             return Err(Error::invalid(
                 model.file.display().to_string(),
@@ -129,7 +128,7 @@ fn levels_of(model: &Model) -> Result<Vec<Level>> {
                 ),
             ));
         }
-        out.push(Level {
+        out.push(ModelLevel {
             name: lname.to_string(),
             alias: alias(&b1, &b2),
             bushing: name.clone(),
@@ -586,7 +585,7 @@ pub fn resolve(
     table: &Table,
     doc: &Document,
     allow_softening: bool,
-) -> Result<Vec<(Level, LevelLaw)>> {
+) -> Result<Vec<(ModelLevel, LevelLaw)>> {
     let lv = levels(doc)?;
     let tpath = table.path.display().to_string();
     // Each row names one level of the model, and no level twice.
@@ -630,7 +629,7 @@ pub fn resolve(
 /// already named is an error.
 fn match_rows(
     table: &Table,
-    lv: &[Level],
+    lv: &[ModelLevel],
     doc: &Document,
     tpath: &str,
 ) -> Result<Vec<Option<usize>>> {
@@ -1001,7 +1000,7 @@ fn rewrite_bushing(e: &Element, law: &LevelLaw) -> Element {
 
 /// Write the laws into the document. A bushing whose current law equals the
 /// new one is left untouched. Returns the names of the bushings rewritten.
-pub fn apply(doc: &mut Document, laws: &[(Level, LevelLaw)]) -> Result<Vec<String>> {
+pub fn apply(doc: &mut Document, laws: &[(ModelLevel, LevelLaw)]) -> Result<Vec<String>> {
     let file = doc.path().to_path_buf();
     let mut changed = Vec::new();
     for (l, law) in laws {

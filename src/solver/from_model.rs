@@ -8,62 +8,24 @@
 
 use super::spec::*;
 use crate::error::{Error, Result};
-use crate::osim::function::Function as OFunction;
 use crate::osim::model::{Force, JointKind as OJointKind, Model, OtherBushing};
 use nalgebra::{Matrix3, Vector3};
 use std::collections::BTreeMap;
 
-fn convert_function(f: &OFunction, ctx: &str) -> Result<Function> {
-    Ok(match f {
-        OFunction::Constant(c) => Function::Constant(*c),
-        OFunction::Linear { slope, intercept } => Function::Linear {
-            slope: *slope,
-            intercept: *intercept,
-        },
-        OFunction::Polynomial(c) => Function::Polynomial(c.clone()),
-        OFunction::Multiplier { scale, inner } => Function::Multiplier {
-            scale: *scale,
-            inner: Box::new(convert_function(inner, ctx)?),
-        },
-        OFunction::PiecewiseLinear { x, y } => Function::PiecewiseLinear {
-            x: x.clone(),
-            y: y.clone(),
-        },
-        OFunction::Spline { spline, .. } => {
-            // Coefficients of OpenSim's spline from its value and first two
-            // derivatives at the knots (the spline is C2).
-            let xs = spline.x.clone();
-            let n = xs.len();
-            if n < 2 {
-                return Err(Error::invalid(ctx, "spline with fewer than 2 points"));
-            }
-            let y: Vec<f64> = xs.iter().map(|&x| spline.eval_order(x, 0)).collect();
-            let b: Vec<f64> = xs.iter().map(|&x| spline.eval_order(x, 1)).collect();
-            let c: Vec<f64> = xs.iter().map(|&x| 0.5 * spline.eval_order(x, 2)).collect();
-            let mut d = vec![0.0; n];
-            for k in 0..n - 1 {
-                let h = xs[k + 1] - xs[k];
-                d[k] = if h > 0.0 {
-                    (c[k + 1] - c[k]) / (3.0 * h)
-                } else {
-                    0.0
-                };
-            }
-            d[n - 1] = if n >= 2 { d[n - 2] } else { 0.0 };
-            let mut y = y;
-            // knot values as given
-            for (yk, sy) in y.iter_mut().zip(&spline.y) {
-                *yk = *sy;
-            }
-            Function::Cubic { x: xs, y, b, c, d }
+/// The model's function for the solver: every class the solver evaluates
+/// (an unsupported one, also inside a multiplier, is refused here).
+fn convert_function(f: &Function, ctx: &str) -> Result<Function> {
+    match f {
+        Function::Unsupported { class } => Err(Error::invalid(
+            ctx,
+            format!("function class {class} is not supported by the solver"),
+        )),
+        Function::Multiplier { inner, .. } => {
+            convert_function(inner, ctx)?;
+            Ok(f.clone())
         }
-        OFunction::Unsupported { class } => {
-            return Err(Error::invalid(
-                ctx,
-                format!("function class {class} is not supported by the solver"),
-            ));
-        }
-    })
+        _ => Ok(f.clone()),
+    }
 }
 
 /// Property names of a FunctionBasedBushingForce's six functions, in deflection order.

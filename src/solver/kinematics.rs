@@ -144,7 +144,7 @@ pub(crate) fn joint_local<T: Scalar>(
             AxisSource::Fixed(v) => val[ai] = T::c(*v),
             AxisSource::Dof(k, f) => {
                 let qk = q.get(*k).copied().unwrap_or_else(T::zero);
-                let (v, d) = f.eval(qk);
+                let (v, d) = f.value_slope(qk);
                 val[ai] = v;
                 der[ai] = Some((*k, d));
             }
@@ -222,7 +222,7 @@ pub(crate) fn joint_local_tangent(
             AxisSource::Fixed(v) => val[ai] = *v,
             AxisSource::Dof(k, f) => {
                 let qk = q.get(*k).copied().unwrap_or(0.0);
-                let (v, d) = f.eval(Dual64::new(qk, 1.0));
+                let (v, d) = f.value_slope(Dual64::new(qk, 1.0));
                 val[ai] = v.re;
                 d1[ai] = d.re;
                 d2[ai] = d.eps;

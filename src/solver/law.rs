@@ -43,7 +43,7 @@ impl Curve {
                     x * T::c(*k_pos)
                 }
             }
-            Curve::Function(f) => f.eval(x).0,
+            Curve::Function(f) => f.value_slope(x).0,
         }
     }
 
@@ -62,7 +62,7 @@ impl Curve {
                     x * get(1)
                 }
             }
-            Curve::Function(f) => f.eval(x).0,
+            Curve::Function(f) => f.value_slope(x).0,
         }
     }
 

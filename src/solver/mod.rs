@@ -9,7 +9,7 @@
 //! | `system` | the model: [`System`] (validated, parent-before-child) and its construction and parameter variants, the two index spaces: [`BodyIndex`] (system order; spec bodies are plain `usize` in spec order) and [`DofIndex`] (free dofs; spec coordinates are plain `usize`) |
 //! | `workspace` | the data: [`Workspace`], every scratch buffer of the algorithms below (kinematic buffers, tangents and their factors, dynamics buffers) |
 //! | `linalg` | small dense factorisations (LU with partial pivoting, Cholesky) |
-//! | `scalar`, `function` | scalar types (f64, dual numbers) and transform-axis functions |
+//! | `scalar` | scalar types (f64, dual numbers; the trait in `util::scalar`) and the kinematics' small generic helpers; transform-axis functions are `osim::function`'s |
 //! | `kinematics` | body poses and motion subspaces, generic over the scalar |
 //! | `law`, `expr` | bushing force laws (the data, [`Curve`] and [`BushingModel`], in `spec`) (linear, per-DoF curves, coupled 6x6, Lepton expressions) |
 //! | `forces` | gravity, bushings (OpenSim 4.6 bushing classes), loads, projection |
@@ -24,7 +24,6 @@ pub mod examples;
 pub mod expr;
 pub mod forces;
 pub mod from_model;
-pub mod function;
 pub mod kinematics;
 pub mod law;
 pub(crate) mod linalg;

@@ -1,55 +1,13 @@
 //! The scalar types the solver's kinematics and force code is generic over:
 //! `f64` for plain evaluation, and forward-mode dual numbers (num-dual) for
-//! exact derivatives: [`Dual64`] (one direction, e.g. time derivatives along
-//! the generalised speeds) and [`DualSVec64<6>`] (six directions at once,
-//! one joint's block of the statics tangent).
+//! exact derivatives: `Dual64` (one direction, e.g. time derivatives along
+//! the generalised speeds) and [`D6`] (six directions at once, one joint's
+//! block of the statics tangent). The trait is `util::scalar`'s.
 
-use nalgebra::{Matrix3, RealField, Vector3};
-use num_dual::{Derivative, Dual64, DualSVec64};
+use nalgebra::{Matrix3, Vector3};
+use num_dual::Derivative;
 
-/// A real scalar usable by the generic kinematics. `re` is the value part.
-pub trait Scalar: RealField + Copy {
-    /// The value (real) part.
-    fn re(&self) -> f64;
-    /// A constant.
-    fn c(x: f64) -> Self;
-}
-
-impl Scalar for f64 {
-    #[inline]
-    fn re(&self) -> f64 {
-        *self
-    }
-    #[inline]
-    fn c(x: f64) -> Self {
-        x
-    }
-}
-
-impl Scalar for Dual64 {
-    #[inline]
-    fn re(&self) -> f64 {
-        self.re
-    }
-    #[inline]
-    fn c(x: f64) -> Self {
-        Dual64::from_re(x)
-    }
-}
-
-/// Six-direction dual number.
-pub type D6 = DualSVec64<6>;
-
-impl Scalar for D6 {
-    #[inline]
-    fn re(&self) -> f64 {
-        self.re
-    }
-    #[inline]
-    fn c(x: f64) -> Self {
-        D6::from_re(x)
-    }
-}
+pub use crate::util::scalar::{Scalar, D6};
 
 /// A `D6` with value `x` and unit derivative in direction `k` (< 6).
 pub fn d6_var(x: f64, k: usize) -> D6 {

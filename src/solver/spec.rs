@@ -17,6 +17,7 @@
 //! rotational speeds are OpenSim's: the angular velocity `w_FM` in F axes.
 
 pub use super::expr::Expr;
+pub use crate::osim::function::Function;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3};
 
 /// A whole multibody system: bodies, tree joints, coordinates, bushings, gravity.
@@ -116,38 +117,6 @@ impl TransformAxis {
             function: Function::Constant(0.0),
         }
     }
-}
-
-/// Scalar functions of one coordinate, as OpenSim's transform axes use them.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Function {
-    Constant(f64),
-    Linear {
-        slope: f64,
-        intercept: f64,
-    },
-    /// `scale * inner(x)` (OpenSim MultiplierFunction).
-    Multiplier {
-        scale: f64,
-        inner: Box<Function>,
-    },
-    /// Piecewise cubic `y_i + b_i dx + c_i dx^2 + d_i dx^3` with `dx = x - x_i`
-    /// on `[x_i, x_{i+1}]`, extrapolated with the end intervals' cubics
-    /// (SimmSpline / NaturalCubicSpline coefficients, computed by the adapter).
-    Cubic {
-        x: Vec<f64>,
-        y: Vec<f64>,
-        b: Vec<f64>,
-        c: Vec<f64>,
-        d: Vec<f64>,
-    },
-    /// Piecewise linear through the points; linear extrapolation with the end slopes.
-    PiecewiseLinear {
-        x: Vec<f64>,
-        y: Vec<f64>,
-    },
-    /// `sum_i c_i x^(n-1-i)` (highest power first, like OpenSim PolynomialFunction).
-    Polynomial(Vec<f64>),
 }
 
 /// A generalised coordinate.

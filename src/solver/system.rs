@@ -456,7 +456,7 @@ impl Lowered {
         local: &mut Vec<usize>,
     ) -> Result<AxisSource> {
         let Some(c) = ta.coord else {
-            return Ok(AxisSource::Fixed(ta.function.eval(0.0f64).0));
+            return Ok(AxisSource::Fixed(ta.function.value_slope(0.0f64).0));
         };
         let Some(cs) = spec.coordinates.get(c) else {
             return Err(Error::invalid(
@@ -478,7 +478,7 @@ impl Lowered {
             _ => owner[c] = Some(si),
         }
         if cs.locked {
-            return Ok(AxisSource::Fixed(ta.function.eval(cs.default).0));
+            return Ok(AxisSource::Fixed(ta.function.value_slope(cs.default).0));
         }
         let dof_start = self.dof_coord.len() - local.len();
         let k = match local.iter().position(|&x| x == c) {
