@@ -67,7 +67,7 @@ pub(crate) struct Rebuilt {
 
 impl Rebuilt {
     /// Coordinate prefixes (`L4_L5`) of the rebuilt joints.
-    pub fn prefixes(&self) -> Vec<String> {
+    pub(super) fn prefixes(&self) -> Vec<String> {
         self.joints
             .iter()
             .map(|(u, l, _, _)| joints::joint_prefix(*u, *l))

@@ -24,7 +24,9 @@ use crate::osim::model::Model;
 /// A muscle segment found inside a vertebra.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ThroughBone {
+    /// Muscle name.
     pub muscle: String,
+    /// Body name of the vertebra it passes through.
     pub vertebra: String,
     /// Length of the segment inside the mesh (mm).
     pub depth_mm: f64,
@@ -50,6 +52,7 @@ pub struct SelfCheck {
 /// Static equilibrium under gravity.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Equilibrium {
+    /// Newton iterations to converge.
     pub iterations: usize,
     /// Largest generalised force residual (N or N m).
     pub residual_norm: f64,
@@ -69,7 +72,7 @@ pub struct Equilibrium {
 
 /// Above this displacement (m) under gravity a "stable" equilibrium is
 /// not the model's posture but where the spine sagged to.
-pub const SAGGED_M: f64 = 0.02;
+pub(crate) const SAGGED_M: f64 = 0.02;
 
 impl Equilibrium {
     /// The stability verdict in words, the one wording every command prints.

@@ -24,6 +24,7 @@ pub enum Guard {
 }
 
 impl Guard {
+    /// Every guard, in the order they are checked.
     pub const ALL: [Guard; 5] = [
         Guard::DistinctPoints,
         Guard::Midline,
@@ -47,11 +48,15 @@ impl Guard {
 /// One failed guard.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct GuardFailure {
+    /// The guard that failed.
     pub guard: Guard,
+    /// Vertebral level (e.g. `T7`).
     pub level: Level,
+    /// The landmark concerned (e.g. `T7_SP`); `None` for the vertebra as a whole.
     pub landmark: Option<String>,
     /// The offending distance (mm).
     pub distance_mm: f64,
+    /// What was expected and found.
     pub message: String,
 }
 

@@ -22,7 +22,7 @@ use crate::osim::Document;
 use nalgebra::{Point3, Vector3};
 
 /// Names of the femoral head markers (right, left).
-pub const FEMORAL_HEADS: [&str; 2] = ["FH_R", "FH_L"];
+pub(crate) const FEMORAL_HEADS: [&str; 2] = ["FH_R", "FH_L"];
 
 /// A femoral head centre kept in the base.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]

@@ -88,7 +88,7 @@ impl<'a> Kinematics<'a> {
 
 /// A muscle path point resolved at a pose.
 #[derive(Debug, Clone, PartialEq)]
-pub struct PathPointAt {
+pub(crate) struct PathPointAt {
     /// Point name.
     pub name: String,
     /// Body it is fixed to.
@@ -101,7 +101,7 @@ pub struct PathPointAt {
 
 /// The active path points of `muscle` at coordinate values `q` (conditional
 /// points outside their range are left out, moving points evaluated).
-pub fn muscle_path(
+pub(crate) fn muscle_path(
     model: &Model,
     muscle: &Muscle,
     poses: &BTreeMap<String, Isometry3<f64>>,

@@ -26,6 +26,8 @@
 //! come through a [`MeshSource`] (a folder search like OpenSim's, or an
 //! in-memory map for generated models).
 
+#![warn(missing_docs, unreachable_pub)]
+
 mod assemble;
 pub mod centres;
 pub mod check;
@@ -62,7 +64,9 @@ pub use crate::mesh::source::{DirMeshSource, MeshSource};
 /// Which body is welded to ground.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum FixedBody {
+    /// The pelvis, through a weld joint at its generic default pose.
     Pelvis,
+    /// The sacrum, through a weld joint at its generic default pose.
     Sacrum,
 }
 
@@ -113,19 +117,28 @@ impl Default for BaseOptions {
 /// One joint of the base model.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct JointRow {
+    /// Joint name.
     pub name: String,
+    /// What the builder did with it (e.g. rebuilt as a 6-DoF CustomJoint).
     pub action: String,
+    /// Parent body name.
     pub parent: String,
+    /// Child body name.
     pub child: String,
+    /// Its coordinates' names (empty for a weld).
     pub coordinates: Vec<String>,
+    /// Default values of those coordinates (rad or m), in the same order.
     pub default_values: Vec<f64>,
+    /// Name of the bushing acting across it, if any.
     pub bushing: Option<String>,
 }
 
 /// One palpated marker.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MarkerRow {
+    /// Marker name.
     pub name: String,
+    /// Body the marker is fixed to.
     pub body: String,
     /// In the body frame (m).
     pub location: [f64; 3],
@@ -136,18 +149,31 @@ pub struct MarkerRow {
 /// Everything the builder did and measured (serialised as the JSON report).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BaseReport {
+    /// The generic model file the base was built from.
     pub generic_model: String,
+    /// Vertebral levels kept, cranial to caudal.
     pub kept_levels: Vec<String>,
+    /// The body welded to ground.
     pub fixed_body: FixedBody,
+    /// Bodies, joints, forces, markers and constraints kept or dropped.
     pub prune: prune::PruneReport,
+    /// Every joint of the base model and what was done to it.
     pub joints: Vec<JointRow>,
+    /// IVD bushing parameters and coordinate ranges used.
     pub ivd_parameters: IvdParams,
+    /// Per-segment geometry checks of the kept vertebra meshes.
     pub geometry_sanity: Vec<SanityRow>,
+    /// The sacrum swap, when a mean sacrum was given.
     pub sacrum: Option<sacrum::SacrumReport>,
+    /// The fitted vertebral body wrap spheres.
     pub spheres: Vec<wrap::SphereRow>,
+    /// Labels of the test poses the wrapping rules were checked at.
     pub test_poses: Vec<String>,
+    /// Number of muscle path wraps added.
     pub path_wraps_added: usize,
+    /// Number of muscles wrapping over at least one sphere.
     pub muscles_with_wraps: usize,
+    /// The palpated markers written into the model.
     pub markers: Vec<MarkerRow>,
     /// The femoral head centres kept as pelvis markers (empty when the
     /// generic model has neither `FH_R`/`FH_L` markers nor hip joints).
@@ -159,18 +185,22 @@ pub struct BaseReport {
     pub palpation_given: Vec<String>,
     /// Guards checked per vertebra ([`guards::Guard::ALL`]) and their failures.
     pub guards_checked: Vec<guards::Guard>,
+    /// Guards that failed, one row per vertebra and guard.
     pub guard_failures: Vec<guards::GuardFailure>,
     /// Whether failures were allowed (`--allow-implausible`).
     pub allow_implausible: bool,
+    /// The built model's self-check (deflections, muscle paths, equilibrium).
     pub self_check: check::SelfCheck,
 }
 
 /// The built base model, not yet written.
 #[derive(Debug, Clone)]
 pub struct BaseModel {
+    /// The base model document.
     pub doc: Document,
     /// Mesh files the model references, to write next to it.
     pub meshes: Vec<(String, TriMesh)>,
+    /// What the builder did and measured.
     pub report: BaseReport,
     /// SVG views: (file name, SVG text).
     pub views: Vec<(String, String)>,

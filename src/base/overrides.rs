@@ -23,7 +23,9 @@ use std::path::Path;
 /// Where a given point is: in ground at the default pose, or in a body.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Placed {
+    /// A point in ground at the model's default pose (m).
     Ground(Point3<f64>),
+    /// A point in the named body's frame (m).
     Body(String, Point3<f64>),
 }
 
@@ -52,7 +54,9 @@ impl Placed {
 /// A modeller's palpation: landmarks and vertebral centres by level.
 #[derive(Debug, Clone, Default)]
 pub struct Overrides {
+    /// Given landmarks by level and code.
     pub landmarks: BTreeMap<(Level, Code), Placed>,
+    /// Given vertebral centres by level.
     pub centres: BTreeMap<Level, Placed>,
     /// The files they came from (for the report).
     pub sources: Vec<String>,

@@ -16,21 +16,32 @@ use std::collections::{BTreeMap, BTreeSet};
 /// A dropped component and the reason.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Dropped {
+    /// Component name.
     pub name: String,
+    /// Its OpenSim class (e.g. `Thelen2003Muscle`).
     pub class: String,
+    /// Why it was dropped.
     pub reason: String,
 }
 
 /// Keep/drop decisions.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct PruneReport {
+    /// Bodies kept.
     pub bodies_kept: Vec<String>,
+    /// Bodies dropped.
     pub bodies_dropped: Vec<String>,
+    /// Joints dropped (with their child bodies).
     pub joints_dropped: Vec<String>,
+    /// Muscles kept.
     pub muscles_kept: Vec<String>,
+    /// Muscles dropped and why.
     pub muscles_dropped: Vec<Dropped>,
+    /// Other forces dropped and why.
     pub other_forces_dropped: Vec<Dropped>,
+    /// Number of markers dropped.
     pub markers_dropped: usize,
+    /// Constraints dropped.
     pub constraints_dropped: Vec<String>,
     /// Wrap objects on kept bodies that no kept muscle uses (dropped).
     pub wrap_objects_dropped: Vec<String>,

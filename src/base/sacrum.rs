@@ -15,10 +15,15 @@ use std::collections::BTreeSet;
 /// Residual statistics in the report (mm).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ResidualMm {
+    /// Number of distances.
     pub n: usize,
+    /// Root mean square distance (mm).
     pub rms_mm: f64,
+    /// Mean distance (mm).
     pub mean_mm: f64,
+    /// 95th percentile distance (mm).
     pub p95_mm: f64,
+    /// Largest distance (mm).
     pub max_mm: f64,
 }
 
@@ -43,28 +48,33 @@ pub struct SacrumReport {
     pub replaced: String,
     /// New mesh file name written next to the model.
     pub mesh_file: String,
+    /// Vertex count of the swapped-in mesh.
     pub vertices: usize,
+    /// Triangle count of the swapped-in mesh.
     pub triangles: usize,
     /// Exact duplicate triangles removed before registration.
     pub duplicate_triangles_removed: usize,
     /// Edges shared by more than two triangles after that (the sacrum is
     /// only registered and ray-cast, which tolerates them; reported).
     pub non_manifold_edges: usize,
+    /// Whether a similarity (scaled) registration was allowed.
     pub allow_scale: bool,
     /// Registration: 4x4 matrix (row-major) from the source mesh to the
     /// sacrum body frame, and its scale.
     pub transform: [[f64; 4]; 4],
+    /// Scale factor of the registration (1 when rigid).
     pub scale: f64,
     /// Distances of the registered mesh's vertices to the generic sacrum.
     pub residual_to_generic: ResidualMm,
     /// Distances of the generic sacrum's vertices to the registered mesh.
     pub residual_from_generic: ResidualMm,
+    /// ICP iterations run.
     pub icp_iterations: usize,
 }
 
 /// Remove exact duplicate triangles (same three vertices, any order or
 /// winding); returns the number removed.
-pub fn remove_duplicate_triangles(mesh: &mut TriMesh) -> usize {
+pub(crate) fn remove_duplicate_triangles(mesh: &mut TriMesh) -> usize {
     let mut seen = BTreeSet::new();
     let before = mesh.triangles.len();
     mesh.triangles.retain(|t| {

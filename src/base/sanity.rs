@@ -64,9 +64,10 @@ pub struct SanityRow {
     pub segment_height: f64,
     /// Signed distances (m, negative inside) of the 30/50/70 % points.
     pub signed_distances: [f64; 3],
-    /// Distance from the midpoint to the first hit along +u and -u (m);
+    /// Distance from the midpoint to the first hit along +u (m);
     /// `None` when the ray leaves without a hit.
     pub endplate_up: Option<f64>,
+    /// Distance from the midpoint to the first hit along -u (m); `None` without a hit.
     pub endplate_down: Option<f64>,
     /// X of the vertex centroid relative to the segment midpoint (m).
     pub centroid_x_offset: f64,

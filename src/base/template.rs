@@ -9,7 +9,7 @@ use serde::Deserialize;
 use std::path::Path;
 
 /// The embedded default template.
-pub const EMBEDDED_TOML: &str = include_str!("../../templates/ivd_defaults.toml");
+pub(crate) const EMBEDDED_TOML: &str = include_str!("../../templates/ivd_defaults.toml");
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -82,7 +82,7 @@ impl IvdParams {
     }
 
     /// Parse template text; `path` names it in errors.
-    pub fn from_toml(text: &str, path: &Path) -> Result<IvdParams> {
+    pub(crate) fn from_toml(text: &str, path: &Path) -> Result<IvdParams> {
         let f: File = toml::from_str(text)
             .map_err(|e| Error::parse(path, "TOML", e.to_string().trim().to_string()))?;
         let t = |v: &Trans| Vector3::new(v.ap, v.si, v.ml);

@@ -30,7 +30,7 @@ pub(crate) struct Topology {
 
 impl Topology {
     /// Default pose of a generic body.
-    pub fn pose_of(&self, body: &str, gfile: &str) -> Result<Isometry3<f64>> {
+    pub(crate) fn pose_of(&self, body: &str, gfile: &str) -> Result<Isometry3<f64>> {
         self.poses
             .get(body)
             .copied()

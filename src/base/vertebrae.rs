@@ -23,7 +23,7 @@ pub(crate) struct Vert {
 
 impl Vert {
     /// How the vertebra is named in messages.
-    pub fn context(&self) -> String {
+    pub(super) fn context(&self) -> String {
         format!(
             "vertebra {} ({}, mesh {})",
             self.level, self.body, self.mesh_file

@@ -33,19 +33,22 @@ use crate::anatomy::Level;
 use nalgebra::Point3;
 
 /// Extra reach of the crossing rule beyond the radius (m).
-pub const CROSS_MARGIN: f64 = 0.005;
+pub(crate) const CROSS_MARGIN: f64 = 0.005;
 /// Clearance kept between a shrunk sphere and the nearest path point (m).
 pub const CLEARANCE: f64 = 0.0005;
-/// Test angles: lateral bending, axial rotation, flexion (rad).
-pub const TEST_LB: f64 = 10.0 * std::f64::consts::PI / 180.0;
-pub const TEST_AR: f64 = 5.0 * std::f64::consts::PI / 180.0;
-pub const TEST_FE: f64 = 10.0 * std::f64::consts::PI / 180.0;
+/// Lateral bending test angle (rad).
+pub(crate) const TEST_LB: f64 = 10.0 * std::f64::consts::PI / 180.0;
+/// Axial rotation test angle (rad).
+pub(crate) const TEST_AR: f64 = 5.0 * std::f64::consts::PI / 180.0;
+/// Flexion test angle (rad).
+pub(crate) const TEST_FE: f64 = 10.0 * std::f64::consts::PI / 180.0;
 
 /// One fitted sphere, body frame.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SphereRow {
     /// The vertebra (None: a sphere of a model on another body, refitted by `generate`).
     pub level: Option<Level>,
+    /// Body the sphere is fixed to.
     pub body: String,
     /// WrapSphere name (`<LEVEL>_body_sphere`).
     pub name: String,
@@ -101,9 +104,11 @@ pub fn test_poses(defaults: &Values, prefixes: &[String]) -> Vec<(String, Values
 
 /// A muscle as seen by the crossing rule.
 pub struct MuscleGeom {
+    /// Muscle name.
     pub name: String,
     /// Lowest and highest attachment level index (T1 = 0 .. S1 = 17).
     pub level_lo: usize,
+    /// Highest attachment level index.
     pub level_hi: usize,
     /// Bodies carrying a path point.
     pub bodies: Vec<String>,
@@ -113,7 +118,9 @@ pub struct MuscleGeom {
 
 /// A sphere as seen by the crossing rule.
 pub struct SphereGeom {
+    /// Level index of the sphere's vertebra (T1 = 0 .. S1 = 17).
     pub level_index: usize,
+    /// Body the sphere is fixed to.
     pub body: String,
     /// Radius before the inside-point fix (m).
     pub radius_fit: f64,
@@ -123,14 +130,17 @@ pub struct SphereGeom {
 
 /// Outcome for one sphere: final radius, wrapping muscles (indices), and
 /// refused muscles (indices).
-pub struct Assignment {
+pub(crate) struct Assignment {
+    /// Final sphere radius (m).
     pub radius: f64,
+    /// Indices of the muscles that wrap over it.
     pub muscles: Vec<usize>,
+    /// Indices of crossing muscles refused: a path point lies too deep inside the sphere.
     pub refused: Vec<usize>,
 }
 
 /// Apply the crossing rule and the inside-point fix to one sphere.
-pub fn assign(sphere: &SphereGeom, muscles: &[MuscleGeom]) -> Assignment {
+pub(crate) fn assign(sphere: &SphereGeom, muscles: &[MuscleGeom]) -> Assignment {
     let mut cands: Vec<(usize, f64, f64)> = Vec::new(); // (muscle, min seg dist, min point dist)
     for (k, m) in muscles.iter().enumerate() {
         if !(m.level_lo < sphere.level_index && sphere.level_index < m.level_hi) {

@@ -23,7 +23,7 @@
 //!   swap of the first two objects when the second has a point inside is
 //!   not reproduced: the generated models have one PathWrap per muscle);
 //! * the length adds the arc (radius times the angle between the tangent
-//!   points; OpenSim 4.6 subtracts the far-side arc, [`SphereWrap::length`]
+//!   points; OpenSim 4.6 subtracts the far-side arc, the `length` of [`SphereWrap::Wrapped`]
 //!   keeps its sign so that lengths agree with OpenSim's).
 //!
 //! [`wrapped_path`] gives that path as a polyline with the arcs sampled
@@ -39,18 +39,20 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use std::collections::BTreeMap;
 
 /// Arc sampling step of [`wrapped_path`] (m).
-pub const ARC_STEP: f64 = 0.001;
+pub(crate) const ARC_STEP: f64 = 0.001;
 /// Smallest length inside a vertebra that counts as a crossing (m).
 pub const DEPTH_TOLERANCE: f64 = 0.0005;
 
 /// A WrapSphere placed in ground.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SphereAt {
+    /// WrapSphere name.
     pub name: String,
     /// Body the sphere is fixed to.
     pub body: String,
     /// Sphere frame in ground (origin at the centre).
     pub frame: Isometry3<f64>,
+    /// Radius (m).
     pub radius: f64,
     /// Quadrant constraint: axis (0..3 of the sphere frame) and sign.
     pub quadrant: Option<(usize, f64)>,
@@ -58,7 +60,7 @@ pub struct SphereAt {
 
 /// Parse an OpenSim quadrant (`all`, `+x`, `-y`, `x`, ...): `None` for
 /// an unconstrained one.
-pub fn parse_quadrant(q: &str) -> Option<(usize, f64)> {
+pub(crate) fn parse_quadrant(q: &str) -> Option<(usize, f64)> {
     let q = q.trim().to_ascii_lowercase();
     let (sign, axis) = match q.strip_prefix('-') {
         Some(a) => (-1.0, a),
@@ -74,7 +76,7 @@ pub fn parse_quadrant(q: &str) -> Option<(usize, f64)> {
 
 /// Outcome of one segment against one sphere.
 #[derive(Debug, Clone, PartialEq)]
-pub enum SphereWrap {
+pub(crate) enum SphereWrap {
     /// The straight segment does not enter the sphere.
     NoWrap,
     /// A point is inside the sphere: OpenSim skips the wrap.
@@ -82,22 +84,17 @@ pub enum SphereWrap {
     /// The segment wraps: tangent points (ground), the signed arc length
     /// OpenSim adds, and whether the wrap was mandatory (quadrant).
     Wrapped {
+        /// First tangent point (ground, m).
         r1: Point3<f64>,
+        /// Second tangent point (ground, m).
         r2: Point3<f64>,
+        /// Signed arc length OpenSim adds (m).
         length: f64,
+        /// Whether the quadrant made the wrap mandatory.
         mandatory: bool,
+        /// Whether the quadrant forced the long way round (a negative arc angle).
         far_side: bool,
     },
-}
-
-impl SphereWrap {
-    /// The arc length OpenSim adds (0 without a wrap).
-    pub fn length(&self) -> f64 {
-        match self {
-            SphereWrap::Wrapped { length, .. } => *length,
-            _ => 0.0,
-        }
-    }
 }
 
 fn sgn(x: f64) -> f64 {
@@ -109,7 +106,7 @@ fn sgn(x: f64) -> f64 {
 }
 
 /// Wrap the segment `a`-`b` (ground) over `s`.
-pub fn wrap_segment(a: &Point3<f64>, b: &Point3<f64>, s: &SphereAt) -> SphereWrap {
+pub(crate) fn wrap_segment(a: &Point3<f64>, b: &Point3<f64>, s: &SphereAt) -> SphereWrap {
     let inv = s.frame.inverse();
     let (p1, p2) = ((inv * a).coords, (inv * b).coords);
     let r = s.radius;
@@ -211,6 +208,7 @@ pub fn wrap_segment(a: &Point3<f64>, b: &Point3<f64>, s: &SphereAt) -> SphereWra
 /// One vertex of a wrapped path.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PathVertex {
+    /// The vertex in ground (m).
     pub ground: Point3<f64>,
     /// The body of a muscle's own path point; `None` for tangent points
     /// and arc samples.
@@ -509,7 +507,12 @@ fn path_length(path: &[Entry], arcs: &BTreeMap<usize, f64>) -> f64 {
 /// Interior samples (every [`ARC_STEP`]) of the great-circle arc from
 /// tangent point `a` to `b` on sphere `s`: the short arc, or the long way
 /// round for a far-side wrap (negative `arc`, OpenSim's sign).
-pub fn sample_arc(s: &SphereAt, a: &Point3<f64>, b: &Point3<f64>, arc: f64) -> Vec<Point3<f64>> {
+pub(crate) fn sample_arc(
+    s: &SphereAt,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    arc: f64,
+) -> Vec<Point3<f64>> {
     let c = Point3::from(s.frame.translation.vector);
     let (ua, ub) = ((a - c) / s.radius, (b - c) / s.radius);
     let Some(n) = ua.cross(&ub).try_normalize(1e-12) else {
@@ -535,7 +538,9 @@ pub fn sample_arc(s: &SphereAt, a: &Point3<f64>, b: &Point3<f64>, arc: f64) -> V
 /// A muscle path crossing a vertebra.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Crossing {
+    /// Muscle name.
     pub muscle: String,
+    /// Body name of the vertebra it crosses.
     pub vertebra: String,
     /// Length of the path inside the vertebra mesh (mm).
     pub depth_mm: f64,

@@ -2,6 +2,8 @@
 //! landmark sets: what [`super::variability`] analyses and
 //! [`super::propagation`] turns into models.
 
+#![warn(missing_docs, unreachable_pub)]
+
 use crate::error::{Error, Result};
 use crate::landmarks::LandmarkSet;
 use std::collections::BTreeMap;
@@ -10,9 +12,13 @@ use std::path::PathBuf;
 /// One palpation with a resolved set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PalpationSet {
+    /// Operator identifier.
     pub operator: String,
+    /// Repetition number of that operator.
     pub repetition: u32,
+    /// The landmark file.
     pub source: PathBuf,
+    /// The landmarks, validated (m, OpenSim frame).
     pub set: LandmarkSet,
 }
 

@@ -36,6 +36,8 @@
 //! generated in parallel (rayon, the caller's thread pool) and collected in
 //! palpation order, so the report is deterministic.
 
+#![warn(missing_docs, unreachable_pub)]
+
 use super::palpations::PalpationSet;
 use super::{
     centre_definition, evaluate_model, mean_sd, med_iqr, metrics, summarise, truth_transform,
@@ -86,8 +88,11 @@ impl Default for PropagationOptions {
 /// One palpation's model.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct PalpationModel {
+    /// Operator identifier.
     pub operator: String,
+    /// Repetition number of that operator.
     pub repetition: u32,
+    /// The landmark file.
     pub source: String,
     /// Generated and evaluated.
     pub ok: bool,
@@ -110,16 +115,25 @@ pub struct GroupSummary {
     pub within: String,
     /// Palpations in the group, and how many gave a model.
     pub palpations: usize,
+    /// How many of them gave a model.
     pub models: usize,
+    /// Vertebral centre RMSE against the reference (mm).
     pub centre_rmse_mm: Option<MedIqr>,
+    /// Sagittal curve RMSE (mm).
     pub sagittal_curve_rmse_mm: Option<MedIqr>,
+    /// Frontal curve RMSE (mm).
     pub frontal_curve_rmse_mm: Option<MedIqr>,
+    /// Sagittal curve R^2.
     pub sagittal_r2: Option<MedIqr>,
+    /// Frontal curve R^2.
     pub frontal_r2: Option<MedIqr>,
+    /// Cobb angle (deg).
     pub cobb_deg: Option<MedIqr>,
+    /// Lumbar lordosis (deg).
     pub lordosis_deg: Option<MedIqr>,
     /// Table 5.8.
     pub cobb_mean_sd_deg: Option<MeanSd>,
+    /// Mean and SD of the lordosis (deg).
     pub lordosis_mean_sd_deg: Option<MeanSd>,
     /// Apex level -> number of models.
     pub apex_counts: BTreeMap<String, usize>,
@@ -130,43 +144,58 @@ pub struct GroupSummary {
 pub struct Reference {
     /// `truth` or `consensus`.
     pub kind: String,
+    /// The reference's file.
     pub source: String,
     /// Levels with a reference centre.
     pub levels: Vec<String>,
     /// The reference's own Cobb angle, apex and lordosis (truth landmarks
     /// or consensus model markers; `None` without them).
     pub cobb: Option<metrics::Cobb>,
+    /// The reference's apex level.
     pub apex: Option<String>,
+    /// The reference's lumbar lordosis (deg).
     pub lordosis_deg: Option<f64>,
 }
 
 /// The consensus (per-landmark median) landmark set and its model.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Consensus {
+    /// Number of landmarks in the consensus set.
     pub landmarks: usize,
     /// Landmarks held by half of the palpations or fewer (left out).
     pub left_out: Vec<String>,
     /// Whether its model could be generated, and the error when not.
     pub generated: bool,
+    /// The generator's error, when it failed.
     pub error: Option<String>,
+    /// Landmarks the generator rejected as outliers.
     pub outliers: Vec<String>,
 }
 
 /// The `model_propagation` section of the variability report.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ModelPropagation {
+    /// What the models were compared with.
     pub reference: Reference,
+    /// The consensus set and its model.
     pub consensus: Consensus,
+    /// The generation method used for every model.
     pub method: Method,
+    /// How each model was aligned with the reference.
     pub align: Align,
+    /// How vertebral centres are defined.
     pub vertebral_centre: &'static str,
     /// The Cobb end vertebrae used for every model (`UPPER-LOWER`) and
     /// where they come from (`given`, `truth landmarks`, `consensus model`),
     /// or `automatic per model`.
     pub cobb_ends: String,
+    /// Number of palpations.
     pub palpations: usize,
+    /// Number of models generated.
     pub models: usize,
+    /// Number of palpations whose model failed.
     pub failed: usize,
+    /// Summaries over all, per operator and per repetition.
     pub groups: Vec<GroupSummary>,
     /// Per-level absolute errors over all models (Table 5.7).
     pub levels: Vec<LevelSummary>,
@@ -178,13 +207,15 @@ pub struct ModelPropagation {
 /// models (label, model) when [`PropagationOptions::keep_models`].
 #[derive(Debug, Clone)]
 pub struct Propagated {
+    /// The report section.
     pub report: ModelPropagation,
+    /// The generated models `(label, model)`; empty unless kept.
     pub models: Vec<(String, Generated)>,
 }
 
 /// Per-landmark median set: coordinate-wise median over the palpations
 /// holding the landmark; landmarks held by at most half are left out.
-pub fn median_set(pals: &[PalpationSet]) -> (LandmarkSet, Vec<LandmarkId>) {
+fn median_set(pals: &[PalpationSet]) -> (LandmarkSet, Vec<LandmarkId>) {
     let mut pts: BTreeMap<LandmarkId, Vec<Point3<f64>>> = BTreeMap::new();
     for p in pals {
         for (id, q) in &p.set.points {

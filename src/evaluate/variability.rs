@@ -33,6 +33,8 @@
 //! per-landmark IQRs here, the model metrics in
 //! [`crate::evaluate::propagation::boxplots`]).
 
+#![warn(missing_docs, unreachable_pub)]
+
 pub use super::palpations::{load_palpations, PalpationSet};
 use super::propagation::{self, ModelPropagation, PropagationOptions};
 use crate::error::{Error, Result};
@@ -44,12 +46,14 @@ use nalgebra::Vector3;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-pub const AXES: [&str; 4] = ["X", "Y", "Z", "Euclidean"];
+const AXES: [&str; 4] = ["X", "Y", "Z", "Euclidean"];
 
 /// Per-landmark IQRs (mm).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LandmarkIqr {
+    /// The landmark.
     pub landmark: LandmarkId,
+    /// Number of palpations holding it.
     pub n: usize,
     /// X, Y, Z, Euclidean.
     pub iqr_mm: [f64; 4],
@@ -58,10 +62,15 @@ pub struct LandmarkIqr {
 /// Median and IQR of the per-landmark IQRs (Table 5.5).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct IqrSummary {
+    /// Landmark group (`all`, `joint` or `scaling`).
     pub group: String,
+    /// Axis (`X`, `Y`, `Z` or `Euclidean`).
     pub axis: String,
+    /// Median of the per-landmark IQRs (mm).
     pub median_mm: f64,
+    /// IQR of the per-landmark IQRs (mm).
     pub iqr_mm: f64,
+    /// Largest per-landmark IQR (mm).
     pub max_mm: f64,
 }
 
@@ -74,43 +83,66 @@ pub struct IccEntry {
     pub within: String,
     /// `joint` or `scaling`.
     pub group: String,
+    /// Axis (`X`, `Y`, `Z` or `Euclidean`).
     pub axis: String,
+    /// Number of targets (landmarks).
     pub targets: usize,
+    /// Number of raters.
     pub raters: usize,
+    /// The ICC(2,1) value.
     pub icc2_1: f64,
 }
 
 /// One Shapiro-Wilk test.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct NormalityEntry {
+    /// The landmark tested.
     pub landmark: LandmarkId,
+    /// Axis (`X`, `Y`, `Z` or `Euclidean`).
     pub axis: String,
+    /// Sample size.
     pub n: usize,
+    /// The W statistic.
     pub w: f64,
+    /// p-value of normality.
     pub p: f64,
 }
 
 /// One post hoc comparison.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct PostHoc {
+    /// The group compared.
     pub versus: String,
+    /// The reference group.
     pub reference: String,
+    /// The z statistic of the comparison.
     pub z: f64,
+    /// Single-step adjusted two-sided p-value.
     pub p: f64,
 }
 
 /// One Friedman-type test.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FriedmanEntry {
+    /// `inter` or `intra`.
     pub kind: String,
+    /// `repetition 3` or `operator A`.
     pub within: String,
+    /// The landmark code tested.
     pub marker: Code,
+    /// Axis (`X`, `Y`, `Z` or `Euclidean`).
     pub axis: String,
+    /// `friedman` or `skillings-mack`.
     pub method: String,
+    /// The test statistic.
     pub statistic: f64,
+    /// Degrees of freedom.
     pub df: usize,
+    /// p-value.
     pub p: f64,
+    /// Blocks used.
     pub blocks: usize,
+    /// The groups compared, the reference first.
     pub groups: Vec<String>,
     /// Nemenyi many-to-one against `groups[0]`, when p < 0.05.
     pub posthoc: Vec<PostHoc>,
@@ -119,20 +151,30 @@ pub struct FriedmanEntry {
 /// The full report.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct VariabilityReport {
+    /// Number of palpations.
     pub palpations: usize,
     /// Operator -> repetitions.
     pub operators: BTreeMap<String, Vec<u32>>,
+    /// Units of the distances (`mm`).
     pub units: String,
+    /// What the axes are.
     pub axes: String,
+    /// Per-landmark IQRs.
     pub landmarks: Vec<LandmarkIqr>,
+    /// Medians and IQRs of the per-landmark IQRs.
     pub summary: Vec<IqrSummary>,
+    /// ICC(2,1) analyses.
     pub icc: Vec<IccEntry>,
+    /// Shapiro-Wilk tests.
     pub normality: Vec<NormalityEntry>,
+    /// Number of Shapiro-Wilk tests rejecting normality at 5%.
     pub normality_rejected_at_5pct: usize,
+    /// Friedman-type tests.
     pub friedman: Vec<FriedmanEntry>,
     /// Thesis Tables 5.6-5.8: one model per palpation
     /// ([`crate::evaluate::propagation`]); `None` when not asked for.
     pub model_propagation: Option<ModelPropagation>,
+    /// Remarks on the analysis.
     pub notes: Vec<String>,
     /// What makes the statistics doubtful (palpations with identical
     /// landmark sets).
@@ -484,7 +526,7 @@ fn friedman_entries(
 
 /// SVG box plot of the per-landmark IQRs in X, Y, Z and Euclidean
 /// (thesis Figure 5.5), drawn by [`crate::util::charts::boxplot_svg`].
-pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
+fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
     let series: Vec<(String, Vec<f64>)> = (0..4)
         .map(|a| {
             (
@@ -511,6 +553,7 @@ pub fn iqr_boxplot_svg(report: &VariabilityReport) -> String {
 /// Everything `variability` computes, not yet written.
 #[derive(Debug, Clone)]
 pub struct Computed {
+    /// The report.
     pub report: VariabilityReport,
     /// `(file name, SVG)`: `iqr_boxplot.svg`, and the model box plots
     /// ([`propagation::boxplots`]) with the propagation.

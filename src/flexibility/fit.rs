@@ -60,6 +60,7 @@ impl FilmData {
 pub struct FilmState {
     /// Lateral force (N, ground Z) and frontal moment (N m, about ground X).
     pub loads: [f64; 3],
+    /// The film's placement on the model's frontal plane.
     pub place: Placement,
     /// Equilibrium coordinates (warm start of the next solve).
     pub q: DVector<f64>,
@@ -130,10 +131,13 @@ pub fn prior_rows(n: usize, sd: Option<f64>, step_sd: Option<f64>) -> DMatrix<f6
 
 /// A fit of some films: fixed multipliers, or estimated ones.
 pub struct Problem<'a> {
+    /// The bending model.
     pub model: &'a BendModel,
+    /// The films fitted.
     pub films: Vec<&'a FilmData>,
     /// Multipliers of every joint (the estimated ones are replaced).
     pub fixed: Vec<f64>,
+    /// The estimated joints and their parametrisation (`None`: only loads and placements are fitted).
     pub estimated: Option<Estimated>,
     /// Digitising noise (m).
     pub sigma: f64,
@@ -142,6 +146,7 @@ pub struct Problem<'a> {
 }
 
 impl<'a> Problem<'a> {
+    /// A problem on `films` with the joints' `fixed` multipliers, the `estimated` ones and noise `sigma` (m).
     pub fn new(
         model: &'a BendModel,
         films: Vec<&'a FilmData>,
@@ -162,7 +167,7 @@ impl<'a> Problem<'a> {
     }
 
     /// Number of stiffness coordinates.
-    pub fn n_stiffness(&self) -> usize {
+    fn n_stiffness(&self) -> usize {
         self.estimated.as_ref().map_or(0, |e| e.basis.ncols())
     }
 

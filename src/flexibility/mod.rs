@@ -31,6 +31,8 @@
 //! flexibility (bending Cobb / unbent Cobb) measured and reproduced
 //! ([`report`]); one figure per film ([`views`]).
 
+#![warn(missing_docs, unreachable_pub)]
+
 pub mod bend;
 pub mod fit;
 pub mod neutral;
@@ -87,14 +89,14 @@ impl Default for FlexibilityOptions {
 /// e^(1.96) = 7 of the spine's mean stiffness.
 pub const DEFAULT_PRIOR_SD: f64 = 1.0;
 /// A film bends the spine when its loaded level moved more than this (m) ...
-pub const BENT_LATERAL: f64 = 0.010;
+const BENT_LATERAL: f64 = 0.010;
 /// ... or turned more than this (rad) from the unbent model.
-pub const BENT_TILT: f64 = 0.087;
+const BENT_TILT: f64 = 0.087;
 /// A film whose RMS residual exceeds this many noise SDs contradicts the
 /// model (another patient, swapped levels).
-pub const CONTRADICTION_SIGMAS: f64 = 4.0;
+const CONTRADICTION_SIGMAS: f64 = 4.0;
 /// A film turned more than this on its pelvis (rad) is refused.
-pub const MAX_FILM_ROTATION: f64 = 0.35;
+const MAX_FILM_ROTATION: f64 = 0.35;
 
 /// What a film is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -111,12 +113,19 @@ pub enum Role {
 /// One film in the report.
 #[derive(Debug, Clone, Serialize)]
 pub struct FilmReport {
+    /// The film's file, as given.
     pub file: String,
+    /// The film's `# film:` text, if any.
     pub film: Option<String>,
+    /// What the film is for.
     pub role: Role,
+    /// The level the bending load acts on (e.g. `T1`).
     pub loaded_level: Level,
+    /// The film's projection, as its header states it.
     pub projection: String,
+    /// Image size over patient size at the patient's plane (1 for orthographic).
     pub magnification: f64,
+    /// Number of digitised points.
     pub points: usize,
     /// RMS of the pelvic placement before the fit (mm).
     pub pelvic_placement_rms_mm: f64,
@@ -133,42 +142,63 @@ pub struct FilmReport {
 /// The estimate's summary.
 #[derive(Debug, Clone, Serialize)]
 pub struct EstimateSummary {
+    /// The films the estimate used.
     pub films: Vec<String>,
+    /// Number of joints whose stiffness was estimated.
     pub joints_estimated: usize,
+    /// Number of data residuals (2 per film point).
     pub residuals: usize,
+    /// Number of fitted parameters.
     pub parameters: usize,
     /// RMS residual in noise SDs (the covariance uses max(1, its square)).
     pub residual_sd_in_noise: f64,
+    /// SD of the prior on a log multiplier (`None`: no prior).
     pub prior_sd: Option<f64>,
+    /// Least-squares iterations run.
     pub iterations: usize,
+    /// Why the least-squares optimiser stopped.
     pub stop: crate::calibrate::lm::LmStop,
+    /// Whether it converged.
     pub converged: bool,
 }
 
 /// `flexibility.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct FlexibilityReport {
+    /// The model file, as given.
     pub model: String,
     /// `personalised` or `uniform`.
     pub mode: String,
+    /// Digitising noise SD assumed (mm).
     pub noise_mm: f64,
+    /// What the films can and cannot determine.
     pub identifiability: String,
+    /// How the overall stiffness scale is fixed.
     pub absolute_scale: String,
+    /// The modelling assumptions of the estimate, for a reader.
     pub assumptions: Vec<String>,
+    /// The estimate's summary (`None` in `--uniform` mode or with no bending film).
     pub estimate: Option<EstimateSummary>,
+    /// Relative stiffness per estimated joint with its 95% interval.
     pub joints: Vec<JointEstimate>,
+    /// Joints whose 95% interval is too wide to say anything.
     pub unresolved_joints: Vec<String>,
+    /// Relative stiffness per spinal region.
     pub regions: Vec<RegionEstimate>,
+    /// The unbent model's curves and their flexibility on each film.
     pub curves: Vec<report::Curve>,
     /// The model's landmarks calibrated on the unbent film (None without one).
     pub neutral_calibration: Option<neutral::NeutralCalibration>,
+    /// Every film read and how it was fitted.
     pub films: Vec<FilmReport>,
+    /// What a reader should know about the result.
     pub findings: Vec<String>,
 }
 
 /// Everything `flexibility` writes, in memory.
 #[derive(Debug, Clone)]
 pub struct Flexibility {
+    /// The report (`flexibility.json`).
     pub report: FlexibilityReport,
     /// `stiffness.toml` (None when nothing was estimated).
     pub stiffness_toml: Option<String>,

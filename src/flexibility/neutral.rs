@@ -41,6 +41,7 @@ pub struct GroupShift {
 /// What the calibration did.
 #[derive(Debug, Clone, Serialize)]
 pub struct NeutralCalibration {
+    /// The unbent film's file.
     pub film: String,
     /// RMS distance model-at-rest to film, best in-plane placement (mm).
     pub rms_before_mm: f64,
@@ -50,6 +51,7 @@ pub struct NeutralCalibration {
     pub remainder_weight: f64,
     /// Mean offset per landmark code (mm, film axes).
     pub code_offsets_mm: BTreeMap<String, [f64; 2]>,
+    /// The rigid motion per vertebra and the pelvis.
     pub bodies: Vec<GroupShift>,
 }
 

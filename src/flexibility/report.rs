@@ -37,10 +37,15 @@ pub struct JointEstimate {
 /// A group of joints: geometric mean of their relative stiffness.
 #[derive(Debug, Clone, Serialize)]
 pub struct RegionEstimate {
+    /// Region label.
     pub region: String,
+    /// The joints of the region.
     pub joints: Vec<String>,
+    /// Geometric mean of the joints' relative stiffness.
     pub relative_stiffness: f64,
+    /// Its 95% interval.
     pub ci95: [f64; 2],
+    /// Whether the interval is narrow enough to call the region resolved.
     pub resolved: bool,
 }
 
@@ -81,14 +86,17 @@ pub struct FilmFit {
     pub rms_mm: f64,
     /// Per level (T1..L5, S1, pelvis for the femoral heads), RMS mm.
     pub rms_per_level_mm: BTreeMap<String, f64>,
+    /// The fitted loads on the loaded level.
     pub loads: Loads,
     /// The loaded level's lateral displacement (mm, towards the patient's
     /// left positive, as the film's u) and frontal tilt change (deg,
     /// positive right end lower) from the unbent model.
     pub loaded_level_lateral_mm: f64,
+    /// The loaded level's frontal tilt change (deg, positive right end lower).
     pub loaded_level_tilt_deg: f64,
     /// The film's placement on the model: rotation (deg) and offset (mm).
     pub placement_rotation_deg: f64,
+    /// The film's placement offset (mm).
     pub placement_offset_mm: [f64; 2],
 }
 
@@ -139,26 +147,34 @@ pub fn film_tilts(points: &BTreeMap<FilmPoint, Vector2<f64>>) -> FrontalTilts {
 pub struct Curve {
     /// `main` or `secondary`.
     pub curve: String,
+    /// The curve's upper end vertebra.
     pub upper: String,
+    /// The curve's lower end vertebra.
     pub lower: String,
     /// Where the ends and the unbent angle come from (a film, or `model`).
     pub defined_on: String,
+    /// Cobb angle of the unbent curve (deg).
     pub unbent_cobb_deg: f64,
+    /// The curve on each bending film.
     pub films: Vec<CurveOnFilm>,
 }
 
 /// One curve on one film.
 #[derive(Debug, Clone, Serialize)]
 pub struct CurveOnFilm {
+    /// The film's file.
     pub film: String,
     /// Measured on the film (None: its endplates are not on the film).
     pub measured_cobb_deg: Option<f64>,
+    /// Measured bending Cobb / unbent Cobb.
     pub measured_flexibility: Option<f64>,
     /// Reproduced by the personalised model (None in `--uniform` mode).
     pub personalised_cobb_deg: Option<f64>,
+    /// Personalised-model bending Cobb / unbent Cobb.
     pub personalised_flexibility: Option<f64>,
     /// Reproduced by the model's own (unpersonalised) stiffness.
     pub uniform_cobb_deg: Option<f64>,
+    /// Uniform-model bending Cobb / unbent Cobb.
     pub uniform_flexibility: Option<f64>,
 }
 

@@ -12,16 +12,16 @@ use std::collections::BTreeMap;
 
 /// One set of points to draw: label (with its Cobb angles), colour, points
 /// in the model's frontal plane (m).
-pub struct Layer {
-    pub label: String,
-    pub colour: RGBColor,
-    pub points: BTreeMap<FilmPoint, Vector2<f64>>,
+pub(crate) struct Layer {
+    pub(crate) label: String,
+    pub(crate) colour: RGBColor,
+    pub(crate) points: BTreeMap<FilmPoint, Vector2<f64>>,
 }
 
 /// The measured film, the personalised and the uniform model's colours.
-pub const MEASURED: RGBColor = RGBColor(220, 40, 40);
-pub const PERSONALISED: RGBColor = RGBColor(40, 90, 220);
-pub const UNIFORM: RGBColor = RGBColor(120, 120, 120);
+pub(crate) const MEASURED: RGBColor = RGBColor(220, 40, 40);
+pub(crate) const PERSONALISED: RGBColor = RGBColor(40, 90, 220);
+pub(crate) const UNIFORM: RGBColor = RGBColor(120, 120, 120);
 
 /// A frontal-plane point (u, v) in ground (x = 0, y = v, z = -u).
 fn ground(p: &Vector2<f64>) -> Point3<f64> {
@@ -29,7 +29,7 @@ fn ground(p: &Vector2<f64>) -> Point3<f64> {
 }
 
 /// The figure of one film.
-pub fn film_figure(title: &str, layers: &[Layer]) -> String {
+pub(crate) fn film_figure(title: &str, layers: &[Layer]) -> String {
     let mut f = Figure::new(title);
     for layer in layers {
         f.series.push(Series {

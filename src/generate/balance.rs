@@ -84,6 +84,7 @@ impl std::str::FromStr for AboveFov {
 /// What was done above the field of view, and where T1 ended.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AboveFovReport {
+    /// What was done above the field of view.
     pub mode: AboveFov,
     /// Levels above the field of view (not measured), caudal to cranial.
     pub unmeasured: Vec<String>,

@@ -40,7 +40,7 @@ use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
 
 /// Search range of the joint mismatch SD `s` (m): 1 um to 50 mm.
-pub const S_RANGE: [f64; 2] = [1e-6, 0.05];
+pub(crate) const S_RANGE: [f64; 2] = [1e-6, 0.05];
 
 /// One vertebra of the chain (ground frame, metres).
 #[derive(Debug, Clone)]
@@ -59,9 +59,13 @@ pub struct ChainVertebra {
 /// its centre in each body's frame (scaled with that body).
 #[derive(Debug, Clone)]
 pub struct ChainJoint {
+    /// Index of the upper vertebra in the chain.
     pub upper: usize,
+    /// Index of the lower vertebra in the chain.
     pub lower: usize,
+    /// The joint centre in the upper body's frame (m).
     pub in_upper: Point3<f64>,
+    /// The joint centre in the lower body's frame (m).
     pub in_lower: Point3<f64>,
 }
 

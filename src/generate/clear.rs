@@ -36,23 +36,25 @@ use std::collections::{BTreeMap, BTreeSet};
 /// Distance kept between a via point and the bone surface (m).
 pub const CLEARANCE: f64 = 0.002;
 /// Largest detour searched (m).
-pub const MAX_OFFSET: f64 = 0.05;
+pub(crate) const MAX_OFFSET: f64 = 0.05;
 /// Rounds of the crossing fix.
-pub const MAX_ROUNDS: usize = 12;
+pub(crate) const MAX_ROUNDS: usize = 12;
 /// Length (m) a new segment may run inside another vertebra's mesh (a
 /// graze of the coarse mesh's surface), well under the self-check's
 /// [`wrapped::DEPTH_TOLERANCE`].
-pub const GRAZE: f64 = 0.0001;
+pub(crate) const GRAZE: f64 = 0.0001;
 
 /// A via point that clears no crossing completely may still leave its
 /// segments this share of the self-check's tolerance inside other
 /// vertebrae (a graze of a coarse mesh's surface).
-pub const FALLBACK_INSIDE: f64 = 0.8;
+pub(crate) const FALLBACK_INSIDE: f64 = 0.8;
 
 /// One edit made to clear a path.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct PathEdit {
+    /// Muscle name.
     pub muscle: String,
+    /// Body name of the vertebra its path passed through.
     pub vertebra: String,
     /// "via point `<name>`" or "removed PathWrap over `<sphere>`".
     pub action: String,

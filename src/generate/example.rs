@@ -23,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 /// Coordinate offsets (deg) of the example's pose: (joint prefix, LB, AR, FE).
-pub const POSE: [(&str, f64, f64, f64); 11] = [
+pub(crate) const POSE: [(&str, f64, f64, f64); 11] = [
     ("L5_S1", -10.0, 0.0, 0.0),
     ("L4_L5", -14.0, -2.0, 0.0),
     ("L3_L4", 12.0, -4.0, 2.0),
@@ -39,7 +39,9 @@ pub const POSE: [(&str, f64, f64, f64); 11] = [
 
 /// The two fixture texts.
 pub struct Example {
+    /// The example landmark set (CSV text).
     pub landmarks_csv: String,
+    /// The example's true vertebral centres (CSV text).
     pub centres_csv: String,
 }
 

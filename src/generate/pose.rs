@@ -38,7 +38,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaterni
 use std::collections::BTreeMap;
 
 /// Smallest prediction error (mm) that can flag a landmark as an outlier.
-pub const OUTLIER_MIN_MM: f64 = 6.0;
+pub(crate) const OUTLIER_MIN_MM: f64 = 6.0;
 /// Mahalanobis length of a leave-one-out prediction error, in per-axis
 /// noise SDs, above which the landmark is an outlier (chi-square(3) tail
 /// probability 4.7e-3).
@@ -47,9 +47,9 @@ pub const OUTLIER_SIGMAS: f64 = 3.6;
 /// is left out of the set-wide noise estimate ([`set_noise_sd`]); stricter
 /// than [`OUTLIER_SIGMAS`] because trimming a clean vertebra biases the
 /// estimate low (chi-square(3) tail 1.1e-3).
-pub const TRIM_SIGMAS: f64 = 4.0;
+pub(crate) const TRIM_SIGMAS: f64 = 4.0;
 /// Median of the chi-square distribution with 3 degrees of freedom.
-pub const MEDIAN_CHI2_3: f64 = 2.365_973_884_375_338;
+pub(crate) const MEDIAN_CHI2_3: f64 = 2.365_973_884_375_338;
 /// Accepted range of a scale factor (beyond it the landmarks are wrong).
 pub const SCALE_RANGE: [f64; 2] = [0.5, 2.0];
 
@@ -133,7 +133,7 @@ pub fn scale_factors(
 
 /// [`scale_factors`], a dimension the landmarks cannot measure taking the
 /// factor `borrowed` gives it.
-pub fn scale_factors_borrowing(
+pub(crate) fn scale_factors_borrowing(
     level: Level,
     patient: &Points,
     model: &Points,
@@ -461,6 +461,7 @@ pub fn fit_vertebra_with(
 /// Leave-one-out statistics of one landmark ([`Method::Lsq`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Loo {
+    /// The landmark's code.
     pub code: Code,
     /// Length of the prediction error (m): the landmark minus its
     /// prediction by the scaling and fit of the other landmarks.
@@ -487,7 +488,7 @@ const FD_STEP: f64 = 1e-7;
 /// left out). The prediction covariance is the exact linearisation of the
 /// predictor (scaling rule and Kabsch fit) by finite differences with
 /// respect to every other landmark coordinate: `C = G G^T`.
-pub fn leave_one_out(level: Level, patient: &Points, model: &Points) -> Vec<Loo> {
+pub(crate) fn leave_one_out(level: Level, patient: &Points, model: &Points) -> Vec<Loo> {
     let mut out = Vec::new();
     if patient.len() < 6 {
         return out;

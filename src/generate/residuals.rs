@@ -12,18 +12,18 @@ use nalgebra::Vector3;
 use std::collections::BTreeMap;
 
 /// Fewest levels at which one code must be off the same way.
-pub const MISMATCH_MIN_LEVELS: usize = 3;
+pub(crate) const MISMATCH_MIN_LEVELS: usize = 3;
 /// Smallest mean offset of a mismatched code (m).
-pub const MISMATCH_MIN_OFFSET: f64 = 0.002;
+pub(crate) const MISMATCH_MIN_OFFSET: f64 = 0.002;
 /// The mean offset must exceed this many standard errors of a mean of
 /// palpation noise.
-pub const MISMATCH_MIN_T: f64 = 5.0;
+pub(crate) const MISMATCH_MIN_T: f64 = 5.0;
 /// Share of the levels whose residual points along the mean offset.
-pub const MISMATCH_MIN_AGREEMENT: f64 = 0.75;
+pub(crate) const MISMATCH_MIN_AGREEMENT: f64 = 0.75;
 /// More codes off than this is not a palpation protocol but vertebrae of
 /// another shape than the base's (reported as such; still compensated up
 /// to `generate::MAX_COMPENSATED_CODES`).
-pub const MAX_PROTOCOL_CODES: usize = 3;
+pub(crate) const MAX_PROTOCOL_CODES: usize = 3;
 
 /// What a consistent offset of a code means.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -40,8 +40,10 @@ pub enum MismatchKind {
 pub struct LandmarkResidual {
     /// `L3_SP`.
     pub landmark: String,
+    /// The landmark's level.
     #[serde(skip)]
     pub level: Level,
+    /// The landmark's code.
     #[serde(skip)]
     pub code: Code,
     /// Landmark minus the fitted model marker, in the vertebra's frame
@@ -56,7 +58,9 @@ pub struct LandmarkResidual {
 /// A code palpated by another protocol than the base's markers.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ProtocolMismatch {
+    /// The mismatched code.
     pub code: Code,
+    /// Protocol or shape mismatch.
     pub kind: MismatchKind,
     /// Levels where its residual points along the mean offset.
     pub levels: Vec<String>,

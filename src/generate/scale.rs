@@ -47,7 +47,7 @@ fn scale_prop(e: &mut Element, prop: &str, s: &Vector3<f64>, file: &std::path::P
 
 /// Inertia `[Ixx Iyy Izz Ixy Ixz Iyz]` about the centre of mass of a body
 /// of mass `m` scaled by `s` (new mass `m sx sy sz`).
-pub fn scaled_inertia(i: &[f64; 6], s: &Vector3<f64>) -> [f64; 6] {
+pub(crate) fn scaled_inertia(i: &[f64; 6], s: &Vector3<f64>) -> [f64; 6] {
     let it = Matrix3::new(i[0], i[3], i[4], i[3], i[1], i[5], i[4], i[5], i[2]);
     let sigma = Matrix3::identity() * (0.5 * it.trace()) - it;
     let k = s.x * s.y * s.z;
@@ -67,10 +67,15 @@ pub fn scaled_inertia(i: &[f64; 6], s: &Vector3<f64>) -> [f64; 6] {
 /// What scaling a body touched.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct ScaleCount {
+    /// Meshes scaled.
     pub meshes: usize,
+    /// Markers moved.
     pub markers: usize,
+    /// Path points moved.
     pub path_points: usize,
+    /// Offset frames moved.
     pub offset_frames: usize,
+    /// Wrap objects moved (their translation scaled).
     pub wrap_objects: usize,
     /// MovingPathPoints on the body (not scaled: functions of coordinates).
     pub moving_points_not_scaled: Vec<String>,

@@ -45,7 +45,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Point3, UnitQuaternion, Vector3};
 pub const MIN_LEVELS: usize = 4;
 /// Search range of tau (rad): 0.0006 to 57 deg of change of the relative
 /// rotation per level.
-pub const TAU_RANGE: [f64; 2] = [1e-5, 1.0];
+pub(crate) const TAU_RANGE: [f64; 2] = [1e-5, 1.0];
 
 /// `--smooth`: how the per-vertebra fits are combined along the spine
 /// (lsq method only).

@@ -35,7 +35,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 /// Least-squares radius about the scaled centre of the scaled anterior wall
 /// of a sphere of radius `r` scaled by `s`.
-pub fn refit_radius(r: f64, s: &Vector3<f64>) -> f64 {
+pub(crate) fn refit_radius(r: f64, s: &Vector3<f64>) -> f64 {
     let mut sum = 0.0;
     let mut n = 0.0;
     for i in -6..=6 {
@@ -53,7 +53,9 @@ pub fn refit_radius(r: f64, s: &Vector3<f64>) -> f64 {
 /// One sphere of the generated model.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SphereOut {
+    /// WrapSphere name.
     pub name: String,
+    /// Body the sphere is fixed to.
     pub body: String,
     /// Centre in the body frame (m).
     pub centre: [f64; 3],

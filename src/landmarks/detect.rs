@@ -28,16 +28,22 @@ use std::collections::BTreeMap;
 /// What the source declared, what the anatomy says, and what is used.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Detection {
+    /// Units the file declares, if any.
     pub declared_units: Option<Units>,
+    /// Units the anatomy indicates, if it can tell.
     pub detected_units: Option<Units>,
     /// Median ratio measured/published dimension, in file units per metre.
     pub units_ratio: Option<f64>,
+    /// Why the units were detected as they were, for a reader.
     pub units_evidence: String,
     /// Units used to read the file (detected when declared ones contradict
     /// the anatomy; `None` when neither is available).
     pub units: Option<Units>,
+    /// Frame the file declares, if any.
     pub declared_frame: Option<Frame>,
+    /// Frame the anatomy indicates, if it can tell.
     pub detected_frame: Option<Frame>,
+    /// Why the frame was detected as it was, for a reader.
     pub frame_evidence: String,
     /// Frame used (same rule as `units`).
     pub frame: Option<Frame>,

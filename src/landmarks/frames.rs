@@ -18,6 +18,7 @@ use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 /// A vertebra's landmark-based local frame (OpenSim/ground coordinates).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VertebraFrame {
+    /// The vertebral level.
     pub level: Level,
     /// Mid-point of SEC and IEC (m).
     pub origin: Point3<f64>,
@@ -26,12 +27,15 @@ pub struct VertebraFrame {
 }
 
 impl VertebraFrame {
+    /// Anterior unit axis (x) in ground.
     pub fn anterior(&self) -> Vector3<f64> {
         self.rotation.matrix().column(0).into()
     }
+    /// Cranial unit axis (y) in ground.
     pub fn cranial(&self) -> Vector3<f64> {
         self.rotation.matrix().column(1).into()
     }
+    /// Right unit axis (z) in ground.
     pub fn right(&self) -> Vector3<f64> {
         self.rotation.matrix().column(2).into()
     }
@@ -85,9 +89,13 @@ pub fn mean_of(points: &[Option<Point3<f64>>]) -> Option<Point3<f64>> {
 /// when its landmarks are missing.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
 pub struct VertebraDimensions {
+    /// Superior endplate depth, anterior-posterior (m).
     pub sup_depth: Option<f64>,
+    /// Inferior endplate depth, anterior-posterior (m).
     pub inf_depth: Option<f64>,
+    /// Superior endplate width, left-right (m).
     pub sup_width: Option<f64>,
+    /// Inferior endplate width, left-right (m).
     pub inf_width: Option<f64>,
     /// Mean of the four superior-inferior distances that are present.
     pub height: Option<f64>,

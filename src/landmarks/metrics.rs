@@ -50,7 +50,7 @@ use std::collections::BTreeMap;
 /// Smallest length of the endplate normal's projection on a view plane
 /// (sine of the angle between the normal and the view axis) for which the
 /// endplate's line in that view is defined.
-pub const EDGE_ON_MIN: f64 = 0.1;
+pub(crate) const EDGE_ON_MIN: f64 = 0.1;
 
 /// Frontal and sagittal tilts (rad) of an endplate of unit normal `n`
 /// (oriented cranially): the angles of the lines where the endplate plane
@@ -65,7 +65,7 @@ pub fn tilts(n: &Vector3<f64>) -> (Option<f64>, Option<f64>) {
 /// Unit normal of the least-squares plane through `pts`, oriented along
 /// `up`; `None` when the points do not span a plane (collinear or
 /// coincident within 1e-9 m) or `up` lies in it.
-pub fn plane_normal(pts: &[Point3<f64>], up: &Vector3<f64>) -> Option<Vector3<f64>> {
+pub(crate) fn plane_normal(pts: &[Point3<f64>], up: &Vector3<f64>) -> Option<Vector3<f64>> {
     if pts.len() < 3 {
         return None;
     }
@@ -92,12 +92,12 @@ pub fn plane_normal(pts: &[Point3<f64>], up: &Vector3<f64>) -> Option<Vector3<f6
 
 /// Frontal and sagittal tilt of one endplate (rad); `None` for a view in
 /// which it faces the beam.
-pub type Tilts = (Option<f64>, Option<f64>);
+pub(crate) type Tilts = (Option<f64>, Option<f64>);
 
 /// Frontal and sagittal tilts (rad) of the superior and inferior endplates
 /// of a level (`None` when landmarks are missing or the endplate is
 /// degenerate).
-pub fn endplate_tilts(set: &LandmarkSet, level: Level) -> (Option<Tilts>, Option<Tilts>) {
+pub(crate) fn endplate_tilts(set: &LandmarkSet, level: Level) -> (Option<Tilts>, Option<Tilts>) {
     let g = |c| set.get(level, c);
     // Cranial direction of the vertebra; S1 has no inferior endplate
     // landmarks: ground's superior axis.
@@ -122,7 +122,9 @@ pub fn endplate_tilts(set: &LandmarkSet, level: Level) -> (Option<Tilts>, Option
 pub struct Cobb {
     /// Signed angle (deg), positive convex to the right.
     pub angle_deg: f64,
+    /// Upper end vertebra (e.g. `T11`).
     pub upper: String,
+    /// Lower end vertebra (e.g. `L4`).
     pub lower: String,
     /// Whether the end vertebrae were found automatically.
     pub automatic: bool,
@@ -143,7 +145,7 @@ pub fn frontal_tilt_of_line(right: (f64, f64), left: (f64, f64)) -> Option<f64> 
 }
 
 /// Frontal tilts of every vertebra of `set` (S1 excluded).
-pub fn frontal_tilts(set: &LandmarkSet) -> FrontalTilts {
+pub(crate) fn frontal_tilts(set: &LandmarkSet) -> FrontalTilts {
     set.levels()
         .into_iter()
         .filter(|l| !l.is_sacrum())
@@ -246,6 +248,7 @@ pub struct Shape {
     pub lumbar_lordosis_deg: Option<f64>,
     /// Thoracic kyphosis T4-T12, positive kyphotic.
     pub kyphosis_t4_t12_deg: Option<f64>,
+    /// Sacral slope (deg): the S1 endplate's angle to the horizontal.
     pub sacral_slope_deg: Option<f64>,
     /// The conventions of the numbers above.
     pub conventions: &'static str,
@@ -299,12 +302,16 @@ pub fn apex(centres: &BTreeMap<Level, Point3<f64>>, upper: Level, lower: Level) 
 /// returned with `x0`, `xs`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Poly {
+    /// Coefficients, constant first.
     pub coef: Vec<f64>,
+    /// Centre of the x values.
     pub x0: f64,
+    /// Half-range of the x values about `x0`.
     pub xs: f64,
 }
 
 impl Poly {
+    /// The polynomial's value at `x`.
     pub fn eval(&self, x: f64) -> f64 {
         let t = (x - self.x0) / self.xs;
         self.coef.iter().rev().fold(0.0, |a, c| a * t + c)
@@ -337,11 +344,15 @@ pub fn polyfit(x: &[f64], y: &[f64], order: usize) -> Option<Poly> {
 /// Comparison of the model's curve with the truth's in one plane.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct CurveFit {
+    /// Polynomial order used.
     pub order: usize,
+    /// RMS difference of the two polynomials at the truth's heights (mm).
     pub rmse_mm: f64,
+    /// `1 - SS_res / SS_tot`: the two polynomials' squared differences over the truth's variance.
     pub r2: f64,
     /// RMS residual of each polynomial fit to its own centres (mm).
     pub truth_fit_rms_mm: f64,
+    /// RMS residual of the model's polynomial to its own centres (mm).
     pub model_fit_rms_mm: f64,
 }
 

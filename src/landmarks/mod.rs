@@ -19,11 +19,16 @@
 //! superior, z right); the source's declared and detected units/frame are
 //! kept in its [`detect::Detection`].
 
+#![warn(missing_docs, unreachable_pub)]
+
+#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod check;
 pub mod detect;
 pub mod frames;
+#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod io;
 pub mod metrics;
+#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod radiograph;
 pub mod raw;
 pub mod stats;
@@ -166,11 +171,14 @@ impl FromStr for Code {
 /// A landmark's identity: level + code, ordered cranial to caudal then by code.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct LandmarkId {
+    /// The vertebral level.
     pub level: Level,
+    /// The landmark code on that level.
     pub code: Code,
 }
 
 impl LandmarkId {
+    /// The id of `code` on `level`.
     pub fn new(level: Level, code: Code) -> Self {
         LandmarkId { level, code }
     }
@@ -196,8 +204,10 @@ impl fmt::Display for LandmarkId {
 /// Length units of a landmark file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum Units {
+    /// Millimetres.
     #[serde(rename = "mm")]
     Millimetre,
+    /// Metres.
     #[serde(rename = "m")]
     Metre,
 }
@@ -246,6 +256,7 @@ pub enum Frame {
 }
 
 impl Frame {
+    /// Every frame a landmark file can be in.
     pub const ALL: [Frame; 3] = [Frame::Lps, Frame::Ras, Frame::OpenSim];
 
     /// Rotation taking file coordinates to OpenSim coordinates.

@@ -10,8 +10,11 @@ use std::path::PathBuf;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum FileFormat {
+    /// Comma-separated values.
     Csv,
+    /// A TRC motion-capture file.
     Trc,
+    /// JSON.
     Json,
 }
 
@@ -37,10 +40,15 @@ pub struct RawPoint {
 /// A landmark file's content before validation.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RawLandmarks {
+    /// The file read.
     pub path: PathBuf,
+    /// Its format.
     pub format: FileFormat,
+    /// Units the file declares, if any.
     pub declared_units: Option<Units>,
+    /// Frame the file declares, if any.
     pub declared_frame: Option<Frame>,
+    /// The points in file order.
     pub points: Vec<RawPoint>,
     /// Reader remarks (e.g. "TRC: mean of 3 frames").
     pub notes: Vec<String>,
@@ -49,7 +57,10 @@ pub struct RawLandmarks {
 /// One palpation of a repeated-palpation study.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Palpation {
+    /// Operator identifier.
     pub operator: String,
+    /// Repetition number of that operator.
     pub repetition: u32,
+    /// The landmark file read.
     pub raw: RawLandmarks,
 }

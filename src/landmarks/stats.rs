@@ -141,8 +141,11 @@ pub fn icc(rows: &[Vec<f64>]) -> Result<Icc> {
 /// Shapiro-Wilk result.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct ShapiroWilk {
+    /// Sample size.
     pub n: usize,
+    /// The W statistic.
     pub w: f64,
+    /// p-value of normality.
     pub p: f64,
 }
 
@@ -240,8 +243,11 @@ pub fn shapiro_wilk(x: &[f64]) -> Result<ShapiroWilk> {
 pub struct RankTest {
     /// `"friedman"` or `"skillings-mack"`.
     pub method: String,
+    /// The test statistic (chi-squared under the null).
     pub statistic: f64,
+    /// Degrees of freedom.
     pub df: usize,
+    /// p-value.
     pub p: f64,
     /// Blocks used.
     pub blocks: usize,
@@ -412,7 +418,7 @@ pub fn friedman_blocked(y: &[Vec<Option<f64>>]) -> Result<RankTest> {
 
 /// `P(max_i |X_i| <= c)` for `m` standard normals with common correlation
 /// `rho` in [0, 1): one-dimensional integral over the shared factor.
-pub fn equicorrelated_normal_box(c: f64, m: usize, rho: f64) -> f64 {
+pub(crate) fn equicorrelated_normal_box(c: f64, m: usize, rho: f64) -> f64 {
     if m == 0 {
         return 1.0;
     }
@@ -437,7 +443,7 @@ pub fn many_one_critical(alpha: f64, m: usize) -> f64 {
 }
 
 /// CDF of the studentized range of `k` normals with infinite df.
-pub fn studentized_range_cdf_inf(q: f64, k: usize) -> f64 {
+pub(crate) fn studentized_range_cdf_inf(q: f64, k: usize) -> f64 {
     if q <= 0.0 || k < 2 {
         return 0.0;
     }
@@ -478,6 +484,7 @@ fn bisect(f: impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
 pub struct ManyOne {
     /// Index of the group compared with group 0.
     pub group: usize,
+    /// The z statistic of the comparison with group 0.
     pub z: f64,
     /// Single-step adjusted two-sided p-value.
     pub p: f64,

@@ -32,16 +32,22 @@ use rand_distr::{Distribution, Normal};
 /// `width` levels.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Bend {
+    /// Level index of the bend's centre (fractional: between levels).
     pub apex: f64,
+    /// Gaussian SD of the weights (levels).
     pub width: f64,
+    /// Total bend angle (rad).
     pub angle: f64,
 }
 
 /// Axial rotation profile: `peak` (rad) at `apex`, Gaussian of SD `width`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Twist {
+    /// Level index of the peak (fractional).
     pub apex: f64,
+    /// Gaussian SD (levels).
     pub width: f64,
+    /// Peak axial rotation (rad).
     pub peak: f64,
 }
 
@@ -50,8 +56,11 @@ pub struct Twist {
 pub struct SpineShape {
     /// Sacral slope (rad), anterior tilt of the S1 endplate.
     pub sacral_slope: f64,
+    /// Sagittal bends (positive lordotic).
     pub sagittal: Vec<Bend>,
+    /// Frontal bends (positive bends the upper spine to the right).
     pub frontal: Vec<Bend>,
+    /// Axial rotation profiles.
     pub axial: Vec<Twist>,
 }
 
@@ -170,9 +179,11 @@ impl SpineShape {
 pub struct SynthOptions {
     /// Most cranial level (the set runs `top..=S1`).
     pub top: Level,
+    /// The spine's shape.
     pub shape: SpineShape,
     /// Gaussian noise SD per coordinate (m); 0 for a clean set.
     pub noise_sd: f64,
+    /// Seed of the noise generator.
     pub seed: u64,
 }
 
@@ -315,7 +326,7 @@ pub fn generate(opts: &SynthOptions) -> Result<LandmarkSet> {
 }
 
 /// [`generate`] with a given dimension table.
-pub fn generate_with(table: &DimensionTable, opts: &SynthOptions) -> Result<LandmarkSet> {
+pub(crate) fn generate_with(table: &DimensionTable, opts: &SynthOptions) -> Result<LandmarkSet> {
     if !(opts.noise_sd >= 0.0 && opts.noise_sd.is_finite()) {
         return Err(Error::invalid("synth", "noise SD must be finite and >= 0"));
     }

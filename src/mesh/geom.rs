@@ -271,7 +271,7 @@ impl TriMesh {
 
     /// Refuse a mesh with edges shared by more than two triangles, with an
     /// error naming `context` and the first offending edges.
-    pub fn require_edge_manifold(&self, context: &str) -> Result<()> {
+    fn require_edge_manifold(&self, context: &str) -> Result<()> {
         let rep = self.edge_report();
         if rep.non_manifold_edges.is_empty() {
             return Ok(());

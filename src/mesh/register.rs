@@ -188,7 +188,7 @@ impl Residuals {
     /// Statistics of `d` (percentiles by the crate's one convention, R's
     /// type 7: [`crate::util::quantiles::quantile`]); all zero if empty or
     /// holding a NaN.
-    pub fn from_distances(d: &[f64]) -> Residuals {
+    fn from_distances(d: &[f64]) -> Residuals {
         let pct = |p: f64| quantile(d, p);
         let (Some(p50), Some(p90), Some(p95), Some(p99), Some(max)) =
             (pct(0.5), pct(0.9), pct(0.95), pct(0.99), pct(1.0))
@@ -481,12 +481,16 @@ fn refine(
 /// An affine map `p -> a p + b`, and the trimmed RMS of the last step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AffineFit {
+    /// The linear part `a`.
     pub a: Matrix3<f64>,
+    /// The translation `b` (mesh units).
     pub b: Vector3<f64>,
+    /// RMS closest-point distance of the kept pairs at the last step (mesh units).
     pub trimmed_rms: f64,
 }
 
 impl AffineFit {
+    /// The mapped point `a p + b`.
     pub fn apply(&self, p: &Point3<f64>) -> Point3<f64> {
         Point3::from(self.a * p.coords + self.b)
     }

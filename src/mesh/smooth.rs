@@ -11,9 +11,9 @@ use super::TriMesh;
 use nalgebra::{Point3, Vector3};
 
 /// Taubin's smoothing factor (the shrinking step).
-pub const LAMBDA: f64 = 0.5;
+const LAMBDA: f64 = 0.5;
 /// Taubin's inflating factor, `1/lambda + 1/mu = 0.1` (pass-band edge k = 0.1).
-pub const MU: f64 = -0.526_315_789_473_684_2;
+const MU: f64 = -0.526_315_789_473_684_2;
 
 /// Each vertex's neighbours (vertices sharing an edge), sorted, unique.
 fn neighbours(mesh: &TriMesh) -> Vec<Vec<u32>> {

@@ -18,7 +18,9 @@ pub trait MeshSource {
 /// Meshes looked up like OpenSim does: the model's folder, its
 /// `Geometry/`, then the extra folders in order.
 pub struct DirMeshSource {
+    /// The model file; its folder and its `Geometry/` are searched first.
     pub model_path: PathBuf,
+    /// Further folders searched in order after the model's own.
     pub extra: Vec<PathBuf>,
 }
 

@@ -74,7 +74,7 @@ pub fn coordinate(name: &str, default_value: f64, range: [f64; 2]) -> Element {
 
 /// One TransformAxis of a CustomJoint: `coordinate` None gives a Constant 0
 /// function, Some(c) a LinearFunction (1, 0) of coordinate c.
-pub fn transform_axis(name: &str, axis: &Vector3<f64>, coordinate: Option<&str>) -> Element {
+pub(crate) fn transform_axis(name: &str, axis: &Vector3<f64>, coordinate: Option<&str>) -> Element {
     let (coords, function) = match coordinate {
         Some(c) => (
             c.to_string(),
@@ -157,8 +157,9 @@ pub fn weld_joint(name: &str, parent_frame: Element, child_frame: Element) -> El
 
 /// The usual spine CustomJoint: coordinates `<prefix>_rx, _ry, _rz, _tx,
 /// _ty, _tz` on axes X, Y, Z of the parent frame (rotations body-fixed
-/// X-Y-Z), each with range `rot_range` / `trans_range`.
-pub fn custom_joint_6dof(
+/// X-Y-Z), each with range `rot_range` / `trans_range` (a test fixture).
+#[cfg(test)]
+fn custom_joint_6dof(
     name: &str,
     prefix: &str,
     parent_frame: Element,

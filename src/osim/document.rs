@@ -11,7 +11,7 @@ use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
 
 /// The component sets of a Model (tag names), in the order OpenSim writes them.
-pub const SETS: [&str; 9] = [
+pub(crate) const SETS: [&str; 9] = [
     "BodySet",
     "JointSet",
     "ControllerSet",
@@ -229,7 +229,7 @@ impl Document {
     }
 
     /// The `<objects>` of set `set` (e.g. "BodySet"), if the set exists.
-    pub fn set_objects(&self, set: &str) -> Option<&Element> {
+    pub(crate) fn set_objects(&self, set: &str) -> Option<&Element> {
         self.model_element().child(set)?.child("objects")
     }
 
@@ -301,31 +301,6 @@ impl Document {
         Ok(std::mem::replace(slot, component))
     }
 
-    /// Remove the component named `name` from `set`; returns it.
-    pub fn remove_component(&mut self, set: &str, name: &str) -> Result<Element> {
-        let ctx = self.path.display().to_string();
-        let missing = || {
-            Error::invalid(
-                ctx.clone(),
-                format!("{set} has no component named '{name}'"),
-            )
-        };
-        let objects = self
-            .model_element_mut()
-            .child_mut(set)
-            .and_then(|s| s.child_mut("objects"))
-            .ok_or_else(missing)?;
-        let idx = objects
-            .children
-            .iter()
-            .position(|n| matches!(n, Node::Element(e) if e.attr("name") == Some(name)))
-            .ok_or_else(missing)?;
-        match objects.children.remove(idx) {
-            Node::Element(e) => Ok(e),
-            _ => Err(missing()),
-        }
-    }
-
     /// Set a property (direct child) of the Model element.
     pub fn set_model_property(&mut self, name: &str, text: impl Into<String>) {
         self.model_element_mut().set_child_text(name, text);
@@ -333,7 +308,7 @@ impl Document {
 }
 
 /// `<XSet name="xset"><objects /><groups /></XSet>`.
-pub fn empty_set(tag: &str) -> Element {
+pub(crate) fn empty_set(tag: &str) -> Element {
     Element::new(tag)
         .with_attr("name", tag.to_lowercase())
         .with_child(Element::new("objects"))
@@ -376,8 +351,6 @@ mod tests {
             .unwrap();
         assert_eq!(old.name_attr(), "L5");
         assert!(d.component("BodySet", "L4").is_some());
-        d.remove_component("BodySet", "L4").unwrap();
-        assert!(d.remove_component("BodySet", "L4").is_err());
         // Re-parse what we write.
         let text = d.to_xml_string();
         let d2 = Document::parse(&text, "mem.osim").unwrap();

@@ -133,7 +133,7 @@ fn rename_child(e: &mut Element, from: &str, to: &str) {
 /// hold the same rounded values to reproduce OpenSim's kinematics. (It also
 /// *prints* LinearFunction coefficients of old files with 6 digits, but
 /// computes with the full values; those are kept verbatim here.)
-pub fn fmt_g6(x: f64) -> String {
+pub(crate) fn fmt_g6(x: f64) -> String {
     if x == 0.0 || !x.is_finite() {
         return if x == 0.0 { "0".into() } else { format!("{x}") };
     }

@@ -41,7 +41,7 @@ pub fn xyz_angles(r: &Rotation3<f64>) -> Vector3<f64> {
 }
 
 /// Transform with translation `t` and body-fixed XYZ orientation `angles`.
-pub fn frame_transform(t: &Vector3<f64>, angles: &Vector3<f64>) -> Isometry3<f64> {
+pub(crate) fn frame_transform(t: &Vector3<f64>, angles: &Vector3<f64>) -> Isometry3<f64> {
     Isometry3::from_parts(
         Translation3::from(*t),
         UnitQuaternion::from_rotation_matrix(&body_fixed_xyz(angles)),
@@ -51,39 +51,53 @@ pub fn frame_transform(t: &Vector3<f64>, angles: &Vector3<f64>) -> Isometry3<f64
 /// How a coordinate moves its joint.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum MotionType {
+    /// Moves the joint by a rotation (value in rad).
     Rotational,
+    /// Moves the joint by a translation (value in m).
     Translational,
+    /// Drives the joint through a coupling constraint.
     Coupled,
 }
 
 /// A generalized coordinate.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Coordinate {
+    /// Coordinate name.
     pub name: String,
     /// Joint owning the coordinate.
     pub joint: String,
+    /// `default_value` (rad or m).
     pub default_value: f64,
+    /// `default_speed_value` (rad/s or m/s).
     pub default_speed_value: f64,
     /// [min, max] (rad or m).
     pub range: [f64; 2],
+    /// Whether the value is clamped to `range`.
     pub clamped: bool,
+    /// Whether the coordinate is locked at its value.
     pub locked: bool,
+    /// Whether the coordinate's motion is prescribed.
     pub prescribed: bool,
+    /// Rotational, translational or coupled.
     pub motion_type: MotionType,
+    /// Line of the element in the file.
     pub line: usize,
 }
 
 /// A PhysicalOffsetFrame: a fixed transform from its parent frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OffsetFrame {
+    /// Frame name.
     pub name: String,
     /// Absolute component path of this frame (e.g. `/jointset/j/L5_offset`).
     pub path: String,
     /// Socket text of the parent frame, as written.
     pub socket_parent: String,
+    /// Origin in the parent frame (m).
     pub translation: Vector3<f64>,
     /// Body-fixed XYZ angles (rad).
     pub orientation: Vector3<f64>,
+    /// Line of the element in the file.
     pub line: usize,
 }
 
@@ -97,34 +111,54 @@ impl OffsetFrame {
 /// Attached geometry of a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Geometry {
+    /// A mesh file attached to the frame.
     Mesh {
+        /// Geometry component name.
         name: String,
+        /// `mesh_file` as written.
         mesh_file: String,
+        /// Scale applied to the mesh along the frame's X, Y, Z.
         scale_factors: Vector3<f64>,
     },
     /// Another geometry class (Sphere, Cylinder, Brick, ...), kept by class.
-    Other { class: String, name: String },
+    Other {
+        /// OpenSim class name.
+        class: String,
+        /// Geometry component name.
+        name: String,
+    },
 }
 
 /// Shape of a wrap object.
 #[derive(Debug, Clone, PartialEq)]
 pub enum WrapShape {
+    /// A WrapSphere.
     Sphere {
+        /// Radius (m).
         radius: f64,
     },
+    /// A WrapCylinder.
     Cylinder {
+        /// Radius (m).
         radius: f64,
+        /// Length along the cylinder's Z axis (m).
         length: f64,
     },
     /// Semi-axes.
     Ellipsoid {
+        /// Semi-axes along X, Y, Z (m).
         dimensions: Vector3<f64>,
     },
+    /// A WrapTorus.
     Torus {
+        /// Inner radius (m).
         inner_radius: f64,
+        /// Outer radius (m).
         outer_radius: f64,
     },
+    /// Another wrap class, kept by name.
     Other {
+        /// OpenSim class name.
         class: String,
     },
 }
@@ -132,13 +166,19 @@ pub enum WrapShape {
 /// A wrap object fixed to a body (or ground).
 #[derive(Debug, Clone, PartialEq)]
 pub struct WrapObject {
+    /// Wrap object name.
     pub name: String,
     /// Body (or "ground") the object is fixed to.
     pub body: String,
+    /// Origin in the body frame (m).
     pub translation: Vector3<f64>,
+    /// Orientation in the body frame: body-fixed X-Y-Z angles (rad).
     pub xyz_body_rotation: Vector3<f64>,
+    /// `quadrant` as written (`all`, `+x`, `-y`, ...).
     pub quadrant: String,
+    /// Whether the object is active.
     pub active: bool,
+    /// Its shape and dimensions.
     pub shape: WrapShape,
 }
 
@@ -158,13 +198,19 @@ impl WrapObject {
 /// A rigid body.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Body {
+    /// Body name.
     pub name: String,
+    /// Mass (kg).
     pub mass: f64,
+    /// Centre of mass in the body frame (m).
     pub mass_center: Vector3<f64>,
     /// [Ixx Iyy Izz Ixy Ixz Iyz] about the mass center.
     pub inertia: [f64; 6],
+    /// Attached geometry.
     pub geometry: Vec<Geometry>,
+    /// Wrap objects fixed to the body.
     pub wrap_objects: Vec<WrapObject>,
+    /// Line of the element in the file.
     pub line: usize,
 }
 
@@ -173,19 +219,26 @@ pub struct Body {
 pub struct TransformAxis {
     /// rotation1..3, translation1..3.
     pub name: String,
+    /// Names of the coordinates the function takes.
     pub coordinates: Vec<String>,
+    /// Axis in the joint's parent frame (unit vector).
     pub axis: Vector3<f64>,
+    /// Value (rad or m) as a function of the coordinates.
     pub function: Function,
 }
 
 /// Joint class and its class-specific data.
 #[derive(Debug, Clone, PartialEq)]
 pub enum JointKind {
+    /// A WeldJoint (no coordinates).
     Weld,
+    /// A PinJoint (one rotation about Z).
     Pin,
+    /// A FreeJoint (X-Y-Z rotations, then translations).
     Free,
     /// rotation1, rotation2, rotation3, translation1, translation2, translation3.
     Custom {
+        /// The six transform axes.
         axes: Vec<TransformAxis>,
     },
     /// Other joint classes, kept by class name.
@@ -195,25 +248,34 @@ pub enum JointKind {
 /// A joint with its frames and coordinates.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Joint {
+    /// Joint name.
     pub name: String,
+    /// OpenSim class name.
     pub class: String,
+    /// The class and its class-specific data.
     pub kind: JointKind,
     /// Socket texts as written.
     pub socket_parent_frame: String,
+    /// Socket text of the child frame, as written.
     pub socket_child_frame: String,
     /// Offset frames the joint owns.
     pub frames: Vec<OffsetFrame>,
+    /// The joint's coordinates in order.
     pub coordinates: Vec<Coordinate>,
+    /// Line of the element in the file.
     pub line: usize,
 }
 
 /// Resolved frames of a joint.
 #[derive(Debug, Clone, PartialEq)]
 pub struct JointFrames {
+    /// Joint name.
     pub joint: String,
+    /// Name of the body (or ground) the parent frame is on.
     pub parent_body: String,
     /// Parent joint frame in the parent body.
     pub parent_in_body: Isometry3<f64>,
+    /// Name of the body the child frame is on.
     pub child_body: String,
     /// Child joint frame in the child body.
     pub child_in_body: Isometry3<f64>,
@@ -222,25 +284,36 @@ pub struct JointFrames {
 /// A BushingForce (linear bushing between two frames).
 #[derive(Debug, Clone, PartialEq)]
 pub struct BushingForce {
+    /// Force name.
     pub name: String,
+    /// Socket text of frame 1, as written.
     pub socket_frame1: String,
+    /// Socket text of frame 2, as written.
     pub socket_frame2: String,
+    /// Offset frames the force owns.
     pub frames: Vec<OffsetFrame>,
     /// Nm/rad about X, Y, Z.
     pub rotational_stiffness: Vector3<f64>,
     /// N/m along X, Y, Z.
     pub translational_stiffness: Vector3<f64>,
+    /// N m s/rad about X, Y, Z.
     pub rotational_damping: Vector3<f64>,
+    /// N s/m along X, Y, Z.
     pub translational_damping: Vector3<f64>,
 }
 
 /// FunctionBased/ExpressionBased bushings: frames and property texts.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OtherBushing {
+    /// Force name.
     pub name: String,
+    /// OpenSim class name.
     pub class: String,
+    /// Socket text of frame 1, as written.
     pub socket_frame1: String,
+    /// Socket text of frame 2, as written.
     pub socket_frame2: String,
+    /// Offset frames the force owns.
     pub frames: Vec<OffsetFrame>,
     /// Every other property (tag, trimmed text) in file order.
     pub properties: Vec<(String, String)>,
@@ -252,16 +325,22 @@ pub struct OtherBushing {
 /// Kind of a path point.
 #[derive(Debug, Clone, PartialEq)]
 pub enum PathPointKind {
+    /// A fixed point.
     Fixed,
     /// Active while the coordinate is inside `range`.
     Conditional {
+        /// Name of the coordinate.
         coordinate: String,
+        /// [min, max] of the coordinate (rad or m).
         range: [f64; 2],
     },
     /// Location given by functions of coordinates (x, y, z; each optional).
     Moving {
+        /// X function and the name of its coordinate.
         x: Option<Box<(Function, String)>>,
+        /// Y function and the name of its coordinate.
         y: Option<Box<(Function, String)>>,
+        /// Z function and the name of its coordinate.
         z: Option<Box<(Function, String)>>,
     },
 }
@@ -269,44 +348,68 @@ pub enum PathPointKind {
 /// A path point of a GeometryPath.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PathPoint {
+    /// Path point name.
     pub name: String,
+    /// Socket text of the frame it is fixed to, as written.
     pub socket_parent_frame: String,
+    /// Location in that frame (m).
     pub location: Vector3<f64>,
+    /// Fixed, conditional or moving.
     pub kind: PathPointKind,
 }
 
 /// A PathWrap of a GeometryPath.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PathWrap {
+    /// Name of the wrap object.
     pub wrap_object: String,
+    /// `method` as written (e.g. `hybrid`).
     pub method: String,
+    /// `range`: the path points between which the wrap applies (1-based; -1 -1 = all).
     pub range: [i64; 2],
 }
 
 /// A muscle (any class) with its path.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Muscle {
+    /// Muscle name.
     pub name: String,
+    /// OpenSim class name.
     pub class: String,
+    /// Maximum isometric force (N).
     pub max_isometric_force: f64,
+    /// Optimal fibre length (m).
     pub optimal_fiber_length: f64,
+    /// Tendon slack length (m).
     pub tendon_slack_length: f64,
     /// `pennation_angle_at_optimal` (or `pennation_angle` in old files).
     pub pennation_angle: Option<f64>,
+    /// Path points in order.
     pub points: Vec<PathPoint>,
+    /// Path wraps in order.
     pub wraps: Vec<PathWrap>,
 }
 
 /// A force element.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Force {
+    /// A BushingForce.
     Bushing(BushingForce),
+    /// A FunctionBasedBushingForce or ExpressionBasedBushingForce.
     OtherBushing(OtherBushing),
+    /// A muscle of any class.
     Muscle(Box<Muscle>),
-    Other { class: String, name: String },
+    /// Another force class, kept by class and name.
+    Other {
+        /// OpenSim class name.
+        class: String,
+        /// Force name.
+        name: String,
+    },
 }
 
 impl Force {
+    /// OpenSim class name.
     pub fn class(&self) -> &str {
         match self {
             Force::Bushing(_) => "BushingForce",
@@ -315,6 +418,7 @@ impl Force {
             Force::Other { class, .. } => class,
         }
     }
+    /// Component name.
     pub fn name(&self) -> &str {
         match self {
             Force::Bushing(b) => &b.name,
@@ -328,25 +432,39 @@ impl Force {
 /// A marker fixed to a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Marker {
+    /// Marker name.
     pub name: String,
+    /// Socket text of the frame it is fixed to, as written.
     pub socket_parent_frame: String,
+    /// Location in that frame (m).
     pub location: Vector3<f64>,
+    /// `fixed` as written.
     pub fixed: bool,
 }
 
 /// A constraint.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Constraint {
+    /// A CoordinateCouplerConstraint.
     CoordinateCoupler {
+        /// Constraint name.
         name: String,
+        /// Names of the independent coordinates.
         independent: Vec<String>,
+        /// Name of the dependent coordinate.
         dependent: String,
+        /// The coupler function of the independent coordinates.
         function: Function,
+        /// `scale_factor` applied to the function's value.
         scale_factor: f64,
+        /// Whether the constraint is enforced.
         enforced: bool,
     },
+    /// Another constraint class, kept by class and name.
     Other {
+        /// OpenSim class name.
         class: String,
+        /// Constraint name.
         name: String,
     },
 }
@@ -354,8 +472,11 @@ pub enum Constraint {
 /// Ground: its geometry and wrap objects.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Ground {
+    /// Ground's name.
     pub name: String,
+    /// Geometry attached to ground.
     pub geometry: Vec<Geometry>,
+    /// Wrap objects fixed to ground.
     pub wrap_objects: Vec<WrapObject>,
 }
 
@@ -371,18 +492,31 @@ enum FrameNode {
 /// Typed snapshot of a model (SI units).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Model {
+    /// The file it was read from.
     pub file: PathBuf,
+    /// Model name.
     pub name: String,
+    /// Gravity in ground (m/s^2).
     pub gravity: Vector3<f64>,
+    /// `credits` text, if any.
     pub credits: Option<String>,
+    /// `publications` text, if any.
     pub publications: Option<String>,
+    /// `length_units` (always `meters`: others are refused).
     pub length_units: String,
+    /// `force_units` (always `N`: others are refused).
     pub force_units: String,
+    /// Ground's geometry and wrap objects.
     pub ground: Ground,
+    /// Bodies in file order.
     pub bodies: Vec<Body>,
+    /// Joints in file order.
     pub joints: Vec<Joint>,
+    /// Force elements in file order.
     pub forces: Vec<Force>,
+    /// Markers in file order.
     pub markers: Vec<Marker>,
+    /// Constraints in file order.
     pub constraints: Vec<Constraint>,
     /// Every frame by absolute path (ground, bodies, offset frames).
     frames: BTreeMap<String, FrameNode>,

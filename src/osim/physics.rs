@@ -23,16 +23,16 @@ use nalgebra::Matrix3;
 
 /// Largest |default value| of a coordinate accepted (rad or m): a hundred
 /// turns, far beyond any joint.
-pub const MAX_COORDINATE_DEFAULT: f64 = 1e3;
+pub(crate) const MAX_COORDINATE_DEFAULT: f64 = 1e3;
 /// Largest bushing stiffness (N/m, N m/rad) or damping accepted: six
 /// orders above the stiffest intervertebral disc, still well inside f64.
 pub const MAX_STIFFNESS: f64 = 1e12;
 /// Relative tolerance of the triangle inequality of principal moments
 /// (files round their inertias): `I1 + I2 >= I3 * (1 - TRIANGLE_TOL)`.
-pub const TRIANGLE_TOL: f64 = 1e-6;
+pub(crate) const TRIANGLE_TOL: f64 = 1e-6;
 
 /// The symmetric inertia matrix of `[Ixx Iyy Izz Ixy Ixz Iyz]`.
-pub fn inertia_matrix(i: &[f64; 6]) -> Matrix3<f64> {
+pub(crate) fn inertia_matrix(i: &[f64; 6]) -> Matrix3<f64> {
     Matrix3::new(i[0], i[3], i[4], i[3], i[1], i[5], i[4], i[5], i[2])
 }
 

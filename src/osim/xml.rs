@@ -25,6 +25,7 @@ pub const MAX_DEPTH: usize = 200;
 /// A child node of an element.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Node {
+    /// A child element.
     Element(Element),
     /// Character data, unescaped.
     Text(String),
@@ -223,7 +224,7 @@ pub fn read_file_capped(path: &Path) -> Result<String> {
 }
 
 /// [`read_file_capped`] with an explicit cap (bytes).
-pub fn read_file_with_cap(path: &Path, cap: u64) -> Result<String> {
+pub(crate) fn read_file_with_cap(path: &Path, cap: u64) -> Result<String> {
     crate::util::read_text_capped(path, cap, ".osim documents")
 }
 

@@ -23,20 +23,20 @@ pub(crate) struct Walls {
 }
 
 impl Walls {
-    pub fn depth(&self) -> f64 {
+    pub(crate) fn depth(&self) -> f64 {
         self.x_ant - self.x_post
     }
-    pub fn half_width(&self) -> f64 {
+    pub(crate) fn half_width(&self) -> f64 {
         0.5 * (self.z_right - self.z_left)
     }
-    pub fn height(&self) -> f64 {
+    pub(crate) fn height(&self) -> f64 {
         self.y_hi - self.y_lo
     }
-    pub fn y_mid(&self) -> f64 {
+    pub(crate) fn y_mid(&self) -> f64 {
         0.5 * (self.y_hi + self.y_lo)
     }
     /// X range of the body column (walls with a margin of 4 % of the depth).
-    pub fn column_x(&self) -> (f64, f64) {
+    pub(crate) fn column_x(&self) -> (f64, f64) {
         let m = 0.04 * self.depth();
         (self.x_post - m, self.x_ant + m)
     }

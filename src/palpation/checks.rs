@@ -13,9 +13,9 @@ use crate::landmarks::Code;
 use nalgebra::Point3;
 
 /// Two landmarks closer than this are "the same point" (m).
-pub const DISTINCT_M: f64 = 0.001;
+pub(super) const DISTINCT_M: f64 = 0.001;
 /// Midline codes must lie this close to the mid-sagittal plane (m).
-pub const MIDLINE_M: f64 = 0.002;
+pub(super) const MIDLINE_M: f64 = 0.002;
 /// The posterior elements (laminae, spinous process) reach at least this
 /// share of the body depth behind the pedicle cut on a whole vertebra.
 const POSTERIOR_REACH: f64 = 0.3;

@@ -64,7 +64,7 @@ pub(crate) fn frame_rotation(anterior: &Vector3<f64>, right: &Vector3<f64>) -> R
 
 impl LocalMesh {
     /// Express `mesh` (prepared) in the frame `to_mesh` (local -> mesh).
-    pub fn new(mesh: &TriMesh, rot: Rotation3<f64>, origin: Point3<f64>) -> LocalMesh {
+    pub(crate) fn new(mesh: &TriMesh, rot: Rotation3<f64>, origin: Point3<f64>) -> LocalMesh {
         let to_mesh = Isometry3::from_parts(
             Translation3::from(origin.coords),
             UnitQuaternion::from_rotation_matrix(&rot),
@@ -93,12 +93,12 @@ impl LocalMesh {
     }
 
     /// Map a local point to mesh coordinates.
-    pub fn to_mesh_point(&self, p: &Point3<f64>) -> Point3<f64> {
+    pub(crate) fn to_mesh_point(&self, p: &Point3<f64>) -> Point3<f64> {
         self.to_mesh * p
     }
 
     /// The sub-mesh of the given triangles (local coordinates).
-    pub fn submesh(&self, faces: &[usize]) -> TriMesh {
+    pub(crate) fn submesh(&self, faces: &[usize]) -> TriMesh {
         let mut map: BTreeMap<u32, u32> = BTreeMap::new();
         let mut vertices = Vec::new();
         let mut triangles = Vec::new();
@@ -122,7 +122,7 @@ impl LocalMesh {
     /// points (the fractional remainder carried to the next face), spread
     /// over it by the R2 low-discrepancy sequence. Deterministic. At most
     /// `MAX_SURFACE_SAMPLES` points (sparser on a larger surface).
-    pub fn area_samples(&self, area_each: f64) -> Vec<Point3<f64>> {
+    pub(crate) fn area_samples(&self, area_each: f64) -> Vec<Point3<f64>> {
         // R2 sequence steps (the plastic number's inverse powers).
         const A1: f64 = 0.754_877_666_246_692_7;
         const A2: f64 = 0.569_840_290_998_053_3;
@@ -149,7 +149,7 @@ impl LocalMesh {
 
     /// Points where the edges of the given faces cross the plane
     /// `p[axis] = value` (exactly on the plane, on the surface).
-    pub fn cut(
+    pub(crate) fn cut(
         &self,
         faces: impl Iterator<Item = usize>,
         axis: usize,
@@ -163,7 +163,7 @@ impl LocalMesh {
 
     /// The section of the given faces by the plane `p[axis] = value`: one
     /// segment per face that crosses it (end points on its edges).
-    pub fn cut_segments(
+    pub(crate) fn cut_segments(
         &self,
         faces: impl Iterator<Item = usize>,
         axis: usize,

@@ -24,6 +24,8 @@
 //! The sacrum ([`palpate_sacrum`]) uses the same plane and endplate steps
 //! on the S1 plateau, with the coarse-mesh fallback of the protocol.
 
+#![warn(missing_docs, unreachable_pub)]
+
 mod body;
 mod checks;
 mod frame;
@@ -44,7 +46,9 @@ pub use sacrum::palpate_sacrum;
 /// to ~45 deg); the engine refines them.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameHint {
+    /// Roughly anterior, unit vector in mesh coordinates.
     pub anterior: Vector3<f64>,
+    /// Roughly cranial, unit vector in mesh coordinates.
     pub cranial: Vector3<f64>,
 }
 
@@ -77,17 +81,22 @@ pub struct PalpatedLandmark {
 /// How serious a finding is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Severity {
+    /// The landmark is placed but less trustworthy.
     Warning,
+    /// The landmark or mesh is unusable as palpated.
     Error,
 }
 
 /// Something the engine noticed about a landmark or the mesh.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Finding {
+    /// The vertebra (or sacrum) concerned.
     pub level: Level,
     /// The landmark concerned (None: the mesh as a whole).
     pub code: Option<Code>,
+    /// How serious it is.
     pub severity: Severity,
+    /// What was noticed, for a reader.
     pub message: String,
 }
 
@@ -107,6 +116,7 @@ impl std::fmt::Display for Finding {
 /// The palpation of one vertebra (or the sacrum).
 #[derive(Debug, Clone, PartialEq)]
 pub struct VertebraPalpation {
+    /// The vertebra (or the sacrum) palpated.
     pub level: Level,
     /// The vertebra's own frame (X anterior, Y cranial, Z right) in mesh
     /// coordinates; origin midway between SEC and IEC, on the mid-sagittal plane.
@@ -117,6 +127,7 @@ pub struct VertebraPalpation {
     pub centre: Point3<f64>,
     /// Radius of that least-squares sphere.
     pub centre_radius: f64,
+    /// What the engine noticed while palpating.
     pub findings: Vec<Finding>,
     /// How the centre's sphere was fitted.
     pub centre_fit: CentreFit,
@@ -143,11 +154,6 @@ impl VertebraPalpation {
     /// Landmark positions only.
     pub fn points(&self) -> BTreeMap<Code, Point3<f64>> {
         self.landmarks.iter().map(|(c, l)| (*c, l.point)).collect()
-    }
-
-    /// Does any finding have error severity?
-    pub fn has_errors(&self) -> bool {
-        self.findings.iter().any(|f| f.severity == Severity::Error)
     }
 
     /// The same palpation after a rigid motion of the mesh.

@@ -21,6 +21,8 @@
 //! the disc below, X anterior, Y cranial, Z right. Meshes `proc_<LEVEL>.vtp`,
 //! `proc_sacrum.vtp`, `proc_pelvis.vtp`.
 
+#![warn(missing_docs, unreachable_pub)]
+
 pub mod muscles;
 pub mod pelvis;
 pub mod segments;
@@ -51,7 +53,9 @@ pub use tables::Templates;
 /// trunk mass fractions).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub enum Sex {
+    /// Female tables: default stature, pelvis width, trunk mass fractions.
     Female,
+    /// Male tables (the default).
     #[default]
     Male,
 }
@@ -84,6 +88,7 @@ impl fmt::Display for Sex {
 pub struct ProceduralOptions {
     /// Stature (m); `None` = the default of the sex.
     pub stature: Option<f64>,
+    /// Selects the default stature, pelvis width and trunk mass fractions.
     pub sex: Sex,
 }
 
@@ -92,11 +97,17 @@ pub struct ProceduralOptions {
 /// the generator used (for reports and tests).
 #[derive(Debug, Clone)]
 pub struct GenericModel {
+    /// The OpenSim model document.
     pub doc: Document,
+    /// The bodies' meshes by the `mesh_file` the document names.
     pub meshes: BTreeMap<String, TriMesh>,
+    /// The skeleton the document was built from.
     pub skeleton: Skeleton,
+    /// Mass properties per body.
     pub masses: Vec<MassProps>,
+    /// The generated muscle fascicles.
     pub muscles: Vec<MuscleSpec>,
+    /// Total body mass the segment fractions were taken of (kg).
     pub body_mass: f64,
 }
 
@@ -333,14 +344,19 @@ pub fn generate_generic(opts: &ProceduralOptions) -> Result<GenericModel> {
 /// What the generator did, for the JSON report of `base --procedural`.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ProceduralSummary {
+    /// The sex whose tables were used.
     pub sex: Sex,
+    /// Stature of the model (m).
     pub stature_m: f64,
+    /// Total body mass (kg).
     pub body_mass_kg: f64,
     /// Stature / reference stature of the dimension table.
     pub scale: f64,
     /// Per IVD joint: (name, segment angle deg, disc wedge deg, disc height m).
     pub segments: Vec<(String, f64, f64, f64)>,
+    /// Mass properties per body.
     pub masses: Vec<MassProps>,
+    /// The generated muscle fascicles.
     pub muscles: Vec<MuscleSpec>,
 }
 

@@ -18,18 +18,26 @@ use nalgebra::{Isometry3, Point3, Vector3};
 /// One path point: body name and location in that body's frame.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct PathPointSpec {
+    /// Name of the body the point is fixed to.
     pub body: String,
+    /// Location in that body's frame (m).
     pub location: [f64; 3],
 }
 
 /// A generated fascicle with its parameters and default-pose figures.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MuscleSpec {
+    /// Fascicle name (OpenSim muscle name).
     pub name: String,
+    /// Name of the family in `muscles.toml` it was generated from.
     pub family: String,
+    /// Path points, origin first.
     pub points: Vec<PathPointSpec>,
+    /// Maximum isometric force (N): PCSA times the specific tension.
     pub max_isometric_force: f64,
+    /// Optimal fibre length (m).
     pub optimal_fiber_length: f64,
+    /// Tendon slack length (m).
     pub tendon_slack_length: f64,
     /// Musculotendon length at the default pose (m).
     pub length_default: f64,
@@ -41,13 +49,13 @@ pub struct MuscleSpec {
 
 /// The vertebrae (T1..L5, all shells) in ground at the default pose, for
 /// the path clearance rule.
-pub struct Obstacles {
+pub(crate) struct Obstacles {
     items: Vec<(String, Isometry3<f64>, MeshQuery)>,
 }
 
 impl Obstacles {
     /// Every vertebra mesh placed at the default pose.
-    pub fn new(sk: &Skeleton) -> Result<Obstacles> {
+    pub(crate) fn new(sk: &Skeleton) -> Result<Obstacles> {
         let mut items = Vec::new();
         for v in &sk.vertebrae {
             let name = v.level.body_name();

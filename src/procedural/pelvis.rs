@@ -28,7 +28,9 @@ use std::collections::BTreeMap;
 /// Generated sacrum (sacrum frame) and pelvis (pelvis frame).
 #[derive(Debug, Clone)]
 pub struct PelvisGeometry {
+    /// Sacrum mesh in the sacrum frame.
     pub sacrum: TriMesh,
+    /// Pelvis mesh in the pelvis frame.
     pub pelvis: TriMesh,
     /// Sacrum landmarks in the sacrum frame.
     pub sacrum_landmarks: BTreeMap<String, Point3<f64>>,
@@ -46,10 +48,13 @@ pub struct PelvisInputs {
     pub k: f64,
     /// Inter-ASIS distance (m, already scaled).
     pub w: f64,
-    /// S1 endplate width and depth (m, scaled).
+    /// S1 endplate width (m, scaled).
     pub s1_width: f64,
+    /// S1 endplate depth (m, scaled).
     pub s1_depth: f64,
+    /// Sacral slope (rad).
     pub sacral_slope: f64,
+    /// Pelvic tilt (rad).
     pub pelvic_tilt: f64,
     /// Pelvic radius (m, scaled).
     pub pelvic_radius: f64,
@@ -68,7 +73,7 @@ fn lerp_profile(knots: &[(f64, f64, f64)], s: f64) -> (f64, f64) {
 }
 
 /// Generate sacrum and pelvis.
-pub fn generate(
+pub(crate) fn generate(
     sac: &SacrumShape,
     pel: &PelvisShape,
     inp: &PelvisInputs,

@@ -16,9 +16,13 @@ use nalgebra::Point3;
 /// `[Ixx Iyy Izz Ixy Ixz Iyz]` about the centre of mass, body axes).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MassProps {
+    /// Body name.
     pub body: String,
+    /// Mass (kg).
     pub mass: f64,
+    /// Centre of mass in the body frame (m).
     pub mass_center: [f64; 3],
+    /// Inertia about the centre of mass `[Ixx Iyy Izz Ixy Ixz Iyz]` (kg m^2, body axes).
     pub inertia: [f64; 6],
 }
 

@@ -66,9 +66,13 @@ pub fn tube(rings: &[Vec<Point3<f64>>], what: &str) -> Result<TriMesh> {
 /// the height direction (`half_h`).
 #[derive(Debug, Clone, Copy)]
 pub struct Station {
+    /// Centre of the section.
     pub centre: Point3<f64>,
+    /// The section's height direction (unit vector).
     pub up: Vector3<f64>,
+    /// Half-size across, along `tangent x up`.
     pub half_w: f64,
+    /// Half-size along `up`.
     pub half_h: f64,
     /// Path tangent here; `None` = from the neighbouring stations.
     pub tangent: Option<Vector3<f64>>,

@@ -31,11 +31,13 @@ pub struct JointSpec {
     pub upper: Level,
     /// Parent body name (the lower vertebra, or `sacrum`).
     pub parent_body: String,
-    /// Parent frame in the parent body: translation and rotation about Z.
+    /// Origin of the parent frame in the parent body (m).
     pub translation: Vector3<f64>,
+    /// Rotation of the parent frame about the parent body's Z axis (rad).
     pub angle: f64,
-    /// Segment angle (rad; + lordotic) and disc wedge (rad).
+    /// Segment angle (rad; + lordotic).
     pub segment_angle: f64,
+    /// Disc wedge angle (rad).
     pub disc_wedge: f64,
     /// Mean disc height (m).
     pub disc_height: f64,
@@ -44,14 +46,17 @@ pub struct JointSpec {
 /// The generated skeleton (no muscles, no document yet).
 #[derive(Debug, Clone)]
 pub struct Skeleton {
+    /// The sex whose tables were used.
     pub sex: Sex,
-    /// Stature (m) and the scale factor applied to the tables.
+    /// Stature (m).
     pub stature: f64,
+    /// Stature / reference stature of the dimension table.
     pub scale: f64,
     /// Scaled dimensions T1..L5.
     pub levels: Vec<LevelShape>,
     /// Vertebrae T1..L5 in their body frames.
     pub vertebrae: Vec<VertebraGeometry>,
+    /// Sacrum and pelvis meshes and landmarks.
     pub pelvis: PelvisGeometry,
     /// IVD joints, cranial to caudal (T1_T2 .. L5_S1).
     pub joints: Vec<JointSpec>,

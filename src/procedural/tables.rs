@@ -17,196 +17,214 @@ const SHAPE_TOML: &str = include_str!("../../templates/procedural_shape.toml");
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Alignment {
+    /// Sacral slope, pelvic tilt and pelvic radius.
     pub pelvis: PelvisAlignment,
+    /// Lumbar lordosis and its split over the lumbar segments.
     pub lumbar: LumbarAlignment,
+    /// Thoracic kyphosis and the upper-thoracic and thoracolumbar segment angles.
     pub thoracic: ThoracicAlignment,
 }
 
+/// `[pelvis]` of `alignment.toml`.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct PelvisAlignment {
+    /// Angle of the S1 superior endplate to the horizontal (deg).
     pub sacral_slope_deg: f64,
+    /// Angle of the hip axis to S1 endplate centre line from the vertical (deg).
     pub pelvic_tilt_deg: f64,
+    /// Hip axis to S1 endplate distance at the reference stature (m; scaled with stature).
     pub pelvic_radius_m: f64,
 }
 
+/// `[lumbar]` of `alignment.toml`.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct LumbarAlignment {
+    /// Cobb angle from the L1 to the S1 superior endplate (deg).
     pub lordosis_l1_s1_deg: f64,
+    /// Relative weights splitting the lordosis over L1-L2 .. L5-S1.
     pub segment_weights: [f64; 5],
 }
 
+/// `[thoracic]` of `alignment.toml`.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ThoracicAlignment {
+    /// Cobb angle from the T4 superior to the T12 inferior endplate (deg).
     pub kyphosis_t4_t12_deg: f64,
+    /// Segment angle of T1-T2 .. T3-T4 as a fraction of the mean T4-T12 segment angle.
     pub upper_fraction_of_mean: f64,
+    /// Segment angle of T12-L1 (deg).
     pub thoracolumbar_deg: f64,
 }
 
 /// `segments.toml`.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct Segments {
-    pub male: SexSegments,
-    pub female: SexSegments,
-    pub torso: Torso,
+pub(crate) struct Segments {
+    pub(crate) male: SexSegments,
+    pub(crate) female: SexSegments,
+    pub(crate) torso: Torso,
 }
 
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct SexSegments {
-    pub bmi_ref: f64,
-    pub upt_mass_frac: f64,
-    pub mpt_mass_frac: f64,
-    pub lpt_mass_frac: f64,
-    pub lpt_length_m: f64,
-    pub ref_stature_m: f64,
+pub(crate) struct SexSegments {
+    pub(crate) bmi_ref: f64,
+    pub(crate) upt_mass_frac: f64,
+    pub(crate) mpt_mass_frac: f64,
+    pub(crate) lpt_mass_frac: f64,
+    pub(crate) lpt_length_m: f64,
+    pub(crate) ref_stature_m: f64,
 }
 
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct Torso {
-    pub thoracic_breadth_m: f64,
-    pub thoracic_depth_m: f64,
-    pub lumbar_breadth_m: f64,
-    pub lumbar_depth_m: f64,
-    pub pelvis_breadth_m: f64,
-    pub pelvis_depth_m: f64,
-    pub thoracic_com_anterior_m: f64,
-    pub lumbar_com_anterior_m: f64,
-    pub pelvis_com_anterior_m: f64,
-    pub pelvis_com_below_m: f64,
-    pub sacrum_nominal_mass_kg: f64,
+pub(crate) struct Torso {
+    pub(crate) thoracic_breadth_m: f64,
+    pub(crate) thoracic_depth_m: f64,
+    pub(crate) lumbar_breadth_m: f64,
+    pub(crate) lumbar_depth_m: f64,
+    pub(crate) pelvis_breadth_m: f64,
+    pub(crate) pelvis_depth_m: f64,
+    pub(crate) thoracic_com_anterior_m: f64,
+    pub(crate) lumbar_com_anterior_m: f64,
+    pub(crate) pelvis_com_anterior_m: f64,
+    pub(crate) pelvis_com_below_m: f64,
+    pub(crate) sacrum_nominal_mass_kg: f64,
 }
 
 /// `muscles.toml`.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct Muscles {
-    pub specific_tension_n_per_cm2: f64,
-    pub norm_fiber_length_default: f64,
-    pub class: String,
-    pub family: Vec<Family>,
+pub(crate) struct Muscles {
+    pub(crate) specific_tension_n_per_cm2: f64,
+    pub(crate) norm_fiber_length_default: f64,
+    pub(crate) class: String,
+    pub(crate) family: Vec<Family>,
 }
 
 /// One muscle family's fascicle rule (see the file's header).
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct Family {
-    pub name: String,
-    pub prefix: String,
-    pub pcsa_cm2: f64,
-    pub tendon_fraction: f64,
-    pub origins: Vec<String>,
-    pub origin: String,
+pub(crate) struct Family {
+    pub(crate) name: String,
+    pub(crate) prefix: String,
+    pub(crate) pcsa_cm2: f64,
+    pub(crate) tendon_fraction: f64,
+    pub(crate) origins: Vec<String>,
+    pub(crate) origin: String,
     #[serde(default)]
-    pub spans: Vec<usize>,
+    pub(crate) spans: Vec<usize>,
     #[serde(default)]
-    pub insertion: Option<String>,
+    pub(crate) insertion: Option<String>,
     #[serde(default)]
-    pub sacral_insertion: Option<String>,
+    pub(crate) sacral_insertion: Option<String>,
     #[serde(default)]
-    pub sacral_target: Option<String>,
+    pub(crate) sacral_target: Option<String>,
     #[serde(default)]
-    pub pelvis_insertion: Option<String>,
+    pub(crate) pelvis_insertion: Option<String>,
     #[serde(default)]
-    pub pelvis_via: Option<String>,
+    pub(crate) pelvis_via: Option<String>,
     #[serde(default)]
-    pub via: Option<String>,
+    pub(crate) via: Option<String>,
     #[serde(default)]
-    pub via_stride: Option<usize>,
+    pub(crate) via_stride: Option<usize>,
 }
 
 /// `procedural_shape.toml`.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct Shape {
-    pub reference_stature_m: f64,
-    pub default_stature_male_m: f64,
-    pub default_stature_female_m: f64,
-    pub min_stature_m: f64,
-    pub max_stature_m: f64,
-    pub body: BodyShape,
-    pub posterior: PosteriorShape,
-    pub sacrum: SacrumShape,
-    pub pelvis: PelvisShape,
+pub(crate) struct Shape {
+    pub(crate) reference_stature_m: f64,
+    pub(crate) default_stature_male_m: f64,
+    pub(crate) default_stature_female_m: f64,
+    pub(crate) min_stature_m: f64,
+    pub(crate) max_stature_m: f64,
+    pub(crate) body: BodyShape,
+    pub(crate) posterior: PosteriorShape,
+    pub(crate) sacrum: SacrumShape,
+    pub(crate) pelvis: PelvisShape,
 }
 
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct BodyShape {
-    pub around: usize,
-    pub rings: usize,
-    pub waist: f64,
-    pub posterior_exponent: f64,
+pub(crate) struct BodyShape {
+    pub(crate) around: usize,
+    pub(crate) rings: usize,
+    pub(crate) waist: f64,
+    pub(crate) posterior_exponent: f64,
 }
 
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct PosteriorShape {
-    pub gap_m: f64,
-    pub around: usize,
-    pub pedicle_length_frac_canal_depth: f64,
-    pub pedicle_centre_frac_body: f64,
-    pub lamina_thickness_frac_canal_depth: f64,
-    pub lamina_height_frac_body: f64,
-    pub lamina_centre_frac_body: f64,
-    pub spinous_thickness_frac_canal_depth: f64,
-    pub spinous_root_height_frac_body: f64,
-    pub spinous_tip_height_frac_body: f64,
-    pub transverse_height_frac_pedicle: f64,
-    pub transverse_depth_frac_pedicle: f64,
-    pub facet_height_frac_body: f64,
-    pub facet_size_frac_canal_depth: f64,
-    pub facet_thickness_frac_canal_depth: f64,
-    pub spinous_inclination_deg: [f64; 17],
-    pub transverse_dorsal_deg: [f64; 17],
-    pub transverse_cranial_deg: [f64; 17],
+pub(crate) struct PosteriorShape {
+    pub(crate) gap_m: f64,
+    pub(crate) around: usize,
+    pub(crate) pedicle_length_frac_canal_depth: f64,
+    pub(crate) pedicle_centre_frac_body: f64,
+    pub(crate) lamina_thickness_frac_canal_depth: f64,
+    pub(crate) lamina_height_frac_body: f64,
+    pub(crate) lamina_centre_frac_body: f64,
+    pub(crate) spinous_thickness_frac_canal_depth: f64,
+    pub(crate) spinous_root_height_frac_body: f64,
+    pub(crate) spinous_tip_height_frac_body: f64,
+    pub(crate) transverse_height_frac_pedicle: f64,
+    pub(crate) transverse_depth_frac_pedicle: f64,
+    pub(crate) facet_height_frac_body: f64,
+    pub(crate) facet_size_frac_canal_depth: f64,
+    pub(crate) facet_thickness_frac_canal_depth: f64,
+    pub(crate) spinous_inclination_deg: [f64; 17],
+    pub(crate) transverse_dorsal_deg: [f64; 17],
+    pub(crate) transverse_cranial_deg: [f64; 17],
 }
 
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct SacrumShape {
-    pub length_m: f64,
-    pub alar_width_m: f64,
-    pub thickness_m: f64,
-    pub tip_width_m: f64,
-    pub tip_thickness_m: f64,
-    pub curvature_deg: f64,
-    pub around: usize,
-    pub rings: usize,
+pub(crate) struct SacrumShape {
+    pub(crate) length_m: f64,
+    pub(crate) alar_width_m: f64,
+    pub(crate) thickness_m: f64,
+    pub(crate) tip_width_m: f64,
+    pub(crate) tip_thickness_m: f64,
+    pub(crate) curvature_deg: f64,
+    pub(crate) around: usize,
+    pub(crate) rings: usize,
 }
 
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct PelvisShape {
-    pub inter_asis_male_m: f64,
-    pub inter_asis_female_m: f64,
-    pub hjc_posterior: f64,
-    pub hjc_inferior: f64,
-    pub hjc_lateral: f64,
-    pub psis: [f64; 3],
-    pub iliac_crest_posterior: [f64; 3],
-    pub iliac_crest_mid: [f64; 3],
-    pub iliac_crest_anterior: [f64; 3],
-    pub pelvic_brim: [f64; 3],
-    pub lesser_trochanter_proxy: [f64; 3],
-    pub pubic_symphysis: [f64; 3],
-    pub ilium_blade_height: f64,
-    pub ilium_thickness_m: f64,
-    pub ramus_diameter_m: f64,
-    pub around: usize,
+pub(crate) struct PelvisShape {
+    pub(crate) inter_asis_male_m: f64,
+    pub(crate) inter_asis_female_m: f64,
+    pub(crate) hjc_posterior: f64,
+    pub(crate) hjc_inferior: f64,
+    pub(crate) hjc_lateral: f64,
+    pub(crate) psis: [f64; 3],
+    pub(crate) iliac_crest_posterior: [f64; 3],
+    pub(crate) iliac_crest_mid: [f64; 3],
+    pub(crate) iliac_crest_anterior: [f64; 3],
+    pub(crate) pelvic_brim: [f64; 3],
+    pub(crate) lesser_trochanter_proxy: [f64; 3],
+    pub(crate) pubic_symphysis: [f64; 3],
+    pub(crate) ilium_blade_height: f64,
+    pub(crate) ilium_thickness_m: f64,
+    pub(crate) ramus_diameter_m: f64,
+    pub(crate) around: usize,
 }
 
 /// All procedural templates.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Templates {
+    /// `alignment.toml`: the sagittal alignment.
     pub alignment: Alignment,
-    pub segments: Segments,
-    pub muscles: Muscles,
-    pub shape: Shape,
+    /// `segments.toml`: segment mass fractions and trunk dimensions.
+    pub(crate) segments: Segments,
+    /// `muscles.toml`: the muscle families.
+    pub(crate) muscles: Muscles,
+    /// `procedural_shape.toml`: vertebra, sacrum and pelvis shape parameters.
+    pub(crate) shape: Shape,
 }
 
 fn parse<T: serde::de::DeserializeOwned>(text: &str, name: &str) -> Result<T> {

@@ -32,18 +32,31 @@ use std::collections::BTreeMap;
 /// Dimensions of one level after stature scaling (metres, radians).
 #[derive(Debug, Clone, PartialEq)]
 pub struct LevelShape {
+    /// The level these dimensions are of.
     pub level: Level,
+    /// Superior endplate width, left-right (m).
     pub sup_width: f64,
+    /// Superior endplate depth, anterior-posterior (m).
     pub sup_depth: f64,
+    /// Inferior endplate width, left-right (m).
     pub inf_width: f64,
+    /// Inferior endplate depth, anterior-posterior (m).
     pub inf_depth: f64,
+    /// Anterior vertebral body height (m).
     pub ant_height: f64,
+    /// Posterior vertebral body height (m).
     pub post_height: f64,
+    /// Pedicle height (m).
     pub pedicle_height: f64,
+    /// Pedicle width (m).
     pub pedicle_width: f64,
+    /// Spinal canal width, left-right (m).
     pub canal_width: f64,
+    /// Spinal canal depth, anterior-posterior (m).
     pub canal_depth: f64,
+    /// Spinous process length (m).
     pub spinous_length: f64,
+    /// Tip-to-tip width of the transverse processes (m).
     pub transverse_width: f64,
     /// Disc below this level (mean height).
     pub disc_below: f64,
@@ -86,6 +99,7 @@ impl LevelShape {
 /// A generated vertebra in its body frame.
 #[derive(Debug, Clone)]
 pub struct VertebraGeometry {
+    /// The level of the vertebra.
     pub level: Level,
     /// The vertebral body shell alone.
     pub body: TriMesh,
@@ -94,8 +108,9 @@ pub struct VertebraGeometry {
     /// Named landmarks (muscle attachments, endplate centres), body frame;
     /// sided ones end in `_r` / `_l`.
     pub landmarks: BTreeMap<String, Point3<f64>>,
-    /// Superior endplate centre and outward unit normal.
+    /// Superior endplate centre (body frame).
     pub superior_centre: Point3<f64>,
+    /// Superior endplate outward unit normal (body frame).
     pub superior_normal: Vector3<f64>,
     /// Inferior endplate centre (normal is -Y).
     pub inferior_centre: Point3<f64>,
@@ -134,7 +149,7 @@ fn posterior_wall_x(z: f64, a: f64, b: f64, n: f64) -> f64 {
 
 /// Generate the vertebra of `s` (scaled dimensions). `level_index` picks the
 /// per-level angles of the shape rules (0 = T1 .. 16 = L5).
-pub fn generate(
+pub(crate) fn generate(
     s: &LevelShape,
     body_rules: &BodyShape,
     post: &PosteriorShape,

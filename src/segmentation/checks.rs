@@ -89,7 +89,9 @@ fn compact(m: &TriMesh) -> TriMesh {
 pub enum Verdict {
     /// Fit to palpate (debris pieces dropped, if any: their count).
     Ok {
+        /// The surface to palpate.
         mesh: TriMesh,
+        /// Number of debris pieces dropped.
         dropped_pieces: usize,
     },
     /// Left out, with the reason.

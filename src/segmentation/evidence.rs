@@ -32,6 +32,7 @@ use nalgebra::{Matrix3, Point3, Vector3};
 pub struct Structure {
     /// Where it comes from (`label 27`, `L3.stl`).
     pub origin: String,
+    /// Centroid of its volume (m).
     pub centroid: Point3<f64>,
     /// Enclosed volume (m^3).
     pub volume: f64,
@@ -81,7 +82,9 @@ impl Structure {
 /// the sacrum.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Place {
+    /// A cervical vertebra, C1..C7 (1..7).
     Cervical(u8),
+    /// A thoracolumbar level or the sacrum.
     Level(Level),
 }
 
@@ -112,7 +115,9 @@ impl std::fmt::Display for Place {
 /// what the naming calls them).
 #[derive(Debug, Clone, Default)]
 pub struct Reading<'a> {
+    /// Structures the reading names, with their places.
     pub named: Vec<(Place, &'a Structure)>,
+    /// Structures it does not place, with what it calls them.
     pub others: Vec<(String, &'a Structure)>,
 }
 
@@ -129,6 +134,7 @@ pub struct Assessment {
 }
 
 impl Assessment {
+    /// True when nothing contradicts the reading (doubts allowed).
     pub fn consistent(&self) -> bool {
         self.problems.is_empty()
     }

@@ -76,7 +76,7 @@ pub fn load(path: &Path, opts: &Options) -> Result<Loaded> {
 
 /// Largest voxel edge (mm) the landmarking protocol is written for: a
 /// thicker slice blurs the endplates it places landmarks on.
-pub const PROTOCOL_VOXEL_MM: f64 = 3.0;
+pub(crate) const PROTOCOL_VOXEL_MM: f64 = 3.0;
 
 /// A label map's voxel size: what its landmarks can resolve.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -104,7 +104,7 @@ impl Resolution {
     }
 
     /// The largest voxel edge (mm).
-    pub fn largest_mm(&self) -> f64 {
+    pub(crate) fn largest_mm(&self) -> f64 {
         self.voxel_mm.iter().copied().fold(0.0, f64::max)
     }
 
@@ -122,7 +122,7 @@ impl Resolution {
 
     /// One warning per voxel axis thicker than the protocol's voxel,
     /// naming the axis, its direction and its size.
-    pub fn coarse_findings(&self) -> Vec<Finding> {
+    pub(crate) fn coarse_findings(&self) -> Vec<Finding> {
         let names = ["i", "j", "k"];
         (0..3)
             .filter(|&k| self.voxel_mm[k] > PROTOCOL_VOXEL_MM)

@@ -47,7 +47,7 @@ pub struct LabelTable {
 
 /// Level named by a structure name: `L3`, `vertebrae_L3`, `vertebra L3`,
 /// `S1`, `vertebrae_S1`, `sacrum` (case-insensitive); `None` otherwise.
-pub fn level_from_name(name: &str) -> Option<Level> {
+pub(crate) fn level_from_name(name: &str) -> Option<Level> {
     let n = name.trim().to_ascii_lowercase();
     if n == "sacrum" || n == "s" {
         return Some(Level::S1);
@@ -148,7 +148,7 @@ impl LabelTable {
     }
 
     /// TotalSpineSeg (vertebrae, sacrum, cord, canal, discs).
-    pub fn total_spine_seg() -> LabelTable {
+    pub(crate) fn total_spine_seg() -> LabelTable {
         let mut classes = BTreeMap::new();
         classes.insert(1, LabelClass::Other("spinal_cord".into()));
         classes.insert(2, LabelClass::Other("spinal_canal".into()));

@@ -15,6 +15,8 @@
 //! (anterior and cranial directions of the palpated vertebrae); a folder
 //! whose anatomy fits none of them (permuted axes) is refused.
 
+#![warn(missing_docs, unreachable_pub)]
+
 pub mod assemble;
 pub mod checks;
 pub mod choose;
@@ -41,9 +43,13 @@ pub use crate::landmarks::check::Severity;
 /// A remark on the segmentation or a landmark.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Finding {
+    /// The level concerned (`None`: the segmentation as a whole).
     pub level: Option<Level>,
+    /// The landmark concerned, if one.
     pub code: Option<Code>,
+    /// How serious it is.
     pub severity: Severity,
+    /// What was noticed, for a reader.
     pub message: String,
 }
 
@@ -61,8 +67,10 @@ impl Finding {
 /// What the segmentation is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum Kind {
+    /// A folder of per-level mesh files.
     #[serde(rename = "mesh folder")]
     MeshFolder,
+    /// A NIfTI-1 label map.
     #[serde(rename = "NIfTI label map")]
     LabelMap,
 }
@@ -87,7 +95,9 @@ pub struct Options {
 /// One level's surface, metres, in the segmentation's axes.
 #[derive(Debug, Clone)]
 pub struct LevelInput {
+    /// The level the surface is of.
     pub level: Level,
+    /// The surface (m, the segmentation's axes).
     pub mesh: TriMesh,
     /// File or label it came from.
     pub origin: String,
@@ -96,6 +106,7 @@ pub struct LevelInput {
 /// A segmentation read: its level surfaces and what was noticed.
 #[derive(Debug, Clone)]
 pub struct Loaded {
+    /// Mesh folder or label map.
     pub kind: Kind,
     /// The segmentation's file or folder name.
     pub source: String,
@@ -105,7 +116,9 @@ pub struct Loaded {
     pub units: Units,
     /// Label table used (label maps).
     pub label_table: Option<String>,
+    /// The levels' surfaces, cranial to caudal.
     pub levels: Vec<LevelInput>,
+    /// What was noticed while reading.
     pub findings: Vec<Finding>,
     /// Levels left out because the field of view cuts them (label maps).
     pub cut_by_fov: Vec<Level>,
@@ -116,10 +129,13 @@ pub struct Loaded {
 /// One palpated level.
 #[derive(Debug, Clone)]
 pub struct LevelResult {
+    /// The level palpated.
     pub level: Level,
+    /// File or label the surface came from.
     pub origin: String,
     /// The surface palpated (metres, the segmentation's axes).
     pub mesh: TriMesh,
+    /// The palpation engine's landmarks, centre and findings (mesh coordinates).
     pub palpation: VertebraPalpation,
     /// Distance of each landmark to the level's surface (m).
     pub distance: std::collections::BTreeMap<Code, f64>,
@@ -128,8 +144,11 @@ pub struct LevelResult {
 /// The outcome of [`palpate`].
 #[derive(Debug, Clone)]
 pub struct Palpated {
+    /// Mesh folder or label map.
     pub kind: Kind,
+    /// The segmentation's file or folder name.
     pub source: String,
+    /// Label table used (label maps).
     pub label_table: Option<String>,
     /// The landmarks (metres, OpenSim frame); levels may have gaps.
     pub set: LandmarkSet,
@@ -137,8 +156,11 @@ pub struct Palpated {
     pub world: Frame,
     /// Units and frame to write the landmarks in.
     pub units: Units,
+    /// Frame to write the landmarks in.
     pub frame: Frame,
+    /// Every palpated level.
     pub levels: Vec<LevelResult>,
+    /// What was noticed while reading and palpating.
     pub findings: Vec<Finding>,
     /// The voxel size (label maps).
     pub resolution: Option<labelmap::Resolution>,
@@ -164,7 +186,7 @@ pub fn load(path: &Path, opts: &Options) -> Result<Loaded> {
 }
 
 /// `.nii` or `.nii.gz`.
-pub fn is_nifti(path: &Path) -> bool {
+pub(crate) fn is_nifti(path: &Path) -> bool {
     nifti_stem(path).is_some()
 }
 
@@ -252,7 +274,7 @@ fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
 /// once more with the vertebra frame the engine found as the hint (the
 /// hints from the anatomy are rough; the engine's frame is closer), and
 /// the better of the two kept.
-pub fn palpate_levels(
+pub(crate) fn palpate_levels(
     levels: &[LevelInput],
     hints: &[FrameHint],
 ) -> Vec<(Level, Result<VertebraPalpation>)> {

@@ -19,7 +19,7 @@ use std::path::Path;
 
 /// Largest label map read (voxels): 2^29 (e.g. 1024 x 1024 x 512), about
 /// 1 GiB of 16-bit labels. The header's size is checked before reading.
-pub const MAX_VOXELS: u64 = 1 << 29;
+pub(crate) const MAX_VOXELS: u64 = 1 << 29;
 
 /// A label map in memory.
 #[derive(Debug, Clone)]

@@ -35,45 +35,62 @@ fn kind_name(k: Kind) -> &'static str {
 /// One landmark in the report.
 #[derive(Debug, serde::Serialize)]
 pub struct LandmarkEntry {
+    /// Landmark name (e.g. `T7_SP`).
     pub name: String,
     /// Position in the output units and frame.
     pub position: [f64; 3],
+    /// The palpation engine's confidence, 0..1.
     pub confidence: f64,
     /// The label map's resolution as a position uncertainty (output
     /// units): half its largest voxel edge; `None` for a mesh folder.
     pub uncertainty: Option<f64>,
     /// Distance to the level's surface (output units).
     pub distance_to_surface: Option<f64>,
+    /// True when the confidence is below 0.5.
     pub uncertain: bool,
+    /// Why the confidence is reduced, if it is.
     pub note: Option<String>,
 }
 
 /// One level in the report.
 #[derive(Debug, serde::Serialize)]
 pub struct LevelEntry {
+    /// The level.
     pub level: Level,
+    /// File or label the surface came from.
     pub origin: String,
     /// Vertebral centre (output units and frame) and its sphere radius.
     pub centre: [f64; 3],
+    /// Radius of the centre's sphere (output units).
     pub centre_radius: f64,
+    /// The level's landmarks.
     pub landmarks: Vec<LandmarkEntry>,
 }
 
 /// The JSON report.
 #[derive(Debug, serde::Serialize)]
 pub struct Report {
+    /// The segmentation's file or folder name.
     pub source: String,
+    /// Mesh folder or label map.
     pub kind: Kind,
+    /// Label table used (label maps).
     pub label_table: Option<String>,
+    /// Units of the positions written.
     pub units: Units,
+    /// Frame of the positions written.
     pub frame: crate::landmarks::Frame,
     /// Axes of the segmentation itself.
     pub segmentation_frame: crate::landmarks::Frame,
     /// The label map's voxel size (edges along i, j, k, mm).
     pub resolution: Option<super::labelmap::Resolution>,
+    /// Levels palpated, cranial to caudal.
     pub levels_palpated: Vec<Level>,
+    /// Number of warning findings.
     pub warnings: usize,
+    /// Every finding.
     pub findings: Vec<Finding>,
+    /// Every palpated level.
     pub levels: Vec<LevelEntry>,
 }
 

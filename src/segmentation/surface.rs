@@ -15,13 +15,16 @@ use nalgebra::Point3;
 /// Voxel count, bounding box and moments of one label.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LabelStats {
+    /// Number of voxels.
     pub count: u64,
-    /// Inclusive voxel index bounds.
+    /// Inclusive lower voxel index bounds.
     pub min: [usize; 3],
+    /// Inclusive upper voxel index bounds.
     pub max: [usize; 3],
     /// Sums of the voxel indices (i, j, k) and of their products (ii, jj,
     /// kk, ij, ik, jk): the label's centroid and second moments.
     pub sum: [f64; 3],
+    /// Sums of the products ii, jj, kk, ij, ik, jk.
     pub sum_sq: [f64; 6],
 }
 

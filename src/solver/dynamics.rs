@@ -23,19 +23,20 @@ use num_dual::Dual64;
 
 impl SpatialInertia {
     /// From mass, centre of mass in ground and inertia about it (ground axes).
-    pub fn new(m: f64, c: &Vector3<f64>, i_c: &Matrix3<f64>) -> Self {
+    pub(crate) fn new(m: f64, c: &Vector3<f64>, i_c: &Matrix3<f64>) -> Self {
         let i = i_c + (Matrix3::identity() * c.dot(c) - c * c.transpose()) * m;
         SpatialInertia { m, h: c * m, i }
     }
     /// Momentum `I V` of the twist `V = (w, v_O)`.
     #[inline]
-    pub fn mul(&self, v: &[Vector3<f64>; 2]) -> [Vector3<f64>; 2] {
+    pub(crate) fn mul(&self, v: &[Vector3<f64>; 2]) -> [Vector3<f64>; 2] {
         [
             self.i * v[0] + self.h.cross(&v[1]),
             v[1] * self.m - self.h.cross(&v[0]),
         ]
     }
-    pub fn add(&mut self, o: &SpatialInertia) {
+    /// Adds another inertia about the same point (a composite body).
+    pub(crate) fn add(&mut self, o: &SpatialInertia) {
         self.m += o.m;
         self.h += o.h;
         self.i += o.i;
@@ -56,6 +57,7 @@ fn dot6(a: &[Vector3<f64>; 2], b: &[Vector3<f64>; 2]) -> f64 {
 /// Energy of a state.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Energy {
+    /// Kinetic energy `1/2 u^T M u` (J).
     pub kinetic: f64,
     /// `-sum m g . c` (zero at the ground origin).
     pub gravity: f64,
@@ -65,6 +67,7 @@ pub struct Energy {
 }
 
 impl Energy {
+    /// Kinetic plus gravitational plus bushing potential energy (J).
     pub fn total(&self) -> f64 {
         self.kinetic + self.gravity + self.bushing
     }
@@ -298,6 +301,7 @@ impl System {
 /// `yq = q + (dt/2) N(yq) yu` (a fixed point, exact in one pass when every
 /// speed is a coordinate rate).
 pub struct Integrator {
+    /// Step size (s).
     pub dt: f64,
     /// Newton tolerance on the stage speeds (rad/s or m/s).
     pub tol: f64,
@@ -321,12 +325,16 @@ pub struct Integrator {
 /// One output sample of a trajectory.
 #[derive(Debug, Clone)]
 pub struct Sample {
+    /// Time of the sample (s).
     pub time: f64,
+    /// Generalised coordinates at that time (rad or m per coordinate).
     pub q: DVector<f64>,
+    /// Generalised speeds at that time (rad/s or m/s per speed).
     pub u: DVector<f64>,
 }
 
 impl Integrator {
+    /// An integrator for `sys` with step `dt` (s) and the default Newton tolerance 1e-10.
     pub fn new(sys: &System, dt: f64) -> Self {
         let n = sys.n_dofs();
         Integrator {

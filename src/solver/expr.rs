@@ -24,59 +24,91 @@ pub const VARIABLES: [&str; 6] = [
 /// One-argument functions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Fn1 {
+    /// `sqrt(x)`.
     Sqrt,
+    /// `exp(x)`.
     Exp,
+    /// `log(x)`: the natural logarithm.
     Log,
+    /// `sin(x)` (x in rad).
     Sin,
+    /// `cos(x)` (x in rad).
     Cos,
+    /// `tan(x)` (x in rad).
     Tan,
+    /// `asin(x)`, in rad.
     Asin,
+    /// `acos(x)`, in rad.
     Acos,
+    /// `atan(x)`, in rad.
     Atan,
+    /// `sinh(x)`.
     Sinh,
+    /// `cosh(x)`.
     Cosh,
+    /// `tanh(x)`.
     Tanh,
+    /// `abs(x)`.
     Abs,
+    /// `square(x)` = x^2.
     Square,
+    /// `cube(x)` = x^3.
     Cube,
+    /// `recip(x)` = 1/x.
     Recip,
+    /// `step(x)`: 1 for x >= 0, else 0.
     Step,
 }
 
 /// Two-argument functions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Fn2 {
+    /// `min(a, b)`.
     Min,
+    /// `max(a, b)`.
     Max,
+    /// `atan2(y, x)`: the angle of (x, y), in rad.
     Atan2,
 }
 
 /// Binary operators.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Op {
+    /// `a + b`.
     Add,
+    /// `a - b`.
     Sub,
+    /// `a * b`.
     Mul,
+    /// `a / b`.
     Div,
+    /// `a ^ b`: a raised to the power b.
     Pow,
 }
 
 /// A parsed expression.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Expr {
+    /// A numeric literal.
     Num(f64),
     /// Deflection variable by index (see [`VARIABLES`]).
     Var(usize),
+    /// Unary minus of the operand.
     Neg(Box<Expr>),
+    /// A binary operation on two operands (left, right).
     Bin(Op, Box<Expr>, Box<Expr>),
+    /// A one-argument function call.
     Call1(Fn1, Box<Expr>),
+    /// A two-argument function call (first, second argument).
     Call2(Fn2, Box<Expr>, Box<Expr>),
 }
 
 /// A parse error: position (byte offset in the whitespace-stripped text) and message.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ExprError {
+    /// Byte offset of the error in the whitespace-stripped text.
     pub position: usize,
+    /// What was expected or found there.
     pub message: String,
 }
 

@@ -18,11 +18,14 @@ pub const GIMBAL_LIMIT: f64 = 89.0 * std::f64::consts::PI / 180.0;
 /// A bushing whose middle deflection angle reached the gimbal-lock limit.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GimbalLock {
+    /// Index of the bushing in [`System`] order.
     pub bushing: usize,
+    /// The bushing's middle (Y) deflection angle when the limit was hit (rad).
     pub angle: f64,
 }
 
 impl GimbalLock {
+    /// The typed solver error naming the bushing, with the angle and the limit in degrees.
     pub fn to_error(self, sys: &System) -> Error {
         let name = sys
             .bushings

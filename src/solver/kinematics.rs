@@ -26,7 +26,7 @@ use num_dual::Dual64;
 
 impl Pose<f64> {
     /// The same transform as an isometry.
-    pub fn to_isometry(&self) -> Isometry3<f64> {
+    fn to_isometry(self) -> Isometry3<f64> {
         Isometry3::from_parts(
             Translation3::from(self.p),
             UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(self.r)),

@@ -49,7 +49,7 @@ impl Curve {
 
     /// `g(x)` with the named parameters replaced by `p` (same order as
     /// [`Curve::params`]); `Function` curves ignore `p`.
-    pub fn eval_with<T: Scalar>(&self, x: T, p: &[T]) -> T {
+    fn eval_with<T: Scalar>(&self, x: T, p: &[T]) -> T {
         let get = |i: usize| p.get(i).copied().unwrap_or_else(T::zero);
         match self {
             Curve::Linear { .. } => x * get(0),

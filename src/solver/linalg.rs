@@ -8,14 +8,14 @@ use nalgebra::{DMatrix, Dim, Matrix, Matrix6, Vector6};
 
 /// Simple dense LU with partial pivoting on a preallocated matrix.
 #[derive(Debug, Clone)]
-pub struct DenseLu {
+pub(crate) struct DenseLu {
     pub(crate) a: DMatrix<f64>,
     pub(crate) piv: Vec<usize>,
     pub(crate) ok: bool,
 }
 
 impl DenseLu {
-    pub fn new(n: usize) -> Self {
+    pub(crate) fn new(n: usize) -> Self {
         DenseLu {
             a: DMatrix::zeros(n, n),
             piv: vec![0; n],
@@ -23,7 +23,7 @@ impl DenseLu {
         }
     }
     /// Factorise `self.a` in place. Returns false when singular.
-    pub fn factor(&mut self) -> bool {
+    pub(crate) fn factor(&mut self) -> bool {
         let n = self.a.nrows();
         let scale = self.a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let tiny = scale * 1e-15 * (n.max(1) as f64);
@@ -31,7 +31,7 @@ impl DenseLu {
         self.ok
     }
     /// Solve A x = b in place (after a successful `factor`).
-    pub fn solve_in_place(&self, b: &mut [f64]) {
+    pub(crate) fn solve_in_place(&self, b: &mut [f64]) {
         lu_solve(&self.a, &self.piv, self.a.nrows(), b);
     }
 }

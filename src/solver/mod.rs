@@ -19,6 +19,8 @@
 //! | `from_model` | adapter from an OpenSim model document |
 //! | `output` | body poses, bushing records, .sto and JSON writers |
 
+#![warn(missing_docs, unreachable_pub)]
+
 pub mod dynamics;
 pub mod examples;
 pub mod expr;
@@ -29,6 +31,7 @@ pub mod law;
 pub(crate) mod linalg;
 pub mod output;
 pub mod scalar;
+#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod spec;
 pub mod statics;
 pub mod system;

@@ -17,9 +17,13 @@ use std::collections::BTreeMap;
 /// Pose of a body in ground.
 #[derive(Debug, Clone, Serialize)]
 pub struct BodyPose {
+    /// Origin of the body frame in ground (m, ground axes).
     pub origin_in_ground: [f64; 3],
+    /// Rotation from body to ground axes (`R_GB`), row by row.
     pub r_ground_body_rowmajor: [[f64; 3]; 3],
+    /// Body-fixed X-Y-Z angles of the body frame in ground (rad).
     pub body_fixed_xyz_rad: [f64; 3],
+    /// Centre of mass in ground (m, ground axes).
     pub com_in_ground: [f64; 3],
 }
 

@@ -17,11 +17,14 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// A rigid transform as rotation matrix + translation, generic scalar.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose<T: Scalar> {
+    /// Rotation matrix from this frame's axes to the outer frame's.
     pub r: Matrix3<T>,
+    /// Origin of this frame in the outer frame (m).
     pub p: Vector3<T>,
 }
 
 impl<T: Scalar> Pose<T> {
+    /// The identity transform.
     pub fn identity() -> Self {
         Pose {
             r: Matrix3::identity(),
@@ -62,12 +65,14 @@ impl<T: Scalar> Pose<T> {
 }
 
 impl Pose<f64> {
-    pub fn from_isometry(x: &Isometry3<f64>) -> Self {
+    /// The same transform as a rotation matrix and translation.
+    fn from_isometry(x: &Isometry3<f64>) -> Self {
         Pose {
             r: *x.rotation.to_rotation_matrix().matrix(),
             p: x.translation.vector,
         }
     }
+    /// The inverse transform.
     pub fn inverse(&self) -> Self {
         let rt = self.r.transpose();
         Pose {
@@ -134,7 +139,7 @@ pub(crate) struct Joint {
 
 impl Joint {
     /// The joint's free dofs: their positions in `q`, `u` and `tau`.
-    pub fn dofs(&self) -> std::ops::Range<usize> {
+    pub(crate) fn dofs(&self) -> std::ops::Range<usize> {
         self.dof_start..self.dof_start + self.dof_count
     }
 }
@@ -754,13 +759,6 @@ impl System {
             .get(i.0)
             .map(|b| b.parent.is_none() && b.joint.dof_count == 0)
             .unwrap_or(false)
-    }
-    /// Index of a bushing by name.
-    pub fn bushing_index(&self, name: &str) -> Option<BushingIndex> {
-        self.bushings
-            .iter()
-            .position(|b| b.name == name)
-            .map(BushingIndex)
     }
     /// Bushing names in order.
     pub fn bushing_names(&self) -> impl Iterator<Item = &str> {

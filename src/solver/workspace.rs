@@ -28,6 +28,7 @@ pub struct KinBuf<T: Scalar> {
 }
 
 impl<T: Scalar> KinBuf<T> {
+    /// Buffers sized for `sys`: zero coordinates, identity poses, zero wrenches.
     pub fn new(sys: &System) -> Self {
         let n = sys.n_dofs();
         let nb = sys.n_bodies();
@@ -81,6 +82,7 @@ pub struct Workspace {
 }
 
 impl Workspace {
+    /// A workspace sized for `sys`, with no factorised tangent yet.
     pub fn new(sys: &System) -> Self {
         let n = sys.n_dofs();
         let nb = sys.n_bodies();
@@ -116,14 +118,18 @@ impl Workspace {
 /// A rigid body's spatial inertia about the ground origin in ground axes:
 /// mass, first moment `h = m c`, rotational inertia about the origin.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SpatialInertia {
+pub(crate) struct SpatialInertia {
+    /// Mass (kg).
     pub m: f64,
+    /// First moment of mass about the ground origin, `m c` (kg m, ground axes).
     pub h: Vector3<f64>,
+    /// Rotational inertia about the ground origin (kg m^2, ground axes).
     pub i: Matrix3<f64>,
 }
 
 impl SpatialInertia {
-    pub fn zero() -> Self {
+    /// The zero inertia (no mass).
+    pub(crate) fn zero() -> Self {
         SpatialInertia {
             m: 0.0,
             h: Vector3::zeros(),
