@@ -11,6 +11,8 @@
 //! synthetic landmark generator (`landmarks::synth`) and the procedural base
 //! model generator.
 
+#![warn(missing_docs, unreachable_pub)]
+
 use crate::error::{Error, Result};
 use crate::util::table::CsvReader;
 use std::fmt;
@@ -19,10 +21,42 @@ use std::str::FromStr;
 
 /// A vertebral level, cranial to caudal (`T1 < T2 < ... < L5 < S1`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-#[rustfmt::skip]
 pub enum Level {
-    T1, T2, T3, T4, T5, T6, T7, T8, T9, T10, T11, T12,
-    L1, L2, L3, L4, L5,
+    /// The first thoracic vertebra.
+    T1,
+    /// The second thoracic vertebra.
+    T2,
+    /// The third thoracic vertebra.
+    T3,
+    /// The fourth thoracic vertebra.
+    T4,
+    /// The fifth thoracic vertebra.
+    T5,
+    /// The sixth thoracic vertebra.
+    T6,
+    /// The seventh thoracic vertebra.
+    T7,
+    /// The eighth thoracic vertebra.
+    T8,
+    /// The ninth thoracic vertebra.
+    T9,
+    /// The tenth thoracic vertebra.
+    T10,
+    /// The eleventh thoracic vertebra.
+    T11,
+    /// The twelfth thoracic vertebra.
+    T12,
+    /// The first lumbar vertebra.
+    L1,
+    /// The second lumbar vertebra.
+    L2,
+    /// The third lumbar vertebra.
+    L3,
+    /// The fourth lumbar vertebra.
+    L4,
+    /// The fifth lumbar vertebra.
+    L5,
+    /// The sacrum.
     S1,
 }
 
@@ -186,7 +220,9 @@ pub const EMBEDDED_CSV: &str = include_str!("../templates/vertebra_dimensions.cs
 /// A measured quantity: mean and standard deviation, in metres.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Measure {
+    /// Mean (m).
     pub mean: f64,
+    /// Standard deviation (m).
     pub sd: f64,
 }
 
@@ -205,18 +241,31 @@ impl Measure {
 /// One level's dimensions (metres). See the CSV header for definitions.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LevelDimensions {
+    /// The level these dimensions belong to.
     pub level: Level,
+    /// Superior endplate width, left-right (m).
     pub sup_ep_width: Measure,
+    /// Superior endplate depth, anterior-posterior (m).
     pub sup_ep_depth: Measure,
+    /// Inferior endplate width, left-right (m).
     pub inf_ep_width: Measure,
+    /// Inferior endplate depth, anterior-posterior (m).
     pub inf_ep_depth: Measure,
+    /// Vertebral body height, anterior (m).
     pub ant_height: Measure,
+    /// Vertebral body height, posterior (m).
     pub post_height: Measure,
+    /// Pedicle height, mean of left and right (m).
     pub pedicle_height: Measure,
+    /// Pedicle width, mean of left and right (m).
     pub pedicle_width: Measure,
+    /// Spinal canal width, left-right (m).
     pub canal_width: Measure,
+    /// Spinal canal depth, anterior-posterior (m).
     pub canal_depth: Measure,
+    /// Spinous process length (m).
     pub spinous_length: Measure,
+    /// Tip-to-tip width of the transverse processes (m).
     pub transverse_width: Measure,
     /// Height of the disc below this level (0 for S1).
     pub disc_height: Measure,

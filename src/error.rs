@@ -1,6 +1,8 @@
 //! The library's error type. Every error that comes from user input names the
 //! file and, where known, the element, line or row, and says what was expected.
 
+#![warn(missing_docs, unreachable_pub)]
+
 use std::path::PathBuf;
 
 /// Result alias used across the library.
@@ -15,29 +17,49 @@ pub enum Error {
     /// printing the whole chain would repeat).
     #[error("{path}: {cause}")]
     Io {
+        /// The file read or written.
         path: PathBuf,
+        /// The OS error.
         cause: std::io::Error,
     },
     /// The content of a file is malformed or not what was expected.
     /// `location` is an element path, a line number or a row, as fits the format.
     #[error("{path}: {location}: {message}")]
     Parse {
+        /// The malformed file.
         path: PathBuf,
+        /// Where in the file (element path, `line N`, `row N`).
         location: String,
+        /// What is wrong and what was expected.
         message: String,
     },
     /// The input is well-formed but not valid for the operation (bad values,
     /// inconsistent units, unknown names, ...).
     #[error("{context}: {message}")]
-    Invalid { context: String, message: String },
+    Invalid {
+        /// The input at fault (a file, a component, a table row).
+        context: String,
+        /// What is wrong and what was expected.
+        message: String,
+    },
     /// A numerical procedure failed (a fit that did not converge, a
     /// degenerate geometry, ...).
     #[error("{context}: {message}")]
-    Numerical { context: String, message: String },
+    Numerical {
+        /// The procedure that failed.
+        context: String,
+        /// How it failed.
+        message: String,
+    },
     /// The rigid-body solver failed in `context` (a case, a bushing, the
     /// static equilibrium, the integrator); `error` says how, typed.
     #[error("{context}: {error}")]
-    Solver { context: String, error: SolverError },
+    Solver {
+        /// Where the solver failed (a case, a bushing, the equilibrium, the integrator).
+        context: String,
+        /// How it failed.
+        error: SolverError,
+    },
 }
 
 /// How the rigid-body solver failed: callers match on the kind (a
@@ -52,8 +74,11 @@ pub enum SolverError {
          model to carry"
     )]
     NoEquilibrium {
+        /// Newton iterations used.
         iterations: usize,
+        /// Largest generalised force residual (N m or N, by coordinate).
         residual: f64,
+        /// Name of the coordinate with that residual.
         coordinate: String,
     },
     /// The line search could not lower the residual.
@@ -62,36 +87,65 @@ pub enum SolverError {
          generalised force residual {residual:.3e} (the loads may be too large, or a bushing \
          approaches gimbal lock)"
     )]
-    LineSearchStalled { iteration: usize, residual: f64 },
+    LineSearchStalled {
+        /// Newton iteration at which the line search stalled.
+        iteration: usize,
+        /// Largest generalised force residual there (N m or N, by coordinate).
+        residual: f64,
+    },
     /// A continuation corrector converged too far from its prediction.
     #[error("the corrector moved {jump:.3} rad away from the predicted point")]
-    CorrectorJump { jump: f64 },
+    CorrectorJump {
+        /// Distance from the predicted point (rad).
+        jump: f64,
+    },
     /// Load continuation carried the loads up to the factor `reached` (of
     /// 1) and no further; `explanation` says why (limit point, last failure).
     #[error("{explanation}")]
-    ContinuationStopped { reached: f64, explanation: String },
+    ContinuationStopped {
+        /// Load factor reached, in [0, 1].
+        reached: f64,
+        /// Why continuation stopped there.
+        explanation: String,
+    },
     /// The tangent stiffness is singular (a free degree of freedom).
     #[error(
         "singular tangent stiffness at iteration {iteration}: a degree of freedom has no stiffness \
          (add a bushing, lock the coordinate or fix a body)"
     )]
-    SingularTangent { iteration: usize },
+    SingularTangent {
+        /// Newton iteration at which the tangent was singular.
+        iteration: usize,
+    },
     /// The Newton step has a NaN or infinite entry.
     #[error("Newton step not finite at iteration {iteration}")]
-    NonFiniteStep { iteration: usize },
+    NonFiniteStep {
+        /// Newton iteration that produced the step.
+        iteration: usize,
+    },
     /// A bushing's middle (Y) deflection angle reached the X-Y-Z singularity.
     #[error(
         "gimbal lock: the middle (Y) deflection angle is {angle_deg:.3} deg, at or beyond \
          +-{limit_deg:.0} deg where the X-Y-Z angles of OpenSim's BushingForce are singular"
     )]
-    GimbalLock { angle_deg: f64, limit_deg: f64 },
+    GimbalLock {
+        /// The middle (Y) deflection angle (deg).
+        angle_deg: f64,
+        /// The largest accepted magnitude of that angle (deg).
+        limit_deg: f64,
+    },
     /// A joint's second rotation angle is at +-90 deg: the angular velocity
     /// does not determine the angle rates there.
     #[error(
         "joint '{joint}': its second rotation angle is {angle} rad (gimbal lock at +-90 degrees): \
          the angular velocity does not determine the angle rates there"
     )]
-    JointGimbalLock { joint: String, angle: f64 },
+    JointGimbalLock {
+        /// Name of the joint.
+        joint: String,
+        /// Its second rotation angle (rad).
+        angle: f64,
+    },
     /// The mass matrix could not be factored.
     #[error("mass matrix is not positive definite (a massless body on a free degree of freedom?)")]
     MassMatrixNotPositiveDefinite,
@@ -106,7 +160,10 @@ pub enum SolverError {
     SingularNewtonMatrix,
     /// The implicit step did not converge at step size `dt` (s).
     #[error("implicit step did not converge (dt = {dt} s): reduce the step size")]
-    StepNotConverged { dt: f64 },
+    StepNotConverged {
+        /// The step size tried (s).
+        dt: f64,
+    },
 }
 
 /// What is wrong with the numbers of a function, a stiffness curve or a
