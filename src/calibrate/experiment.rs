@@ -17,7 +17,9 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum FrameName {
+    /// Fixed ground axes.
     Ground,
+    /// The loaded body's axes (the load turns with the body).
     Body,
 }
 

@@ -209,8 +209,9 @@ pub struct BushingLevel {
     pub upper: BodyIndex,
     /// Caudal body.
     pub lower: BodyIndex,
-    /// Names of the two bodies.
+    /// Name of the cranial body.
     pub upper_name: String,
+    /// Name of the caudal body.
     pub lower_name: String,
 }
 
@@ -293,7 +294,12 @@ pub enum Parameterisation {
     PerLevel,
     /// Non-linear rotational curves: the linear part `k_d` uniform (or per
     /// level with `per_level`) and one stiffening `s_d` per rotational DoF.
-    Nonlinear { curve: CurveForm, per_level: bool },
+    Nonlinear {
+        /// The stiffening law of the rotational curves.
+        curve: CurveForm,
+        /// `k_d` per level instead of uniform.
+        per_level: bool,
+    },
     /// Coupled rotational stiffness: uniform diagonal `k_d` and three
     /// correlation parameters.
     Coupled,

@@ -54,8 +54,11 @@ pub struct StartResult {
     pub params: Vec<f64>,
     /// Cost `sum r^2` (thesis Eqn 3.1) at the end point.
     pub cost: f64,
+    /// Levenberg-Marquardt iterations (accepted and rejected).
     pub iterations: usize,
+    /// Residual evaluations of this start.
     pub evaluations: usize,
+    /// Why the iteration stopped; `None` when the start failed.
     pub stop: Option<LmStop>,
     /// Projected gradient inf-norm at the end point (log-parameters).
     pub grad_inf: f64,
@@ -65,6 +68,7 @@ pub struct StartResult {
     pub converged: bool,
     /// Index of the local minimum it reached.
     pub minimum: Option<usize>,
+    /// The error message when the start failed.
     pub error: Option<String>,
 }
 
@@ -72,7 +76,9 @@ pub struct StartResult {
 /// from every other one).
 #[derive(Debug, Clone, Serialize)]
 pub struct LocalMinimum {
+    /// Parameters (natural units).
     pub params: Vec<f64>,
+    /// Cost `sum r^2` there.
     pub cost: f64,
     /// Starts that ended here.
     pub starts: Vec<usize>,
@@ -81,11 +87,17 @@ pub struct LocalMinimum {
 /// Statistics of one parameter at the best minimum.
 #[derive(Debug, Clone, Serialize)]
 pub struct ParamEstimate {
+    /// Parameter name (see [`ParamInfo::name`]).
     pub name: String,
+    /// Unit of the value, e.g. `N*m/rad`.
     pub unit: String,
+    /// Fitted value.
     pub value: f64,
+    /// Value of the nominal model.
     pub nominal: f64,
+    /// Lower bound of the fit.
     pub lower: f64,
+    /// Upper bound of the fit.
     pub upper: f64,
     /// The scale the parameter is fitted on (`log`: stiffness values;
     /// `log1p`: stiffening; `linear`: coupling correlations).
@@ -100,6 +112,7 @@ pub struct ParamEstimate {
     /// multiplicative for `log`, multiplicative on `1 + p` for `log1p`,
     /// additive for `linear` parameters).
     pub ci95: [f64; 2],
+    /// The value lies on a bound (within 1e-9 on the fitting scale).
     pub at_bound: bool,
 }
 
@@ -117,7 +130,9 @@ pub struct WeakDirection {
 /// A parameter the data do not determine well, and why.
 #[derive(Debug, Clone, Serialize)]
 pub struct PoorlyDetermined {
+    /// Parameter name.
     pub name: String,
+    /// Why it is poorly determined.
     pub reason: String,
 }
 
@@ -126,16 +141,20 @@ pub struct PoorlyDetermined {
 pub struct Identifiability {
     /// Largest / smallest singular value of the weighted log-parameter Jacobian.
     pub condition_number: f64,
+    /// Singular values of that Jacobian, largest first.
     pub singular_values: Vec<f64>,
     /// Directions with relative singular value below 1e-3.
     pub weak_directions: Vec<WeakDirection>,
+    /// Parameters the data do not determine well.
     pub poorly_determined: Vec<PoorlyDetermined>,
 }
 
 /// A finished calibration.
 #[derive(Debug, Clone, Serialize)]
 pub struct Calibration {
+    /// Label of the stiffness parameterisation.
     pub family: String,
+    /// Parameter names, in the order of every parameter vector.
     pub param_names: Vec<String>,
     /// Best parameters (natural units).
     pub best: Vec<f64>,
@@ -143,18 +162,24 @@ pub struct Calibration {
     pub cost: f64,
     /// Number of residuals and of parameters.
     pub n_residuals: usize,
+    /// Number of parameters.
     pub n_params: usize,
     /// Residual variance `cost / (m - n)` (weighted units).
     pub s2: f64,
     /// Residual SD per DoF (rx..tz, SI; NaN when not in the cost), the
     /// noise level the covariance uses.
     pub residual_sd: [f64; 6],
+    /// Statistics of each parameter at the best minimum.
     pub estimates: Vec<ParamEstimate>,
     /// Covariance of the fitting coordinates (log of stiffness values, linear-scale parameters as they are; the field keeps its historical name).
     pub covariance_log: Vec<Vec<f64>>,
+    /// Correlation matrix of the fitting coordinates.
     pub correlation: Vec<Vec<f64>>,
+    /// Conditioning of the weighted Jacobian and the weak directions.
     pub identifiability: Identifiability,
+    /// Distinct local minima the starts reached.
     pub minima: Vec<LocalMinimum>,
+    /// Every start of the multi-start.
     pub starts: Vec<StartResult>,
     /// Predicted increments of every row at the best parameters (SI).
     #[serde(skip)]
@@ -677,8 +702,11 @@ pub struct ErrorTable {
 /// One entry of an [`ErrorTable`].
 #[derive(Debug, Clone, Serialize)]
 pub struct ErrorEntry {
+    /// Vertebra pair, `upper/lower`.
     pub pair: String,
+    /// Degree of freedom (`rx` .. `tz`).
     pub dof: String,
+    /// Number of measured cells.
     pub n: usize,
     /// RMSE (rad or m).
     pub rmse: f64,

@@ -37,9 +37,13 @@ impl Default for LmOptions {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LmStop {
+    /// The projected gradient is below `gtol * (1 + cost)` (or every variable is held).
     Gradient,
+    /// The projected trial step's inf-norm is below `xtol`.
     Step,
+    /// An accepted step lowered the cost by a relative amount below `ftol`.
     Cost,
+    /// `max_iterations` reached.
     MaxIterations,
     /// Damping grew without bound: no descent possible (round-off floor).
     Stalled,
@@ -48,12 +52,17 @@ pub enum LmStop {
 /// Result.
 #[derive(Debug, Clone)]
 pub struct LmResult {
+    /// Solution.
     pub x: Vec<f64>,
     /// `1/2 ||r||^2`.
     pub cost: f64,
+    /// Residuals at `x`.
     pub r: DVector<f64>,
+    /// Jacobian of the residuals at `x`.
     pub jac: DMatrix<f64>,
+    /// Iterations, accepted and rejected.
     pub iterations: usize,
+    /// Why the iteration stopped.
     pub stop: LmStop,
     /// Variables on a bound at the end.
     pub at_bound: Vec<bool>,

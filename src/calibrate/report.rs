@@ -12,6 +12,7 @@ use serde::Serialize;
 /// Errors of one load case (experiment units).
 #[derive(Debug, Clone, Serialize)]
 pub struct CaseError {
+    /// Load case id.
     pub case: String,
     /// RMSE over the case's measured rotational cells in the cost.
     pub rotation_rmse: Option<f64>,
@@ -49,10 +50,15 @@ pub fn case_errors(pb: &Problem, pred: &[[f64; 6]]) -> Vec<CaseError> {
 /// One measured row with its prediction (experiment units).
 #[derive(Debug, Clone, Serialize)]
 pub struct RowOut {
+    /// Load case id.
     pub case: String,
+    /// Cranial body.
     pub upper: String,
+    /// Caudal body.
     pub lower: String,
+    /// Measured increments, rx..tz (`None` where not measured).
     pub measured: [Option<f64>; 6],
+    /// Predicted increments, rx..tz.
     pub predicted: [f64; 6],
 }
 
@@ -82,8 +88,11 @@ pub fn rows_out(pb: &Problem, pred: &[[f64; 6]]) -> Vec<RowOut> {
 pub struct FitSummary {
     /// Pooled RMSE of rotations / translations (experiment units).
     pub rotation_rmse: f64,
+    /// Pooled translation RMSE; `None` when no translation is in the cost.
     pub translation_rmse: Option<f64>,
+    /// Errors per load case.
     pub per_case: Vec<CaseError>,
+    /// Errors per level (pair) and DoF.
     pub per_level_dof: ErrorTable,
 }
 

@@ -48,10 +48,13 @@ pub struct SensitivityOptions {
     pub samples: usize,
     /// Landmark SD per coordinate (m).
     pub landmark_sd: f64,
+    /// Seed of the landmark noise sample.
     pub seed: u64,
-    /// Poses and best stiffness sets of the two-factor analysis.
+    /// Number of reduced samples whose poses enter the two-factor analysis.
     pub two_factor_poses: usize,
+    /// Number of best-fitting stiffness sets of the two-factor analysis.
     pub two_factor_best: usize,
+    /// Show a progress bar on stderr.
     pub progress: bool,
 }
 
@@ -80,18 +83,23 @@ pub struct FramePerturbation {
 /// One sample of the study.
 #[derive(Debug, Clone, Serialize)]
 pub struct Sample {
+    /// Position in the sample list.
     pub index: usize,
     /// Per level (family order).
     pub perturbations: Vec<FramePerturbation>,
     /// Mean over levels of |offset| (m) and |rotation| (rad).
     pub mean_offset: f64,
+    /// Mean over levels of |rotation| (rad).
     pub mean_rotation: f64,
+    /// Re-calibrated parameters (natural units); empty when the fit failed.
     pub params: Vec<f64>,
+    /// Cost `sum r^2` at those parameters (NaN when the fit failed).
     pub cost: f64,
     /// Pooled rotation RMSE (experiment units).
     pub rotation_rmse: f64,
     /// In the reduced dataset.
     pub ok: bool,
+    /// Why the sample was set aside, when it was.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
 }
@@ -99,58 +107,88 @@ pub struct Sample {
 /// Distribution summary.
 #[derive(Debug, Clone, Serialize)]
 pub struct Spread {
+    /// The quantity (a parameter name or `rotation_rmse`).
     pub name: String,
+    /// Its value in the reference (unperturbed) calibration.
     pub reference: f64,
+    /// Median over the reduced dataset.
     pub median: f64,
+    /// 2.5th percentile.
     pub p2_5: f64,
+    /// 25th percentile.
     pub p25: f64,
+    /// 75th percentile.
     pub p75: f64,
+    /// 97.5th percentile.
     pub p97_5: f64,
+    /// Smallest value.
     pub min: f64,
+    /// Largest value.
     pub max: f64,
-    /// Pearson correlation with the mean joint offset and mean joint rotation.
+    /// Pearson correlation with the mean joint offset.
     pub corr_offset: f64,
+    /// Pearson correlation with the mean joint rotation.
     pub corr_rotation: f64,
 }
 
 /// Two-way ANOVA (no replication) of the rotation RMSE over pose x stiffness.
 #[derive(Debug, Clone, Serialize)]
 pub struct TwoFactor {
+    /// Sample indices whose joint poses are the rows.
     pub poses: Vec<usize>,
+    /// Sample indices whose stiffness parameters are the columns.
     pub stiffness_sets: Vec<usize>,
     /// `rmse[pose][stiffness]` (experiment units).
     pub rmse: Vec<Vec<f64>>,
+    /// Sum of squares of the pose factor.
     pub ss_pose: f64,
+    /// Sum of squares of the stiffness factor.
     pub ss_stiffness: f64,
+    /// Interaction (residual) sum of squares.
     pub ss_interaction: f64,
+    /// `ss_pose` over the total sum of squares.
     pub share_pose: f64,
+    /// `ss_stiffness` over the total sum of squares.
     pub share_stiffness: f64,
+    /// `ss_interaction` over the total sum of squares.
     pub share_interaction: f64,
 }
 
 /// Empirical SD of the frame perturbation per level (from the samples).
 #[derive(Debug, Clone, Serialize)]
 pub struct LevelFrameSd {
+    /// Body pair, `upper/lower`.
     pub level: String,
-    /// RMS of the offset components (m) and rotation components (rad).
+    /// RMS of the offset components (m).
     pub offset_sd: f64,
+    /// RMS of the rotation components (rad).
     pub rotation_sd: f64,
 }
 
 /// Result of the study.
 #[derive(Debug, Clone, Serialize)]
 pub struct SensitivityReport {
+    /// Landmark SD per coordinate (m).
     pub landmark_sd: f64,
+    /// Number of samples.
     pub samples: usize,
+    /// Number of samples in the reduced dataset.
     pub reduced: usize,
+    /// Parameter names, in the order of every parameter vector.
     pub param_names: Vec<String>,
     /// Calibration with the unperturbed joint poses.
     pub reference_params: Vec<f64>,
+    /// Pooled rotation RMSE of that calibration (experiment units).
     pub reference_rmse: f64,
+    /// Empirical frame perturbation SD per level.
     pub frame_sd: Vec<LevelFrameSd>,
+    /// Spread of each parameter over the reduced dataset.
     pub params: Vec<Spread>,
+    /// Spread of the pooled rotation RMSE over the reduced dataset.
     pub rmse: Spread,
+    /// The two-factor analysis; `None` with fewer than two reduced samples.
     pub two_factor: Option<TwoFactor>,
+    /// Every sample.
     pub sample_list: Vec<Sample>,
 }
 

@@ -14,13 +14,17 @@ use std::sync::Arc;
 /// What to calibrate and against what.
 #[derive(Debug, Clone)]
 pub struct Setup {
+    /// The stiffness parameterisation fitted (`--params`).
     pub params: Parameterisation,
     /// DoFs in the cost; `None` = every measured rotational DoF (plus the
     /// measured translations with `translations`).
     pub dofs: Option<Vec<usize>>,
     /// Also fit translational stiffness (and put measured translations in the cost).
     pub translations: bool,
+    /// Per-DoF weights (`--weights`, order rx ry rz tx ty tz); `None` = from
+    /// the stated SD, else 1 / (RMS of the measured motion)^2.
     pub weights: [Option<f64>; 6],
+    /// How measured increments are formed from the two bodies' motions.
     pub convention: Convention,
 }
 

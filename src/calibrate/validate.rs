@@ -14,6 +14,7 @@ use std::sync::Arc;
 /// One held-out case.
 #[derive(Debug, Clone, Serialize)]
 pub struct HeldOutCase {
+    /// Id of the held-out load case.
     pub case: String,
     /// Parameters fitted without the case.
     pub params: Vec<f64>,
@@ -24,6 +25,7 @@ pub struct HeldOutCase {
 /// Leave-one-case-out result.
 #[derive(Debug, Clone, Serialize)]
 pub struct LeaveOneCaseOut {
+    /// One entry per held-out case.
     pub cases: Vec<HeldOutCase>,
     /// Errors of the held-out predictions per level (pair) and DoF.
     pub errors: ErrorTable,
@@ -97,9 +99,11 @@ pub fn leave_one_case_out(
 /// One held-out specimen.
 #[derive(Debug, Clone, Serialize)]
 pub struct HeldOutSpecimen {
+    /// Name of the held-out specimen's experiment.
     pub experiment: String,
     /// Median of the other specimens' calibrated parameters.
     pub params: Vec<f64>,
+    /// Errors of its predictions at those parameters, per level (pair) and DoF.
     pub errors: ErrorTable,
 }
 

@@ -68,6 +68,8 @@
 //!   residual of the whole set / 0.6745, floored at 0.3 mm) is an outlier.
 //!   The affine map absorbs size, wedging and rotation. Not applied to S1.
 
+#![warn(missing_docs, unreachable_pub)]
+
 use super::detect::Detection;
 use super::frames::mean_of;
 use super::io::{read_path, RawLandmarks};
@@ -84,8 +86,11 @@ use std::path::Path;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Severity {
+    /// A note; never changes the exit code.
     Info,
+    /// Suspect data: exit code 2 (1 with `strict`).
     Warning,
+    /// Wrong or unusable data: exit code 1.
     Error,
 }
 
@@ -94,6 +99,7 @@ pub enum Severity {
 pub struct Finding {
     /// Stable code `LM0xx`.
     pub code: String,
+    /// How serious the finding is.
     pub severity: Severity,
     /// Landmark names involved (may be empty for file-level findings).
     pub landmarks: Vec<String>,
@@ -106,13 +112,18 @@ pub struct Finding {
 /// All findings for one file.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct CheckReport {
+    /// The checked file's path, as displayed.
     pub file: String,
+    /// Every finding, in the order the checks ran.
     pub findings: Vec<Finding>,
+    /// Units and frame detection, when the file could be read.
     pub detection: Option<Detection>,
+    /// Levels present in the set (empty when the file could not be read).
     pub levels: Vec<Level>,
 }
 
 impl CheckReport {
+    /// Number of findings of severity `s`.
     pub fn count(&self, s: Severity) -> usize {
         self.findings.iter().filter(|f| f.severity == s).count()
     }

@@ -21,14 +21,11 @@
 
 #![warn(missing_docs, unreachable_pub)]
 
-#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod check;
 pub mod detect;
 pub mod frames;
-#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod io;
 pub mod metrics;
-#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod radiograph;
 pub mod raw;
 pub mod stats;

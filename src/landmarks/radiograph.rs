@@ -22,6 +22,8 @@
 //! dividing by the [`Projection::magnification`] brings them to the
 //! patient's scale.
 
+#![warn(missing_docs, unreachable_pub)]
+
 use super::io::parse_number;
 use super::{Code, LandmarkId, Level, Units};
 use crate::error::{Error, Result};
@@ -39,7 +41,9 @@ pub const MAX_FILM_POINTS: usize = 17 * 14 + 7 + 2;
 /// Side of a paired structure.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Side {
+    /// The patient's right.
     Right,
+    /// The patient's left.
     Left,
 }
 
@@ -116,7 +120,9 @@ pub enum Projection {
     Orthographic,
     /// A point source: distances in metres.
     Perspective {
+        /// Distance from the source to the image plane (m).
         source_to_image: f64,
+        /// Distance from the source to the patient's frontal plane (m).
         source_to_patient: f64,
     },
 }
@@ -152,9 +158,11 @@ impl Projection {
 /// A film's landmarks.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Radiograph {
+    /// The file read or to be written.
     pub path: PathBuf,
     /// The `# film:` text, if any.
     pub film: Option<String>,
+    /// How the film was projected.
     pub projection: Projection,
     /// Units of the file (declared or detected).
     pub units: Units,
