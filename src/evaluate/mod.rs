@@ -37,6 +37,8 @@
 //! absolute errors (Table 5.7), and mean, SD, min and max of the Cobb angle
 //! and lordosis (Table 5.8).
 
+#![warn(missing_docs, unreachable_pub)]
+
 pub use crate::landmarks::metrics;
 pub mod palpations;
 pub mod plot;
@@ -58,9 +60,13 @@ use std::path::{Path, PathBuf};
 /// A model to evaluate, at its default pose.
 #[derive(Debug, Clone)]
 pub struct ModelShape {
+    /// The model file's path, as displayed.
     pub name: String,
+    /// Vertebral centre per level, in ground (m).
     pub centres: BTreeMap<Level, Point3<f64>>,
+    /// The model's landmark markers, in ground (m).
     pub landmarks: LandmarkSet,
+    /// The generator's sacral registration (from its report), when known.
     pub registration: Option<Registration>,
 }
 
@@ -130,7 +136,9 @@ pub fn load_model(path: &Path, def: CentreDef) -> Result<ModelShape> {
 /// [`Align`] for how it meets the model).
 #[derive(Debug, Clone, Default)]
 pub struct Truth {
+    /// Where the truth was read from, as displayed.
     pub source: String,
+    /// Vertebral centre per level, in the truth's frame (m).
     pub centres: BTreeMap<Level, Point3<f64>>,
     /// Palpated/true landmarks for the truth's Cobb angle and lordosis.
     pub landmarks: Option<LandmarkSet>,
@@ -423,32 +431,52 @@ pub enum Align {
 /// Per-level errors (model - truth, mm).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LevelError {
+    /// The vertebra.
     pub level: Level,
+    /// Anterior-posterior error, along ground X (mm).
     pub ap_mm: f64,
+    /// Inferior-superior error, along ground Y (mm).
     pub is_mm: f64,
+    /// Right-left error, along ground Z (mm).
     pub rl_mm: f64,
+    /// Distance between the model and truth centres (mm).
     pub distance_mm: f64,
 }
 
 /// Metrics of one model.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ModelMetrics {
+    /// The model's name ([`ModelShape::name`]).
     pub model: String,
+    /// How the truth was aligned to the model.
     pub align: Align,
+    /// The model has a sacral registration.
     pub registration_known: bool,
+    /// Errors per level present in both model and truth.
     pub levels: Vec<LevelError>,
+    /// RMS of the centre distances over those levels (mm).
     pub centre_rmse_mm: f64,
     /// RMSE with the sacral registration alone (when known).
     pub centre_rmse_sacral_frame_mm: Option<f64>,
+    /// Sagittal curve (X against Y) of the model centres compared with the truth's.
     pub sagittal: Option<metrics::CurveFit>,
+    /// Frontal curve (Z against Y) of the model centres compared with the truth's.
     pub frontal: Option<metrics::CurveFit>,
+    /// The model's Cobb angle over the truth's levels.
     pub cobb: Option<metrics::Cobb>,
+    /// The truth's Cobb angle, from its landmarks.
     pub truth_cobb: Option<metrics::Cobb>,
+    /// Model minus truth Cobb angle (deg).
     pub cobb_error_deg: Option<f64>,
+    /// Apex level of the model's Cobb curve.
     pub apex: Option<String>,
+    /// Apex level of the truth's curve.
     pub truth_apex: Option<String>,
+    /// The model's lumbar lordosis (deg, negative = lordosis).
     pub lordosis_deg: Option<f64>,
+    /// The truth's lumbar lordosis (deg, negative = lordosis).
     pub truth_lordosis_deg: Option<f64>,
+    /// The model's sacral slope (deg).
     pub sacral_slope_deg: Option<f64>,
 }
 
@@ -625,18 +653,26 @@ pub fn evaluate_model(
 /// Median and IQR.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MedIqr {
+    /// Median.
     pub median: f64,
+    /// Interquartile range (type 7 quantiles).
     pub iqr: f64,
+    /// Number of finite values.
     pub n: usize,
 }
 
 /// Mean, SD (n - 1), min, max.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MeanSd {
+    /// Mean.
     pub mean: f64,
+    /// Sample standard deviation (n - 1; 0 for one value).
     pub sd: f64,
+    /// Smallest value.
     pub min: f64,
+    /// Largest value.
     pub max: f64,
+    /// Number of finite values.
     pub n: usize,
 }
 
@@ -675,23 +711,36 @@ pub fn mean_sd(v: &[f64]) -> Option<MeanSd> {
 /// Per-level absolute errors across models (Table 5.7).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LevelSummary {
+    /// The vertebra.
     pub level: Level,
+    /// |anterior-posterior error| across models (mm).
     pub ap_abs_mm: MedIqr,
+    /// |inferior-superior error| across models (mm).
     pub is_abs_mm: MedIqr,
+    /// |right-left error| across models (mm).
     pub rl_abs_mm: MedIqr,
 }
 
 /// Summary over several models (Tables 5.6-5.8).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Summary {
+    /// Number of models.
     pub models: usize,
+    /// Centre RMSE across models (mm).
     pub centre_rmse_mm: Option<MedIqr>,
+    /// Sagittal curve RMSE across models (mm).
     pub sagittal_curve_rmse_mm: Option<MedIqr>,
+    /// Frontal curve RMSE across models (mm).
     pub frontal_curve_rmse_mm: Option<MedIqr>,
+    /// Sagittal curve R^2 across models.
     pub sagittal_r2: Option<MedIqr>,
+    /// Frontal curve R^2 across models.
     pub frontal_r2: Option<MedIqr>,
+    /// Absolute errors per level across models.
     pub levels: Vec<LevelSummary>,
+    /// The models' Cobb angles (deg).
     pub cobb_deg: Option<MeanSd>,
+    /// The models' lumbar lordosis (deg).
     pub lordosis_deg: Option<MeanSd>,
     /// Apex level -> number of models.
     pub apex_counts: BTreeMap<String, usize>,
@@ -744,10 +793,15 @@ pub fn summarise(all: &[ModelMetrics]) -> Summary {
 /// Sign conventions and levels of the reported angles and errors.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Conventions {
+    /// The axes and units of positions.
     pub axes: &'static str,
+    /// Sign and axes of the errors.
     pub errors: &'static str,
+    /// Definition and sign of the Cobb angle.
     pub cobb: &'static str,
+    /// Definition and sign of the lordosis.
     pub lordosis: &'static str,
+    /// Where the truth's angles come from.
     pub truth_metrics: &'static str,
 }
 
@@ -763,11 +817,15 @@ pub const CONVENTIONS: Conventions = Conventions {
 /// The full evaluation report.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct EvaluateReport {
+    /// Where the truth was read from.
     pub truth: String,
+    /// Definition of the vertebral centre used ([`centre_definition`]).
     pub vertebral_centre: &'static str,
     /// Sign conventions and levels of the angles ([`CONVENTIONS`]).
     pub conventions: Conventions,
+    /// Metrics of each model.
     pub models: Vec<ModelMetrics>,
+    /// Summary over the models.
     pub summary: Summary,
 }
 

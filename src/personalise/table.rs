@@ -32,6 +32,7 @@ pub enum Form {
 }
 
 impl Form {
+    /// The form's name in tables (`linear`, `nonlinear`, `coupled`, `expression`).
     pub fn name(self) -> &'static str {
         match self {
             Form::Linear => "linear",
@@ -63,28 +64,44 @@ pub enum Interp {
 /// A per-DoF curve `g(x)` in SI units (N m or N against rad or m).
 #[derive(Debug, Clone, PartialEq)]
 pub enum CurveSpec {
+    /// `g(x) = k x`.
     Linear {
+        /// Stiffness (N m/rad or N/m).
         k: f64,
     },
+    /// `g(x) = k x + c x^3`.
     Cubic {
+        /// Linear stiffness (N m/rad or N/m).
         k: f64,
+        /// Cubic coefficient (N m/rad^3 or N/m^3).
         c: f64,
     },
+    /// `g(x) = k a sinh(x / a)`: slope `k` at 0.
     Sinh {
+        /// Stiffness at 0 (N m/rad or N/m).
         k: f64,
+        /// Scale of the stiffening (rad or m).
         a: f64,
     },
+    /// Slope `k_neg` for `x < 0`, `k_pos` for `x >= 0`.
     Bilinear {
+        /// Stiffness for negative deflection (N m/rad or N/m).
         k_neg: f64,
+        /// Stiffness for positive deflection (N m/rad or N/m).
         k_pos: f64,
     },
+    /// A curve through points, extrapolated linearly with the end slopes.
     Points {
+        /// Deflections (rad or m), increasing.
         x: Vec<f64>,
+        /// Generalised forces (N m or N).
         y: Vec<f64>,
+        /// Interpolation between the points.
         interp: Interp,
     },
     /// Coefficients, highest power first (OpenSim PolynomialFunction).
     Polynomial {
+        /// Coefficients in SI units, highest power first.
         coefficients: Vec<f64>,
     },
 }
@@ -94,25 +111,38 @@ pub enum CurveSpec {
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum LevelLaw {
+    /// Diagonal linear stiffness: `f = -(K q + C q')` element by element.
     Linear {
+        /// Stiffness per DoF, rx..tz (N m/rad, then N/m).
         k: [f64; 6],
+        /// Damping per DoF, rx..tz (N m s/rad, then N s/m).
         c: [f64; 6],
     },
+    /// A curve per DoF: `f_i = -g_i(q_i) - c_i q_i'`.
     Nonlinear {
+        /// Curve per DoF, rx..tz.
         curves: Box<[CurveSpec; 6]>,
+        /// Damping per DoF, rx..tz (N m s/rad, then N s/m).
         c: [f64; 6],
     },
+    /// Coupled linear stiffness: `f = -K q - C q'`.
     Coupled {
+        /// Symmetric positive-definite 6x6 stiffness, rows and columns rx..tz (SI).
         k: [[f64; 6]; 6],
+        /// Damping per DoF, rx..tz (N m s/rad, then N s/m).
         c: [f64; 6],
     },
+    /// Six Lepton expressions of the deflections.
     Expression {
+        /// Expression per DoF, rx..tz.
         exprs: Box<[String; 6]>,
+        /// Damping per DoF, rx..tz (N m s/rad, then N s/m).
         c: [f64; 6],
     },
 }
 
 impl LevelLaw {
+    /// The law's form.
     pub fn form(&self) -> Form {
         match self {
             LevelLaw::Linear { .. } => Form::Linear,
@@ -121,6 +151,7 @@ impl LevelLaw {
             LevelLaw::Expression { .. } => Form::Expression,
         }
     }
+    /// Damping per DoF, rx..tz (N m s/rad, then N s/m).
     pub fn damping(&self) -> [f64; 6] {
         match self {
             LevelLaw::Linear { c, .. }
@@ -138,12 +169,19 @@ pub struct Row {
     pub name: String,
     /// Where the row is, for messages: `[[level]] #3 'L4_L5'`, `line 5 'L4_L5'`.
     pub location: String,
+    /// Form given by the row, if any.
     pub form: Option<Form>,
+    /// Linear stiffness per DoF, rx..tz (N m/rad, then N/m).
     pub stiffness: [Option<f64>; 6],
+    /// Ratio applied to the stiffness per DoF (dimensionless, > 0).
     pub ratio: [Option<f64>; 6],
+    /// Damping per DoF, rx..tz (N m s/rad, then N s/m).
     pub damping: [Option<f64>; 6],
+    /// Curve per DoF (nonlinear form).
     pub curves: [Option<CurveSpec>; 6],
+    /// 6x6 stiffness, rows and columns rx..tz (coupled form, SI).
     pub matrix: Option<[[f64; 6]; 6]>,
+    /// Lepton expression per DoF, rx..tz (expression form).
     pub expressions: Option<[String; 6]>,
 }
 
