@@ -89,6 +89,7 @@ pub struct Args {
 
 /// `--fixed` values.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
+#[allow(missing_docs)] // clap would print a doc comment here in --help
 pub enum Fixed {
     Pelvis,
     Sacrum,
@@ -96,6 +97,7 @@ pub enum Fixed {
 
 /// `--sex` values.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
+#[allow(missing_docs)] // clap would print a doc comment here in --help
 pub enum SexArg {
     Female,
     Male,

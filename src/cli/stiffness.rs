@@ -12,6 +12,7 @@ use std::path::PathBuf;
 
 /// Table format for `--list`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+#[allow(missing_docs)] // clap would print a doc comment here in --help
 pub enum TableFormat {
     Toml,
     Csv,
