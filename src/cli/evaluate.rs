@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long, value_name = "CENTRES.csv|MESH_DIR")]
     pub truth: PathBuf,
     #[command(flatten)]
-    #[allow(missing_docs)] // clap would print a doc comment here in --help
+    /// Metric options (clap ignores this comment on a flattened field).
     pub metrics: MetricArgs,
     /// Output folder.
     #[arg(long, value_name = "DIR")]

@@ -26,7 +26,7 @@ pub mod variability;
 #[command(name = "osim-spine", version, about, long_about = None)]
 pub struct Cli {
     #[command(subcommand)]
-    #[allow(missing_docs)] // clap would print a doc comment here in --help
+    /// The subcommand to run (clap ignores this comment on a subcommand field).
     pub command: Command,
 }
 

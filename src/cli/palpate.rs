@@ -23,7 +23,7 @@ pub struct Args {
     #[arg(long)]
     pub force: bool,
     #[command(flatten)]
-    #[allow(missing_docs)] // clap would print a doc comment here in --help
+    /// Segmentation options (clap ignores this comment on a flattened field).
     pub seg: SegArgs,
 }
 
