@@ -75,7 +75,7 @@ pub struct Remaining {
     pub cells: usize,
     /// Held-out chi-square and its reduced value.
     pub chi2: f64,
-    /// `chi2 / cells`.
+    /// `chi2 / max(cells, 1)`.
     pub reduced_chi2: f64,
     /// P(chi-square of `cells` dof >= `chi2`): small when the remaining
     /// gap is above the noise.
