@@ -89,6 +89,7 @@ pub struct Args {
 
 /// `--fixed` values.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
+#[allow(missing_docs)] // clap prints variant doc comments in --help; the names say it
 pub enum Fixed {
     Pelvis,
     Sacrum,
@@ -96,6 +97,7 @@ pub enum Fixed {
 
 /// `--sex` values.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
+#[allow(missing_docs)] // clap prints variant doc comments in --help; the names say it
 pub enum SexArg {
     Female,
     Male,

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 /// Output formats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[allow(missing_docs)] // clap prints variant doc comments in --help; the names say it
 pub enum Format {
     Text,
     Json,

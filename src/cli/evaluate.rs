@@ -20,6 +20,7 @@ pub struct Args {
     #[arg(long, value_name = "CENTRES.csv|MESH_DIR")]
     pub truth: PathBuf,
     #[command(flatten)]
+    /// Metric options (clap ignores this comment on a flattened field).
     pub metrics: MetricArgs,
     /// Output folder.
     #[arg(long, value_name = "DIR")]

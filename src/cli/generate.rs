@@ -43,6 +43,7 @@ pub struct Args {
     #[arg(long, value_name = "SEGMENTATION")]
     pub segmentation: Option<PathBuf>,
     #[command(flatten)]
+    /// Segmentation options (clap ignores this comment on a flattened field).
     pub seg: super::palpate::SegArgs,
     /// Vertebra meshes the model wears: base (the base model's, scaled by
     /// each vertebra's landmarks) or patient (the segmentation's own, with

@@ -26,33 +26,54 @@ pub struct Args {
 /// The summary printed by `info`.
 #[derive(Debug, Serialize)]
 pub struct Summary {
+    /// Path of the model file.
     pub file: String,
+    /// The model's name.
     pub name: String,
+    /// Document version as read.
     pub version_read: u32,
+    /// Document version after the upgrade on reading.
     pub version: u32,
+    /// Gravity in ground (m/s^2).
     pub gravity: [f64; 3],
     /// Sum of the body masses (kg).
     pub total_mass: f64,
+    /// Body names.
     pub bodies: Vec<String>,
+    /// Every joint.
     pub joints: Vec<JointSummary>,
+    /// Number of coordinates.
     pub coordinates: usize,
+    /// Number of forces by OpenSim class.
     pub forces_by_class: BTreeMap<String, usize>,
+    /// Number of muscles.
     pub muscles: usize,
+    /// Number of markers.
     pub markers: usize,
+    /// Number of wrap objects (bodies and ground) by OpenSim class.
     pub wrap_objects: BTreeMap<String, usize>,
+    /// Number of constraints.
     pub constraints: usize,
+    /// Number of mesh references.
     pub mesh_files: usize,
+    /// Meshes not found (`body: file`).
     pub meshes_missing: Vec<String>,
+    /// Meshes refused because their path escapes the geometry folders (`body: why`).
     pub meshes_refused: Vec<String>,
 }
 
 /// One joint in the summary.
 #[derive(Debug, Serialize)]
 pub struct JointSummary {
+    /// The joint's name.
     pub name: String,
+    /// Its OpenSim class.
     pub class: String,
+    /// Its parent frame's body.
     pub parent: String,
+    /// Its child frame's body.
     pub child: String,
+    /// Its coordinates.
     pub coordinates: Vec<CoordinateSummary>,
 }
 
@@ -60,11 +81,15 @@ pub struct JointSummary {
 /// whether it is locked.
 #[derive(Debug, Serialize)]
 pub struct CoordinateSummary {
+    /// The coordinate's name.
     pub name: String,
     /// `rotational`, `translational` or `coupled`.
     pub motion: String,
+    /// Range [min, max] (rad or m).
     pub range: [f64; 2],
+    /// Default value (rad or m).
     pub default: f64,
+    /// Locked at its default.
     pub locked: bool,
 }
 

@@ -1,3 +1,5 @@
+#![warn(missing_docs, unreachable_pub)]
+
 //! The command-line interface: a thin clap shell over the library. Each
 //! subcommand lives in its own file with an `Args` struct and a `run`.
 
@@ -24,6 +26,7 @@ pub mod variability;
 #[command(name = "osim-spine", version, about, long_about = None)]
 pub struct Cli {
     #[command(subcommand)]
+    /// The subcommand to run (clap ignores this comment on a subcommand field).
     pub command: Command,
 }
 
@@ -152,6 +155,7 @@ where
         .install(f)
 }
 
+/// Parses the command line, runs the subcommand and returns the process exit code.
 pub fn main() -> i32 {
     let cli = Cli::parse();
     let result: anyhow::Result<i32> = match cli.command {

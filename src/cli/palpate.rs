@@ -23,6 +23,7 @@ pub struct Args {
     #[arg(long)]
     pub force: bool,
     #[command(flatten)]
+    /// Segmentation options (clap ignores this comment on a flattened field).
     pub seg: SegArgs,
 }
 

@@ -12,6 +12,7 @@ use std::path::PathBuf;
 
 /// Table format for `--list`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+#[allow(missing_docs)] // clap prints variant doc comments in --help; the names say it
 pub enum TableFormat {
     Toml,
     Csv,

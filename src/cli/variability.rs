@@ -50,6 +50,7 @@ pub struct Args {
     )]
     pub truth: Option<PathBuf>,
     #[command(flatten)]
+    /// Metric options (clap ignores this comment on a flattened field).
     pub metrics: super::evaluate::MetricArgs,
     /// Worker threads for the models (default: all cores).
     #[arg(long, value_name = "N")]

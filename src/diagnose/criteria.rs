@@ -140,15 +140,20 @@ impl Serialize for Verdict {
 /// Statistics of one fitted family.
 #[derive(Debug, Clone, Serialize)]
 pub struct CandidateStats {
+    /// The family fitted.
     pub family: Kind,
     /// The variant's label (`level_trend[rz]`).
     pub label: String,
     /// The rotational DoFs a per-DoF variant acts on (trend, shared
     /// asymmetry; empty for the others).
     pub dofs: Vec<usize>,
+    /// The effect it adds.
     pub effect: Effect,
+    /// Number of fitted parameters.
     pub n_params: usize,
+    /// Weighted chi-square on the training cases.
     pub chi2_train: f64,
+    /// Weighted chi-square on the held-out cases.
     pub chi2_heldout: f64,
     /// Rotation RMSE on the held-out cases (deg).
     pub heldout_rot_rmse: f64,
@@ -156,21 +161,32 @@ pub struct CandidateStats {
     pub dchi2_train: f64,
     /// Its p-value (chi-square with the extra parameters as dof).
     pub p_train: f64,
+    /// BIC improvement over the baseline on the training cases.
     pub dbic_train: f64,
+    /// Held-out chi-square improvement over the baseline.
     pub dchi2_heldout: f64,
+    /// Ranking score: `dchi2_heldout + dbic_train`.
     pub score: f64,
+    /// Testable, `p_train < ALPHA` and `dchi2_heldout > HELDOUT_MIN`.
     pub earns: bool,
+    /// Iterations of the fit.
     pub iterations: usize,
+    /// Fitted parameters in physical units, by name.
     pub params: BTreeMap<String, f64>,
 }
 
 /// A cell of the held-out gap.
 #[derive(Debug, Clone, Serialize)]
 pub struct GapCell {
+    /// Body above the level.
     pub upper: String,
+    /// Body below the level.
     pub lower: String,
+    /// The level's name.
     pub level: String,
+    /// Deflection component (`rx` .. `tz`).
     pub dof: String,
+    /// Load case id.
     pub case: String,
     /// Share of the held-out chi-square of the baseline.
     pub share: f64,
@@ -181,17 +197,24 @@ pub struct GapCell {
 /// A row of an aggregate table.
 #[derive(Debug, Clone, Serialize)]
 pub struct Share {
+    /// What the row aggregates (a level, DoF, case, ...).
     pub key: String,
+    /// Its share of the total (0..1).
     pub share: f64,
 }
 
 /// RMSE per level and DoF.
 #[derive(Debug, Clone, Serialize)]
 pub struct LevelDofRmse {
+    /// The level's name.
     pub level: String,
+    /// Deflection component (`rx` .. `tz`).
     pub dof: String,
+    /// Held-out RMSE of the baseline (deg or mm).
     pub baseline_rmse: f64,
+    /// Held-out RMSE of the augmented model (deg or mm).
     pub augmented_rmse: f64,
+    /// `1 - augmented / baseline` (0 when the baseline RMSE is 0).
     pub shrink: f64,
 }
 

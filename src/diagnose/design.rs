@@ -14,6 +14,7 @@ pub const AXIS_NAMES: [&str; 3] = ["LB", "AR", "FE"];
 /// The structure of one case.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CaseInfo {
+    /// The case's id in the experiment.
     pub id: String,
     /// Dominant moment axis (0 X, 1 Y, 2 Z), None without a moment.
     pub axis: Option<usize>,
@@ -71,14 +72,18 @@ fn distinct(v: impl Iterator<Item = f64>) -> Vec<f64> {
 /// A missing load case that would make an effect testable.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MissingCase {
+    /// The load case to add.
     pub case: String,
+    /// The effect it would make testable (`diagnosis.json` name).
     pub effect: String,
+    /// Why it is needed.
     pub reason: String,
 }
 
 /// The held-out design and the identifiability of the effects.
 #[derive(Debug, Clone, Serialize)]
 pub struct Design {
+    /// Every case's structure, in experiment order.
     pub cases: Vec<CaseInfo>,
     /// Indices of the cases used for fitting.
     pub train: Vec<usize>,

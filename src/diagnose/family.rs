@@ -35,12 +35,19 @@ use serde::Serialize;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Effect {
+    /// No unmodelled effect: the baseline explains the data.
     None,
+    /// Stiffness differs between levels.
     LevelDependentStiffness,
+    /// Stiffness changes with the deflection.
     NonlinearStiffness,
+    /// Stiffness differs between the two directions of a DoF.
     AsymmetricStiffness,
+    /// Off-diagonal stiffness couples the rotational DoFs.
     CoupledStiffness,
+    /// The joint frames are misplaced.
     JointPoseError,
+    /// Compression stiffens the rotations.
     PreloadStiffening,
 }
 
@@ -86,25 +93,36 @@ impl Effect {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Kind {
+    /// The nominal law with its three global rotational factors free.
     Baseline,
+    /// One stiffness factor per level on all three rotational DoFs.
     LevelScalar,
+    /// One stiffness factor per level and rotational DoF.
     LevelPerDof,
     /// A log-linear stiffness trend along the spine per DoF.
     LevelTrend,
+    /// Per DoF `M = k sinh(lambda th) / lambda`.
     NonlinearSinh,
+    /// Per DoF `M = k th + c th^3`.
     NonlinearCubic,
+    /// Per DoF a stiffness ratio between the two directions, shared by the levels.
     AsymmetricBilinear,
     /// Bilinear asymmetry with its own ratios at each level of the mask
     /// (an asymmetry at some levels only).
     AsymmetricPerLevel,
+    /// Three rotational correlations shared by the levels.
     CoupledUniform,
+    /// Three rotational correlations per level.
     CoupledPerLevel,
     /// Coupling at the levels of the family's mask only (a local effect).
     CoupledLocal,
+    /// Per level a rotation of both joint frames.
     JointRotation,
+    /// Per level a rotation and an offset of both joint frames.
     JointPose,
     /// Joint pose error at the levels of the mask only.
     JointLocal,
+    /// Rotational stiffness growing with the disc's compression.
     Preload,
 }
 
@@ -156,15 +174,20 @@ const DOF3: [&str; 3] = ["rx", "ry", "rz"];
 /// A family instantiated on an experiment: parameter names, start, box.
 #[derive(Debug, Clone)]
 pub struct Family {
+    /// Which family.
     pub kind: Kind,
     /// Levels that carry per-level parameters (all for the per-level
     /// kinds; one or a few for the local kinds).
     pub mask: Vec<bool>,
     /// Joint offsets (mm) are parameters (pose kinds).
     pub offsets: bool,
+    /// Parameter names, in `x` order.
     pub names: Vec<String>,
+    /// Starting parameter vector.
     pub x0: Vec<f64>,
+    /// Lower bounds of the parameters.
     pub lo: Vec<f64>,
+    /// Upper bounds of the parameters.
     pub hi: Vec<f64>,
     /// A second effect's family (mixed effects): its own parameters follow
     /// this family's in `x`, its global block is this one's.

@@ -15,7 +15,9 @@ use rayon::prelude::*;
 /// Weights of the residuals: `1/sigma` for rotations (1/deg) and translations (1/mm).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Weights {
+    /// Weight of a rotation residual (1/deg).
     pub rot: f64,
+    /// Weight of a translation residual (1/mm).
     pub trans: f64,
 }
 
@@ -41,6 +43,7 @@ impl Weights {
 /// A fitted family.
 #[derive(Debug, Clone)]
 pub struct Fitted {
+    /// The family fitted.
     pub family: Family,
     /// Best parameters.
     pub x: Vec<f64>,

@@ -18,8 +18,11 @@ use nalgebra::Vector3;
 /// law when the threshold is 0).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OneSided {
+    /// Acts on the positive side (else the negative one).
     pub positive: bool,
+    /// Deflection beyond which it acts (rad).
     pub threshold: f64,
+    /// Tangent stiffness beyond the threshold over the linear one.
     pub factor: f64,
 }
 
@@ -32,6 +35,7 @@ pub struct LawParts {
     /// level factors (a neutral zone or stiffening scales with each level's
     /// own compliance, so that it reaches the same ratio at the same moment).
     pub k_ref: [f64; 6],
+    /// Damping `(rx .. tz)`: N m/(rad/s), N/(m/s).
     pub damping: [f64; 6],
     /// Rotational curve of each DoF (`None`: linear with `k`).
     pub rot: [Option<Curve>; 3],

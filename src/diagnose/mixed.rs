@@ -29,15 +29,20 @@ pub const PAIR_WIN: f64 = 0.95;
 /// A fitted pair of effects and its statistics.
 #[derive(Debug, Clone)]
 pub struct PairFit {
+    /// The fitted mixed family.
     pub fit: Fitted,
     /// The two single fits it was started from (indices into the fits).
     pub members: [usize; 2],
+    /// The two effects, in build order.
     pub effects: [Effect; 2],
+    /// Weighted chi-square on the training cases.
     pub chi2_train: f64,
+    /// Weighted chi-square on the held-out cases.
     pub chi2_heldout: f64,
     /// Training chi-square improvement over the better member, and its
     /// p-value (the other member's parameters as dof).
     pub dchi2_train: f64,
+    /// The p-value of `dchi2_train`.
     pub p_train: f64,
     /// Held-out chi-square improvement over the best single effect.
     pub dchi2_heldout: f64,
@@ -55,6 +60,7 @@ pub struct PairFit {
 /// One effect of `verdict.effects`.
 #[derive(Debug, Clone, Serialize)]
 pub struct EffectShare {
+    /// The effect.
     pub effect: Effect,
     /// Family (variant) of the effect.
     pub family: String,
@@ -64,9 +70,13 @@ pub struct EffectShare {
 
 /// What the pair statistics compare with.
 pub struct PairCtx<'a> {
+    /// The simulated experiment.
     pub sim: &'a Sim,
+    /// The training / held-out split.
     pub split: &'a Split,
+    /// Residual weights.
     pub w: Weights,
+    /// The single effects' statistics, in fit order.
     pub stats: &'a [CandidateStats],
     /// The best single effect (index into the fits).
     pub top: usize,

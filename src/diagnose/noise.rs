@@ -92,6 +92,7 @@ impl NoiseSource {
 pub struct ClassNoise {
     /// SD (deg or mm) of the cells without their own `sd_*`.
     pub sigma: f64,
+    /// Where `sigma` comes from.
     pub source: NoiseSource,
     /// Degrees of freedom of the estimate (0 when stated or assumed).
     pub dof: f64,
@@ -100,7 +101,9 @@ pub struct ClassNoise {
 /// The noise of both classes (`None`: the class was not measured).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Noise {
+    /// Rotation cells (deg).
     pub rotation: Option<ClassNoise>,
+    /// Translation cells (mm).
     pub translation: Option<ClassNoise>,
 }
 

@@ -31,7 +31,9 @@ use std::collections::BTreeMap;
 /// One group of a grouping of the remaining residuals.
 #[derive(Debug, Clone, Serialize)]
 pub struct Group {
+    /// The group's value of the grouping (a level, a DoF, ...).
     pub key: String,
+    /// Number of residuals in the group.
     pub cells: usize,
     /// Mean residual (predicted - measured) in noise units (times the
     /// load's sign for the sign-aligned groupings).
@@ -48,6 +50,7 @@ pub struct Structure {
     pub by: String,
     /// `held_out` or `training` residuals.
     pub cells: &'static str,
+    /// F statistic of the group means against the scatter within the groups.
     pub f: f64,
     /// p-value of zero group means against the scatter within the groups.
     pub p: f64,
@@ -68,9 +71,11 @@ pub struct Structure {
 pub struct Remaining {
     /// The model (family label, `baseline` when nothing was added).
     pub model: String,
+    /// Number of held-out residuals.
     pub cells: usize,
     /// Held-out chi-square and its reduced value.
     pub chi2: f64,
+    /// `chi2 / max(cells, 1)`.
     pub reduced_chi2: f64,
     /// P(chi-square of `cells` dof >= `chi2`): small when the remaining
     /// gap is above the noise.
@@ -78,6 +83,7 @@ pub struct Remaining {
     /// The baseline's held-out chi-square, and P(chi-square of `cells`
     /// dof >= it): small when the design sees a gap at all.
     pub baseline_chi2: f64,
+    /// P(chi-square of `cells` dof >= `baseline_chi2`).
     pub baseline_p_noise: f64,
     /// Fraction of the baseline's held-out chi-square the model closes.
     pub closed: f64,

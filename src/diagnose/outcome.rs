@@ -16,23 +16,30 @@ use std::collections::BTreeMap;
 /// The outcome of a diagnosis (everything reports need).
 #[derive(Debug, Clone)]
 pub struct Outcome {
+    /// The simulated experiment.
     pub sim: Sim,
+    /// The held-out design.
     pub design: Design,
     /// Weights (`1/sigma`, report units) of every chi-square.
     pub noise: Weights,
     /// The noise of each measured class and where it comes from.
     pub noise_model: noise::Noise,
+    /// The fitted baseline.
     pub baseline: Fitted,
+    /// Every fitted candidate family.
     pub fits: Vec<Fitted>,
+    /// Statistics of each of `fits`, in the same order.
     pub stats: Vec<CandidateStats>,
     /// Best variant per effect (index into `fits`), ranked by score.
     pub ranked: Vec<usize>,
     /// `none`, an effect or `unidentifiable`.
     pub verdict: Verdict,
+    /// Probability (0..1) that the verdict's score margins stay positive on new held-out data.
     pub confidence: f64,
     /// The family used for the held-out comparison and the improved model
     /// (None for `none`); the primary effect's when two are reported.
     pub chosen: Option<usize>,
+    /// Why the verdict was reached, one sentence each.
     pub reasons: Vec<String>,
     /// Every pair of effects fitted together.
     pub pairs: Vec<PairFit>,

@@ -15,6 +15,7 @@ use serde::Serialize;
 pub struct Ratio {
     /// What it compares (`L5_S1/L1_L2 rz`, `rz neg/pos`).
     pub quantity: String,
+    /// The fitted ratio.
     pub ratio: f64,
     /// 95% interval.
     pub ci95: [f64; 2],

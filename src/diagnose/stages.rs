@@ -16,7 +16,9 @@ use rayon::prelude::*;
 /// Training and held-out cells (indices into `sim.cells`) of a design (in
 /// a K-fold design both are every cell).
 pub struct Split {
+    /// Cells the fits see.
     pub train: Vec<usize>,
+    /// Cells the fits are judged on.
     pub heldout: Vec<usize>,
 }
 
@@ -46,12 +48,19 @@ pub fn progress_bar(opts: &Options, len: u64) -> crate::util::progress::Bar {
 
 /// What every fit of one run shares: the data it may see.
 pub struct FitCtx<'a> {
+    /// The simulated experiment.
     pub sim: &'a Sim,
+    /// Cells the fits may see (indices into `sim.cells`).
     pub train_cells: Vec<usize>,
+    /// Cases the fits may see (indices into the experiment's cases).
     pub train_cases: Vec<usize>,
+    /// The experiment has a follower-load case (the preload family is fitted).
     pub has_follower: bool,
+    /// Residual weights.
     pub w: Weights,
+    /// Iteration cap of each fit.
     pub max_iterations: usize,
+    /// Progress bar advanced by each fit.
     pub pb: &'a crate::util::progress::Bar,
     /// A published table's leave-one-level-out design: the effects it
     /// cannot test (see [`kinds`]); `None` otherwise.
@@ -247,7 +256,9 @@ fn fit_families(ctx: &FitCtx, offsets: bool) -> Result<(Fitted, Vec<Fitted>)> {
 /// Every fit of a diagnosis: the baseline and the candidates on the
 /// training cells and, in a K-fold design, on each fold.
 pub struct Fits {
+    /// The baseline fitted on the training cells.
     pub baseline: Fitted,
+    /// The candidates fitted on the training cells.
     pub fits: Vec<Fitted>,
     /// Baseline and candidates of each fold (same order as `fits`).
     pub folds: Vec<(Fitted, Vec<Fitted>)>,

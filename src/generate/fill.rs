@@ -26,6 +26,7 @@ use std::collections::BTreeMap;
 /// A level placed from its neighbours.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FilledLevel {
+    /// The level that was missing.
     pub level: Level,
     /// The measured levels (or the sacrum) it was placed between.
     pub between: [Level; 2],

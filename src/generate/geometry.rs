@@ -95,6 +95,7 @@ pub const SURFACE_FIT_LIMIT: f64 = 0.003;
 /// One level of the patient's segmentation, ready for the model.
 #[derive(Debug, Clone)]
 pub struct PatientLevel {
+    /// The vertebra.
     pub level: Level,
     /// File or label it came from.
     pub origin: String,
@@ -103,6 +104,7 @@ pub struct PatientLevel {
     /// Vertebral centre (palpation engine) in the same frame, and the
     /// radius of its sphere (m).
     pub centre: Point3<f64>,
+    /// Radius of the centre's sphere (m).
     pub radius: f64,
     /// Triangles of the surface as read.
     pub source_triangles: usize,
@@ -115,7 +117,9 @@ pub struct PatientLevel {
 pub struct PatientGeometry {
     /// The segmentation's name.
     pub source: String,
+    /// What kind of segmentation it was read from.
     pub kind: Kind,
+    /// The usable levels.
     pub levels: BTreeMap<Level, PatientLevel>,
     /// Levels whose surface cannot be worn (not closed), with why.
     pub refused: Vec<String>,
@@ -247,7 +251,9 @@ pub fn prepare(
 
 /// Meshes by file name first, then the base model's.
 pub struct Overlay<'a> {
+    /// The model's own meshes, by file name, looked up first.
     pub own: &'a BTreeMap<String, TriMesh>,
+    /// The base model's meshes, looked up next.
     pub base: Option<&'a dyn MeshSource>,
 }
 
@@ -270,22 +276,30 @@ impl MeshSource for Overlay<'_> {
 /// One patient mesh in the model.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MeshRow {
+    /// The vertebra (or the sacrum).
     pub level: Level,
+    /// The body wearing the mesh.
     pub body: String,
+    /// The mesh's file name as written in the model.
     pub mesh_file: String,
     /// File or label of the segmentation.
     pub origin: String,
+    /// What was done to the surface before use.
     pub prepared: String,
+    /// Triangles of the mesh written.
     pub triangles: usize,
     /// Bone volume of the patient mesh and of the scaled base mesh (cm^3).
     pub volume_cm3: f64,
+    /// Bone volume of the scaled base mesh (cm^3); `None` when it is missing.
     pub base_volume_cm3: Option<f64>,
     /// Mass written (kg) and the scaled base's (kg).
     pub mass_kg: f64,
+    /// Mass of the scaled base body (kg).
     pub base_mass_kg: f64,
     /// Vertebral-body sphere from the patient's body: centre in the body
     /// frame (m) and radius before the wrap rules (m); none for the sacrum.
     pub sphere_centre: Option<[f64; 3]>,
+    /// Radius of that sphere before the wrap rules (m).
     pub sphere_radius: Option<f64>,
     /// Where the sphere's centre comes from.
     pub sphere_centre_rule: Option<CentreRule>,
@@ -293,6 +307,7 @@ pub struct MeshRow {
     /// the landmark fit): how far it moved (mm at the mesh's extent) and
     /// its trimmed RMS (mm); `None` when the base mesh is missing.
     pub surface_fit_mm: Option<f64>,
+    /// Trimmed RMS distance of that registration (mm).
     pub surface_rms_mm: Option<f64>,
 }
 
@@ -311,28 +326,36 @@ pub enum CentreRule {
 /// A muscle attachment moved out of a patient bone.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MovedPoint {
+    /// The muscle's name.
     pub muscle: String,
+    /// The path point's name.
     pub point: String,
     /// Body the point is fixed to, and the bone it was inside.
     pub body: String,
+    /// The bone it was inside (its body's name).
     pub bone: String,
     /// How deep inside it was, and how far it moved (mm).
     pub depth_mm: f64,
+    /// How far it moved (mm).
     pub moved_mm: f64,
 }
 
 /// What [`apply`] did (the report's `geometry`).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct GeometryReport {
+    /// The geometry asked for.
     pub geometry: GeometryChoice,
+    /// The segmentation's name.
     pub segmentation: String,
     /// Levels wearing the patient's mesh, cranial to caudal.
     pub patient_levels: Vec<String>,
     /// Vertebrae and sacrum still wearing the scaled base mesh, and why.
     pub base_levels: Vec<String>,
+    /// One row per patient mesh in the model.
     pub meshes: Vec<MeshRow>,
     /// Joints placed at the patient's disc centres.
     pub joints_at_patient_discs: Vec<String>,
+    /// Muscle attachments moved out of patient bones.
     pub moved_attachments: Vec<MovedPoint>,
     /// How mass and inertia were set.
     pub mass_rule: String,
@@ -340,6 +363,7 @@ pub struct GeometryReport {
 
 /// What [`apply`] hands back to the generator.
 pub struct Applied {
+    /// What was done.
     pub report: GeometryReport,
     /// Patient meshes by file name, in their bodies' frames (m).
     pub meshes: BTreeMap<String, TriMesh>,

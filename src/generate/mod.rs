@@ -53,15 +53,12 @@ pub mod chain;
 mod check;
 pub mod clear;
 pub mod example;
-#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod fill;
 mod fits;
-#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod geometry;
 mod joints;
 pub mod pose;
 mod register;
-#[allow(missing_docs)] // documented once its edits elsewhere are merged
 mod report;
 pub mod residuals;
 pub mod scale;

@@ -14,6 +14,7 @@ use std::collections::BTreeMap;
 /// Options of [`generate`](super::generate()).
 #[derive(Debug, Clone)]
 pub struct GenerateOptions {
+    /// How each vertebra's pose and scale are fitted to its landmarks.
     pub method: Method,
     /// Run the self-check (needs the meshes for the through-bone test).
     pub self_check: bool,
@@ -85,7 +86,9 @@ impl Registration {
 /// One fitted vertebra in the report.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct VertebraRow {
+    /// The vertebra.
     pub level: Level,
+    /// Its body's name in the model.
     pub body: String,
     /// Scale factors X (depth), Y (height), Z (width).
     pub scale: [f64; 3],
@@ -95,6 +98,7 @@ pub struct VertebraRow {
     pub orientation_deg: [f64; 3],
     /// RMS and largest landmark-to-marker residual (mm) of the used landmarks.
     pub rms_mm: f64,
+    /// Largest landmark-to-marker residual (mm) of the used landmarks.
     pub max_residual_mm: f64,
     /// Rejected outlier landmark (lsq).
     pub outlier: Option<String>,
@@ -102,6 +106,7 @@ pub struct VertebraRow {
     pub outlier_error_mm: Option<f64>,
     /// Leave-one-out candidate's prediction error and threshold (mm) (lsq).
     pub loo_max_mm: Option<f64>,
+    /// Outlier threshold on that error (mm) (lsq).
     pub loo_threshold_mm: Option<f64>,
     /// Placed from its neighbours (no landmarks: a gap in the set).
     pub filled: bool,
@@ -110,16 +115,21 @@ pub struct VertebraRow {
 /// Everything [`generate`](super::generate()) did and measured (the JSON report).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct GenerateReport {
+    /// File name of the base model.
     pub base_model: String,
+    /// File name of the landmark set.
     pub landmarks: String,
     /// Units/frame: declared, detected and used.
     pub detection: Option<String>,
+    /// The fitting method used.
     pub method: Method,
     /// Vertebrae placed from landmarks, cranial to caudal.
     pub levels_from_landmarks: Vec<String>,
     /// Vertebrae of the base model kept with the base shape and alignment.
     pub levels_from_base: Vec<String>,
+    /// Landmark frame to ground, from the sacral landmarks.
     pub registration: Registration,
+    /// One row per vertebra placed from landmarks, cranial to caudal.
     pub vertebrae: Vec<VertebraRow>,
     /// Per-axis palpation noise SD (mm) estimated over the whole set from
     /// the leave-one-out prediction errors (lsq; [`pose::noise_sd`]).
@@ -133,14 +143,18 @@ pub struct GenerateReport {
     pub smoothing: SmoothingReport,
     /// RMS of all landmark-to-marker residuals (mm), outliers excluded.
     pub landmark_rms_mm: f64,
+    /// Names of the intervertebral joints whose frames were rewritten.
     pub joints_rewritten: Vec<String>,
+    /// What scaling touched, by body name.
     pub scaling: BTreeMap<String, scale::ScaleCount>,
+    /// The refitted wrap spheres.
     pub spheres: Vec<wraps::SphereOut>,
     /// Edits that cleared muscle paths from the vertebrae ([`clear`]).
     pub path_edits: Vec<clear::PathEdit>,
     /// Vertebral centres ([`crate::evaluate::CentreDef::Endplates`]) in
     /// ground at the default pose (m).
     pub centres: BTreeMap<String, [f64; 3]>,
+    /// The generated model's self-check (`None` when not run).
     pub self_check: Option<crate::base::check::SelfCheck>,
     /// Levels above the landmarks' field of view and where T1 ended
     /// (`None` when the landmarks reach T1, or when they measure no
@@ -168,6 +182,7 @@ pub struct GenerateReport {
 /// What the orientation smoothing did ([`smooth`](super::smooth)).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SmoothingReport {
+    /// The smoothing asked for.
     pub mode: Smooth,
     /// Whether the posterior orientations replaced the fitted ones.
     pub applied: bool,
@@ -181,6 +196,7 @@ pub struct SmoothingReport {
     /// Effective number of orientation parameters kept (`tr(H^-1 W)`), and
     /// the number of parameters (3 per vertebra).
     pub effective_dof: Option<f64>,
+    /// Number of orientation parameters (3 per vertebra).
     pub parameters: usize,
     /// `--smooth chain`: REML estimate of the SD of the joint mismatch
     /// (mm) along the lower body's X, Y, Z axes.
@@ -195,6 +211,7 @@ pub struct SmoothingReport {
 /// One vertebra of [`SmoothingReport`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SmoothingLevel {
+    /// The vertebra.
     pub level: Level,
     /// SD of the fitted orientation (deg) about the ground X, Y, Z axes.
     pub fit_sd_deg: [f64; 3],
@@ -207,7 +224,9 @@ pub struct SmoothingLevel {
 /// A generated model, not yet written.
 #[derive(Debug, Clone)]
 pub struct Generated {
+    /// The generated model.
     pub doc: Document,
+    /// What was done and measured.
     pub report: GenerateReport,
     /// (suffix, SVG text): `frontal`, `sagittal`.
     pub views: Vec<(String, String)>,
@@ -219,6 +238,7 @@ pub struct Generated {
 /// A level fitted on fewer landmarks than the protocol's.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ReducedFit {
+    /// The vertebra.
     pub level: Level,
     /// The protocol's landmarks missing from the set.
     pub missing: Vec<String>,

@@ -47,7 +47,9 @@ const ROUNDOFF: f64 = 2e-13;
 /// On segment k, f(x) = y_k + t (b_k + t (c_k + t d_k)) with t = x - x_k.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CubicSpline {
+    /// Knot abscissae, increasing.
     pub x: Vec<f64>,
+    /// Knot values, one per abscissa.
     pub y: Vec<f64>,
     b: Vec<f64>,
     c: Vec<f64>,
@@ -190,28 +192,41 @@ impl CubicSpline {
 /// A function of one variable as OpenSim defines it.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Function {
+    /// `Constant`: the same value everywhere.
     Constant(f64),
+    /// `LinearFunction`: slope * x + intercept.
     Linear {
+        /// Derivative with respect to x.
         slope: f64,
+        /// Value at x = 0.
         intercept: f64,
     },
     /// Coefficients, highest order first.
     Polynomial(Vec<f64>),
+    /// `MultiplierFunction`: scale * inner(x).
     Multiplier {
+        /// Factor applied to the inner function's value.
         scale: f64,
+        /// The function being scaled.
         inner: Box<Function>,
     },
     /// `SimmSpline` or `NaturalCubicSpline` (same construction in OpenSim).
     Spline {
+        /// The OpenSim class name it was read from.
         class: String,
+        /// The spline through its knots.
         spline: CubicSpline,
     },
+    /// `PiecewiseLinearFunction`: straight segments between points.
     PiecewiseLinear {
+        /// Abscissae, increasing.
         x: Vec<f64>,
+        /// Values, one per abscissa.
         y: Vec<f64>,
     },
     /// A class this tool does not evaluate (kept by class name).
     Unsupported {
+        /// The OpenSim class name.
         class: String,
     },
 }

@@ -18,7 +18,6 @@
 
 pub mod builders;
 pub mod document;
-#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod function;
 pub mod geometry;
 pub mod legacy;

@@ -31,7 +31,6 @@ pub mod law;
 pub(crate) mod linalg;
 pub mod output;
 pub mod scalar;
-#[allow(missing_docs)] // documented once its edits elsewhere are merged
 pub mod spec;
 pub mod statics;
 pub mod system;

@@ -38,8 +38,9 @@ pub struct SystemSpec {
 /// A rigid body.
 #[derive(Debug, Clone)]
 pub struct BodySpec {
+    /// Body name (for messages and results).
     pub name: String,
-    /// kg
+    /// Mass (kg).
     pub mass: f64,
     /// Centre of mass in the body frame (m).
     pub com: Vector3<f64>,
@@ -50,13 +51,17 @@ pub struct BodySpec {
 /// A tree joint between `parent` (None = ground) and `child`.
 #[derive(Debug, Clone)]
 pub struct JointSpec {
+    /// Joint name (for messages and results).
     pub name: String,
+    /// Index of the parent body in [`SystemSpec::bodies`] (None = ground).
     pub parent: Option<usize>,
+    /// Index of the child body in [`SystemSpec::bodies`].
     pub child: usize,
     /// Pose of the joint frame F in the parent body (X_PF).
     pub x_pf: Isometry3<f64>,
     /// Pose of the joint frame M in the child body (X_BM).
     pub x_bm: Isometry3<f64>,
+    /// How M moves relative to F.
     pub kind: JointKind,
 }
 
@@ -66,24 +71,42 @@ pub enum JointKind {
     /// No relative motion.
     Weld,
     /// Rotation about F's Z axis (OpenSim PinJoint).
-    Pin { coord: usize },
+    Pin {
+        /// Index of the angle's coordinate in [`SystemSpec::coordinates`].
+        coord: usize,
+    },
     /// Rotation about X then about the new Y (OpenSim UniversalJoint).
-    Universal { coords: [usize; 2] },
+    Universal {
+        /// Indices of the X and Y angles' coordinates.
+        coords: [usize; 2],
+    },
     /// Translation along F's X axis (OpenSim SliderJoint).
-    Slider { coord: usize },
+    Slider {
+        /// Index of the translation's coordinate in [`SystemSpec::coordinates`].
+        coord: usize,
+    },
     /// OpenSim FreeJoint: body-fixed X-Y-Z rotations then translation
     /// along F's axes. As in OpenSim 4.6 (Simbody's Free mobilizer with
     /// Euler angles), the three rotational generalised speeds are the
     /// angular velocity of M in F expressed in F (`u_rot = w_FM`, not the
     /// angle rates: `qdot_rot = N(q) u_rot`); the translational speeds are
     /// the coordinate rates. See [`crate::solver::System::qdot`].
-    Free { coords: [usize; 6] },
+    Free {
+        /// Indices of the X, Y, Z angles' then the X, Y, Z translations' coordinates.
+        coords: [usize; 6],
+    },
     /// OpenSim BallJoint: body-fixed X-Y-Z rotations, no translation; the
     /// generalised speeds are the angular velocity of M in F expressed in F
     /// (Simbody's Ball mobilizer with Euler angles), like [`JointKind::Free`].
-    Ball { coords: [usize; 3] },
+    Ball {
+        /// Indices of the X, Y, Z angles' coordinates.
+        coords: [usize; 3],
+    },
     /// OpenSim CustomJoint: rotation1..3 then translation1..3.
-    Custom { axes: Box<[TransformAxis; 6]> },
+    Custom {
+        /// rotation1..3 then translation1..3.
+        axes: Box<[TransformAxis; 6]>,
+    },
 }
 
 /// One of a CustomJoint's six transform axes.
@@ -122,6 +145,7 @@ impl TransformAxis {
 /// A generalised coordinate.
 #[derive(Debug, Clone)]
 pub struct CoordinateSpec {
+    /// Coordinate name (for messages and results).
     pub name: String,
     /// Default value (rad or m); locked coordinates are held here.
     pub default: f64,
@@ -136,6 +160,7 @@ pub struct CoordinateSpec {
 /// A frame fixed in a body (None = ground) at a transform.
 #[derive(Debug, Clone)]
 pub struct FrameSpec {
+    /// Index of the body in [`SystemSpec::bodies`] (None = ground).
     pub body: Option<usize>,
     /// X_BF: the frame's pose in its body.
     pub transform: Isometry3<f64>,
@@ -144,9 +169,13 @@ pub struct FrameSpec {
 /// A bushing force between frame 1 (F) and frame 2 (M).
 #[derive(Debug, Clone)]
 pub struct BushingSpec {
+    /// Bushing name (for messages and results).
     pub name: String,
+    /// Frame 1 (F), the reference of the deflection.
     pub frame1: FrameSpec,
+    /// Frame 2 (M), whose deflection in frame 1 is measured.
     pub frame2: FrameSpec,
+    /// The force law.
     pub model: BushingModel,
 }
 
@@ -158,14 +187,32 @@ pub const DOF_NAMES: [&str; 6] = ["rx", "ry", "rz", "tx", "ty", "tz"];
 #[derive(Debug, Clone, PartialEq)]
 pub enum Curve {
     /// `k x`
-    Linear { k: f64 },
+    Linear {
+        /// Stiffness (N m/rad or N/m).
+        k: f64,
+    },
     /// `k x + c x^3` (OpenSim PolynomialFunction `[c, 0, k, 0]`).
-    Cubic { k: f64, c: f64 },
+    Cubic {
+        /// Linear stiffness (N m/rad or N/m).
+        k: f64,
+        /// Cubic coefficient (N m/rad^3 or N/m^3).
+        c: f64,
+    },
     /// Neutral-zone curve `k a sinh(x / a)`: slope `k` at zero, stiffening
     /// with the deflection on the scale `a` (rad or m).
-    Sinh { k: f64, a: f64 },
+    Sinh {
+        /// Slope at zero deflection (N m/rad or N/m).
+        k: f64,
+        /// Deflection scale of the stiffening (rad or m).
+        a: f64,
+    },
     /// Slope `k_neg` for `x < 0` and `k_pos` for `x >= 0` (asymmetric).
-    Bilinear { k_neg: f64, k_pos: f64 },
+    Bilinear {
+        /// Slope for negative deflections (N m/rad or N/m).
+        k_neg: f64,
+        /// Slope for zero and positive deflections (N m/rad or N/m).
+        k_pos: f64,
+    },
     /// Any function of the deflection (points, splines, polynomials), as
     /// OpenSim evaluates it.
     Function(Function),
@@ -204,13 +251,17 @@ pub enum BushingModel {
     /// columns in deflection order; Nm/rad, N/rad, Nm/m = N, N/m blocks).
     /// Written as an ExpressionBasedBushingForce with linear expressions.
     Coupled {
+        /// The 6x6 stiffness `K`, deflection order.
         stiffness: Matrix6<f64>,
+        /// Diagonal damping (Nm/(rad/s) for rx..rz, N/(m/s) for tx..tz).
         damping: [f64; 6],
     },
     /// OpenSim ExpressionBasedBushingForce: `f_i = -expr_i(q) - c_i q_i'`
     /// (`Mx, My, Mz, Fx, Fy, Fz` expressions of `theta_x .. delta_z`).
     Expression {
+        /// `Mx, My, Mz, Fx, Fy, Fz` (N m, N) as expressions of the deflections.
         exprs: Box<[Expr; 6]>,
+        /// Diagonal damping (Nm/(rad/s) for rx..rz, N/(m/s) for tx..tz).
         damping: [f64; 6],
     },
 }
@@ -260,15 +311,22 @@ pub enum LoadFrame {
 pub enum Load {
     /// A pure moment (N m).
     Moment {
+        /// Name of the loaded body.
         body: String,
+        /// The moment (N m), in `frame`'s axes.
         vec: Vector3<f64>,
+        /// Axes of `vec`.
         frame: LoadFrame,
     },
     /// A force (N) at a point fixed in the body (body frame, m).
     Force {
+        /// Name of the loaded body.
         body: String,
+        /// Point of application in the body frame (m).
         point_in_body: Vector3<f64>,
+        /// The force (N), in `frame`'s axes.
         vec: Vector3<f64>,
+        /// Axes of `vec`.
         frame: LoadFrame,
     },
     /// Compressive follower load (N) at every joint on the tree path between
@@ -278,8 +336,11 @@ pub enum Load {
     /// upper (child) body and one 10 mm caudal fixed in the lower (parent)
     /// body, both placed in the default pose.
     Follower {
+        /// Name of the fixed end's body.
         from_body: String,
+        /// Name of the loaded end's body.
         to_body: String,
+        /// Compressive force at each joint (N).
         magnitude: f64,
     },
 }

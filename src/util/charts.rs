@@ -88,35 +88,53 @@ pub enum Mark {
     /// A filled box from `lo` to `hi`, `half` px either side of the
     /// slot's centre, outlined in black.
     Box {
+        /// Bottom of the box (data units).
         lo: f64,
+        /// Top of the box (data units).
         hi: f64,
+        /// Half-width (px).
         half: i32,
+        /// Fill colour.
         fill: RGBColor,
     },
     /// A horizontal segment at `at`, `half` px either side of the centre
     /// (median line, whisker cap).
     Tick {
+        /// Height of the segment (data units).
         at: f64,
+        /// Half-length (px).
         half: i32,
+        /// Stroke colour.
         colour: RGBColor,
+        /// Stroke width (px).
         width: u32,
     },
     /// A vertical segment from `lo` to `hi`, `dx` px right of the centre
     /// (whisker, interval, range).
     Span {
+        /// Bottom end (data units).
         lo: f64,
+        /// Top end (data units).
         hi: f64,
+        /// Offset right of the slot's centre (px).
         dx: i32,
+        /// Stroke colour.
         colour: RGBColor,
+        /// Stroke width (px).
         width: u32,
     },
     /// A dot at `at`, `dx` px right of the centre; an outline when not
     /// `filled`.
     Dot {
+        /// Height of the dot (data units).
         at: f64,
+        /// Offset right of the slot's centre (px).
         dx: i32,
+        /// Radius (px).
         radius: i32,
+        /// Colour.
         colour: RGBColor,
+        /// Filled, or an outline only.
         filled: bool,
     },
 }
@@ -124,7 +142,9 @@ pub enum Mark {
 /// One slot of a category chart.
 #[derive(Debug, Clone)]
 pub struct Category {
+    /// Label under the slot.
     pub label: String,
+    /// What is drawn in the slot, in order.
     pub marks: Vec<Mark>,
 }
 
@@ -163,9 +183,13 @@ impl ValueAxis {
 /// A chart of categories along the horizontal axis.
 #[derive(Debug, Clone)]
 pub struct CategoryChart {
+    /// Title above the chart.
     pub title: String,
+    /// Line under the title.
     pub subtitle: String,
+    /// The value axis.
     pub axis: ValueAxis,
+    /// The slots, left to right.
     pub categories: Vec<Category>,
     /// Width of one slot (px).
     pub slot: u32,
@@ -365,11 +389,17 @@ pub(crate) fn nice_step(span: f64) -> f64 {
 /// beyond them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BoxStats {
+    /// First quartile.
     pub q1: f64,
+    /// Median.
     pub median: f64,
+    /// Third quartile.
     pub q3: f64,
+    /// Lower whisker end: the smallest value within 1.5 IQR below `q1`.
     pub lo: f64,
+    /// Upper whisker end: the largest value within 1.5 IQR above `q3`.
     pub hi: f64,
+    /// Values beyond the whiskers.
     pub outliers: Vec<f64>,
 }
 
@@ -557,7 +587,9 @@ fn tick_label(v: f64, decimals: usize) -> String {
 /// One axis of an x-y panel: its title (with the unit) and plotted range.
 #[derive(Debug, Clone)]
 pub struct Axis {
+    /// Axis title, with the unit.
     pub label: String,
+    /// Plotted range (data units).
     pub range: (f64, f64),
 }
 
@@ -566,13 +598,18 @@ pub struct Axis {
 pub enum LayerKind {
     /// Filled dots of `radius` px.
     Dots {
+        /// Dot centres (x, y) in data units.
         points: Vec<(f64, f64)>,
+        /// Dot radius (px).
         radius: u32,
     },
     /// Polylines, each its own path.
     Lines {
+        /// Polylines of (x, y) points in data units.
         lines: Vec<Vec<(f64, f64)>>,
+        /// Stroke width (px).
         width: u32,
+        /// Dashed rather than solid.
         dashed: bool,
     },
 }
@@ -581,17 +618,24 @@ pub enum LayerKind {
 /// entry (an empty label has none).
 #[derive(Debug, Clone)]
 pub struct Layer {
+    /// Legend label (empty: no legend entry).
     pub label: String,
+    /// Colour of its dots or lines.
     pub colour: RGBColor,
+    /// What it draws.
     pub kind: LayerKind,
 }
 
 /// One x-y panel: a titled chart with two labelled axes.
 #[derive(Debug, Clone)]
 pub struct XyPanel {
+    /// Panel title.
     pub title: String,
+    /// Horizontal axis.
     pub x: Axis,
+    /// Vertical axis.
     pub y: Axis,
+    /// Layers, drawn in order.
     pub layers: Vec<Layer>,
 }
 
@@ -599,8 +643,11 @@ pub struct XyPanel {
 /// them for every labelled layer.
 #[derive(Debug, Clone)]
 pub struct XyFigure {
+    /// Title above the figure.
     pub title: String,
+    /// Line under the title.
     pub subtitle: String,
+    /// The panels, row by row.
     pub panels: Vec<XyPanel>,
     /// Panels per row.
     pub columns: usize,
@@ -775,7 +822,9 @@ fn draw_panel(area: &Area, p: &XyPanel) {
 /// One panel of a heat map: cells `(row, column, value in [-1, 1])`.
 #[derive(Debug, Clone)]
 pub struct HeatPanel {
+    /// Panel title.
     pub title: String,
+    /// Cells `(row, column, value in [-1, 1])`.
     pub cells: Vec<(usize, usize, f64)>,
 }
 
@@ -784,8 +833,11 @@ pub struct HeatPanel {
 /// (e.g. a unit) and one label per tick.
 #[derive(Debug, Clone)]
 pub struct ColourScale {
+    /// Title of the bar.
     pub title: String,
+    /// Tick positions in [-1, 1].
     pub ticks: Vec<f64>,
+    /// Rows of tick labels: caption and one label per tick.
     pub rows: Vec<(String, Vec<String>)>,
 }
 
@@ -793,10 +845,13 @@ pub struct ColourScale {
 /// their colour scale ([`diverging`]) at the bottom.
 #[derive(Debug, Clone)]
 pub struct HeatMap {
+    /// Title above the figure.
     pub title: String,
+    /// Line under the title.
     pub subtitle: String,
     /// Row names, top to bottom.
     pub rows: Vec<String>,
+    /// Number of columns.
     pub columns: usize,
     /// Size of one cell (px).
     pub cell: (u32, u32),
@@ -806,7 +861,9 @@ pub struct HeatMap {
     pub column_ticks: Vec<(f64, String)>,
     /// Column ranges `[a, b)` underlined under each panel.
     pub marked: Vec<(usize, usize)>,
+    /// The panels, top to bottom.
     pub panels: Vec<HeatPanel>,
+    /// The colour scale under them.
     pub scale: ColourScale,
 }
 

@@ -22,7 +22,9 @@ use std::collections::BTreeSet;
 /// One of the two views.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum View {
+    /// The ground Y-Z plane: horizontal -Z, vertical Y.
     Frontal,
+    /// The ground X-Y plane: horizontal X, vertical Y.
     Sagittal,
 }
 
@@ -73,7 +75,9 @@ impl View {
 pub struct Series {
     /// Legend label (empty: not in the legend).
     pub label: String,
+    /// Colour of its dots and line.
     pub colour: RGBColor,
+    /// The points in ground (m).
     pub points: Vec<Point3<f64>>,
     /// Dot radius (px); 0 draws no dots.
     pub radius: i32,
@@ -84,7 +88,9 @@ pub struct Series {
 /// Circles of given radius in model units (e.g. wrap spheres), outlines.
 #[derive(Debug, Clone)]
 pub struct Circles {
+    /// Legend label (empty: not in the legend).
     pub label: String,
+    /// Outline colour.
     pub colour: RGBColor,
     /// (centre in ground (m), radius (m)).
     pub circles: Vec<(Point3<f64>, f64)>,
@@ -93,19 +99,26 @@ pub struct Circles {
 /// Mesh silhouettes: triangles in ground (m), filled.
 #[derive(Debug, Clone)]
 pub struct Silhouette {
+    /// Legend label (empty: not in the legend).
     pub label: String,
+    /// Fill colour.
     pub colour: RGBColor,
+    /// The triangles' vertices in ground (m).
     pub triangles: Vec<[Point3<f64>; 3]>,
 }
 
 /// A figure: what to draw, in drawing order silhouettes, circles, series.
 #[derive(Debug, Clone)]
 pub struct Figure {
+    /// Title above the views.
     pub title: String,
     /// Size in px (width, height).
     pub size: (u32, u32),
+    /// Mesh silhouettes, drawn first.
     pub silhouettes: Vec<Silhouette>,
+    /// Circle sets, drawn over the silhouettes.
     pub circles: Vec<Circles>,
+    /// Point series, drawn over the circles.
     pub series: Vec<Series>,
     /// Text placed just right of a point (e.g. level names), drawn last.
     pub labels: Vec<(Point3<f64>, String)>,

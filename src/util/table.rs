@@ -147,7 +147,9 @@ impl CsvRecord {
 /// What [`CsvReader`] yields: comments and rows in file order.
 #[derive(Debug, Clone)]
 pub enum CsvItem {
+    /// A comment line.
     Comment(CsvComment),
+    /// A data row.
     Record(CsvRecord),
 }
 

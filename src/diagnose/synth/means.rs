@@ -28,13 +28,17 @@ use std::path::Path;
 /// the SD across the specimens in `sd_rx .. sd_rz`.
 #[derive(Debug, Clone)]
 pub struct MeansSpec {
+    /// The effect built into the specimens.
     pub effect: Effect,
     /// A second effect (a trend with an asymmetry).
     pub second: Option<Effect>,
+    /// Body the moments are applied to.
     pub loaded_body: String,
+    /// Body held fixed.
     pub fixed_body: String,
     /// Effect size in [0, 1].
     pub size: f64,
+    /// Number of specimens averaged.
     pub n_specimens: usize,
     /// Moment magnitude (N m) of every case.
     pub magnitude: f64,
@@ -44,6 +48,7 @@ pub struct MeansSpec {
     pub primary_only: bool,
     /// Rig noise of each specimen's measurement (deg).
     pub rig_noise_deg: f64,
+    /// Seed of every random choice.
     pub seed: u64,
 }
 

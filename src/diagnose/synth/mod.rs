@@ -56,6 +56,7 @@ pub struct SynthSpec {
     pub size: f64,
     /// Rotation noise SD (deg) and translation noise SD (mm).
     pub noise_deg: f64,
+    /// Translation noise SD (mm).
     pub noise_mm: f64,
     /// Translations measured.
     pub translations: bool,
@@ -75,6 +76,7 @@ pub struct SynthSpec {
 /// What was generated (the label and a description of the truth).
 #[derive(Debug, Clone)]
 pub struct Truth {
+    /// The (primary) effect.
     pub effect: Effect,
     /// The second effect of a two-effect truth.
     pub second: Option<Effect>,
@@ -82,6 +84,7 @@ pub struct Truth {
     pub oov: Option<Oov>,
     /// Levels where the effect acts.
     pub levels: Vec<String>,
+    /// Free-text description of what was built in.
     pub notes: String,
 }
 

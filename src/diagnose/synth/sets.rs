@@ -138,6 +138,7 @@ pub struct Scored {
     pub verdict: Option<Verdict>,
     /// The effects of `verdict.effects`.
     pub effects: Vec<Effect>,
+    /// The diagnosis's confidence (0 when it failed).
     pub confidence: f64,
     /// Held-out shrink of the augmented model.
     pub shrink: f64,
