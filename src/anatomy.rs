@@ -11,8 +11,6 @@
 //! synthetic landmark generator (`landmarks::synth`) and the procedural base
 //! model generator.
 
-#![warn(missing_docs, unreachable_pub)]
-
 use crate::error::{Error, Result};
 use crate::util::table::CsvReader;
 use std::fmt;

@@ -4,8 +4,6 @@
 //! default or a `--base` folder/file. Commands run from any directory and
 //! after `cargo install` without the repository.
 
-#![warn(missing_docs, unreachable_pub)]
-
 use crate::mesh::source::MeshSource;
 use crate::mesh::TriMesh;
 use crate::osim::geometry::{check_relative, resolve, MeshLookup};

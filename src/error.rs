@@ -1,8 +1,6 @@
 //! The library's error type. Every error that comes from user input names the
 //! file and, where known, the element, line or row, and says what was expected.
 
-#![warn(missing_docs, unreachable_pub)]
-
 use std::path::PathBuf;
 
 /// Result alias used across the library.

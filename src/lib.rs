@@ -77,6 +77,7 @@
 //! # Ok::<(), osim_spine::Error>(())
 //! ```
 
+#![warn(missing_docs, unreachable_pub)]
 // Module docs name the private named steps of each stage (they resolve with
 // `cargo doc --document-private-items`), so a reader sees the stage's order.
 #![allow(rustdoc::private_intra_doc_links)]

@@ -8,8 +8,6 @@
 //! [`case_record`] / [`kinematics_rows`] turn the result into what is
 //! written. Nothing here prints or writes a file.
 
-#![warn(missing_docs, unreachable_pub)]
-
 use crate::calibrate::experiment::{
     parse_cases, parse_experiment_toml, LoadCase, Units, MAX_FILE_BYTES,
 };

@@ -1,5 +1,3 @@
-#![warn(missing_docs, unreachable_pub)]
-
 //! Small shared helpers: the input gate every reader goes through
 //! ([`input`]), atomic output, deterministic number formatting,
 //! reports at a stated precision ([`report`]), the one quantile helper

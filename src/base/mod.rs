@@ -26,8 +26,6 @@
 //! come through a [`MeshSource`] (a folder search like OpenSim's, or an
 //! in-memory map for generated models).
 
-#![warn(missing_docs, unreachable_pub)]
-
 mod assemble;
 pub mod centres;
 pub mod check;

@@ -8,8 +8,6 @@
 //! | `forms` | the non-linear (stiffening) and coupled (correlation) laws, shared with `diagnose` |
 //! | `problem` | weighted residuals and their exact Jacobian (implicit differentiation) |
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod experiment;
 pub mod family;
 pub mod fit;

@@ -1,5 +1,3 @@
-#![warn(missing_docs, unreachable_pub)]
-
 //! The command-line interface: a thin clap shell over the library. Each
 //! subcommand lives in its own file with an `Args` struct and a `run`.
 

@@ -1,5 +1,3 @@
-#![warn(missing_docs, unreachable_pub)]
-
 //! Sim-to-real gap diagnosis (`osim-spine diagnose EXPERIMENT --out DIR`):
 //! where a re-fitted nominal model still disagrees with measured
 //! kinematics, which unmodelled effect causes it, and how far the gap

@@ -37,8 +37,6 @@
 //! absolute errors (Table 5.7), and mean, SD, min and max of the Cobb angle
 //! and lordosis (Table 5.8).
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub use crate::landmarks::metrics;
 pub mod palpations;
 pub mod plot;

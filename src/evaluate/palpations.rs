@@ -2,8 +2,6 @@
 //! landmark sets: what [`super::variability`] analyses and
 //! [`super::propagation`] turns into models.
 
-#![warn(missing_docs, unreachable_pub)]
-
 use crate::error::{Error, Result};
 use crate::landmarks::LandmarkSet;
 use std::collections::BTreeMap;

@@ -36,8 +36,6 @@
 //! generated in parallel (rayon, the caller's thread pool) and collected in
 //! palpation order, so the report is deterministic.
 
-#![warn(missing_docs, unreachable_pub)]
-
 use super::palpations::PalpationSet;
 use super::{
     centre_definition, evaluate_model, mean_sd, med_iqr, metrics, summarise, truth_transform,

@@ -33,8 +33,6 @@
 //! per-landmark IQRs here, the model metrics in
 //! [`crate::evaluate::propagation::boxplots`]).
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub use super::palpations::{load_palpations, PalpationSet};
 use super::propagation::{self, ModelPropagation, PropagationOptions};
 use crate::error::{Error, Result};

@@ -31,8 +31,6 @@
 //! flexibility (bending Cobb / unbent Cobb) measured and reproduced
 //! ([`report`]); one figure per film ([`views`]).
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod bend;
 pub mod fit;
 pub mod neutral;

@@ -46,8 +46,6 @@
 //! the disc below, X anterior, Y cranial, Z right; see
 //! [`crate::base`]); only the poses change.
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod balance;
 pub mod chain;
 mod check;

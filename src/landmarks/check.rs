@@ -68,8 +68,6 @@
 //!   residual of the whole set / 0.6745, floored at 0.3 mm) is an outlier.
 //!   The affine map absorbs size, wedging and rotation. Not applied to S1.
 
-#![warn(missing_docs, unreachable_pub)]
-
 use super::detect::Detection;
 use super::frames::mean_of;
 use super::io::{read_path, RawLandmarks};

@@ -28,8 +28,6 @@
 //!   cell may hold commas); rows may end with empty cells (trailing commas).
 //! - Files larger than [`MAX_FILE_BYTES`] are refused before reading.
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub use super::raw::{FileFormat, Palpation, RawLandmarks, RawPoint};
 use super::{Frame, LandmarkId, LandmarkSet, Units};
 use crate::error::{Error, Result};

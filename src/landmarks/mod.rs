@@ -19,8 +19,6 @@
 //! superior, z right); the source's declared and detected units/frame are
 //! kept in its [`detect::Detection`].
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod check;
 pub mod detect;
 pub mod frames;

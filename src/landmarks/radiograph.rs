@@ -22,8 +22,6 @@
 //! dividing by the [`Projection::magnification`] brings them to the
 //! patient's scale.
 
-#![warn(missing_docs, unreachable_pub)]
-
 use super::io::parse_number;
 use super::{Code, LandmarkId, Level, Units};
 use crate::error::{Error, Result};

@@ -18,8 +18,6 @@
 //!
 //! [`read`] and [`write()`] dispatch on the file extension.
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod decimate;
 pub mod distance;
 pub mod geom;

@@ -14,8 +14,6 @@
 //! | [`lint`] | the suspicious in a whole model: named warnings |
 //! | [`geometry`] | mesh file resolution like OpenSim (model folder, `Geometry/`, extra folders) |
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod builders;
 pub mod document;
 pub mod function;

@@ -24,8 +24,6 @@
 //! The sacrum ([`palpate_sacrum`]) uses the same plane and endplate steps
 //! on the S1 plateau, with the coarse-mesh fallback of the protocol.
 
-#![warn(missing_docs, unreachable_pub)]
-
 mod body;
 mod checks;
 mod frame;

@@ -28,8 +28,6 @@
 //! expression `i` is `sum_j K_ij * var_j`; expression -> the six strings.
 //! A bushing whose law does not change is left untouched (byte for byte).
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod table;
 
 pub use table::{read_table, CurveSpec, Form, Interp, LevelLaw, Row, Table};

@@ -21,8 +21,6 @@
 //! the disc below, X anterior, Y cranial, Z right. Meshes `proc_<LEVEL>.vtp`,
 //! `proc_sacrum.vtp`, `proc_pelvis.vtp`.
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod muscles;
 pub mod pelvis;
 pub mod segments;

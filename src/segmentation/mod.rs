@@ -15,8 +15,6 @@
 //! (anterior and cranial directions of the palpated vertebrae); a folder
 //! whose anatomy fits none of them (permuted axes) is refused.
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod assemble;
 pub mod checks;
 pub mod choose;

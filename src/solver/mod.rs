@@ -19,8 +19,6 @@
 //! | `from_model` | adapter from an OpenSim model document |
 //! | `output` | body poses, bushing records, .sto and JSON writers |
 
-#![warn(missing_docs, unreachable_pub)]
-
 pub mod dynamics;
 pub mod examples;
 pub mod expr;
