@@ -7,10 +7,11 @@
 //! (X = SP->SA, Y = IEC->SEC, Z = right; mm), which shows a bias.
 //!
 //! Usage: `cargo run --release --example landmark_accuracy_dev -- [PATIENT [meshes|map]] [CODE]`
+//! (`RIM_MIDDLE=1` palpates as `--laterals rim-middle`).
 
 use nalgebra::Vector3;
 use osim_spine::landmarks::{io, Code, LandmarkSet};
-use osim_spine::segmentation::{self, Options};
+use osim_spine::segmentation::{self, Laterals, Options};
 use osim_spine::util::{median, quantile};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -68,6 +69,16 @@ fn main() {
     let only_patient = args.first().cloned();
     let only_kind = args.get(1).cloned();
     let only_code = args.get(2).cloned();
+    // As `osim-spine palpate` runs with no option; RIM_MIDDLE=1 for the
+    // lateral rims' middles (`--laterals rim-middle`).
+    let opts = Options {
+        laterals: if std::env::var_os("RIM_MIDDLE").is_some() {
+            Laterals::RimMiddle
+        } else {
+            Laterals::Furthest
+        },
+        ..Options::default()
+    };
     let mut pooled: BTreeMap<&str, Vec<Err>> = BTreeMap::new();
     for patient in PATIENTS {
         if only_patient
@@ -85,27 +96,14 @@ fn main() {
             {
                 continue;
             }
-            let p = match segmentation::palpate(&seg.join(input), &Options::default()) {
+            let p = match segmentation::palpate(&seg.join(input), &opts) {
                 Ok(p) => p,
                 Err(e) => {
                     println!("{patient} {kind}: {e}");
                     continue;
                 }
             };
-            // FURTHEST=SR,IR,...: those codes replaced by the literal
-            // furthest points of the endplate regions (what-if).
-            let mut set = p.set.clone();
-            if let Ok(codes) = std::env::var("FURTHEST") {
-                let to_os = p.world.to_opensim();
-                for r in &p.levels {
-                    for (c, q) in &r.palpation.furthest {
-                        if codes.split(',').any(|s| s == c.as_str()) {
-                            set.insert(r.level, *c, (to_os * q.coords).into());
-                        }
-                    }
-                }
-            }
-            let e = errors(&set, &truth);
+            let e = errors(&p.set, &truth);
             let d: Vec<f64> = e.iter().map(|x| x.dist).collect();
             println!(
                 "{patient} {kind}: median {:.2} mm, 95th {:.2} mm",

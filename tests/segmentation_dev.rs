@@ -16,7 +16,7 @@ mod common;
 use nalgebra::Vector3;
 use osim_spine::landmarks::{io, Code, LandmarkSet, Level};
 use osim_spine::segmentation::labels::LabelTable;
-use osim_spine::segmentation::{self, nifti, voxelise, Options, Palpated};
+use osim_spine::segmentation::{self, nifti, voxelise, Laterals, Options, Palpated};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
@@ -34,6 +34,15 @@ type Cell = Arc<OnceLock<Result<Palpated, String>>>;
 /// segmentations they read (each palpated once per test run).
 static CACHE: Mutex<BTreeMap<PathBuf, Cell>> = Mutex::new(BTreeMap::new());
 
+/// `palpate` on `path` with no option (cached), or its error message: as
+/// the command runs it, with `SR`/`SL`/`IR`/`IL` at the furthest points.
+fn cli_options() -> Options {
+    Options {
+        laterals: Laterals::Furthest,
+        ..Options::default()
+    }
+}
+
 /// `palpate` on `path` with no option (cached), or its error message.
 fn palpated(path: &Path) -> Cell {
     let cell = CACHE
@@ -42,9 +51,7 @@ fn palpated(path: &Path) -> Cell {
         .entry(path.to_path_buf())
         .or_default()
         .clone();
-    cell.get_or_init(|| {
-        segmentation::palpate(path, &Options::default()).map_err(|e| e.to_string())
-    });
+    cell.get_or_init(|| segmentation::palpate(path, &cli_options()).map_err(|e| e.to_string()));
     cell
 }
 
@@ -250,7 +257,7 @@ fn v1_labels_give_the_landmarks_of_the_same_map_relabelled_to_v2() {
     write_relabelled(&map, &|l| translate(&v1, &v2, l), &relabelled);
     drop(map);
     let a = palpated_ok(&path);
-    let b = segmentation::palpate(&relabelled, &Options::default()).unwrap();
+    let b = segmentation::palpate(&relabelled, &cli_options()).unwrap();
     assert!(a.label_table.as_deref().unwrap().contains("v1"));
     assert!(b.label_table.as_deref().unwrap().contains("v2"));
     assert_eq!(a.set.levels(), b.set.levels());
@@ -298,21 +305,22 @@ fn accuracy(dev: &Path) -> Vec<(String, &'static str, f64, f64)> {
 }
 
 /// Landmark accuracy against `landmarks_clean.csv` (SR/SL/IR/IL without
-/// their component along the endplate's SA->SP direction): mesh folders'
-/// median <= 0.5 mm (measured 0.33-0.37 mm; the acceptance's bound is
-/// 0.8 mm); the rest against today's bounds (label maps' median <= 1.4 mm,
-/// measured 1.19-1.26 mm; every 95th percentile <= 5.5 mm, measured
-/// 4.4-5.1 mm), the acceptance's (maps' median 1.2 mm, 95th percentiles 3 and
-/// 3.5 mm) being not met yet: see
-/// `landmarks_meet_the_acceptance_thresholds` (ignored). What is over:
-/// thoracic IR/IL 3-5 mm along the endplate's normal (T1-T9, where the
-/// inferior costal demifacets are), pedicle bases on label maps (about
-/// 4 mm median) and single SA/SP/IA at 5-6 mm.
+/// their component along the endplate's SA->SP direction): the
+/// acceptance's medians (mesh folders <= 0.8 mm, measured 0.10-0.16 mm,
+/// asserted <= 0.3 mm; label maps <= 1.2 mm, measured 0.94-1.01 mm); every
+/// 95th percentile <= 5.5 mm (measured 4.4-5.0 mm), the acceptance's 3 and
+/// 3.5 mm being not met: see `landmarks_meet_the_acceptance_thresholds`
+/// (ignored). What is over: landmarks taken on an endplate face whose
+/// angle to the endplate's normal is near the protocol's 40 deg (a face at
+/// 40.2 deg on the maker's generic vertebra is at 44.7 deg once scaled into
+/// the patient, and the region changes), the pedicle cuts that move with
+/// those `IP`s, and pedicle bases on label maps (a spike of the cut thinner
+/// than a voxel).
 #[test]
 fn landmarks_agree_with_the_protocol() {
     let Some(dev) = dev() else { return };
     for (patient, kind, med, p95) in accuracy(&dev) {
-        let m_max = if kind == "meshes" { 0.5 } else { 1.4 };
+        let m_max = if kind == "meshes" { 0.3 } else { 1.2 };
         assert!(med <= m_max, "{patient} {kind}: median {med:.2} mm");
         assert!(p95 <= 5.5, "{patient} {kind}: p95 {p95:.2} mm");
     }
@@ -322,7 +330,7 @@ fn landmarks_agree_with_the_protocol() {
 /// 95th percentile <= 3 mm, label maps median <= 1.2 mm and 95th
 /// percentile <= 3.5 mm, per patient.
 #[test]
-#[ignore = "not met yet: 95th percentiles 4.7-5.6 mm, label maps' median 1.4-1.5 mm (see landmarks_agree_with_the_protocol)"]
+#[ignore = "not met: 95th percentiles 4.4-5.0 mm (see landmarks_agree_with_the_protocol)"]
 fn landmarks_meet_the_acceptance_thresholds() {
     let Some(dev) = dev() else { return };
     let mut failed = Vec::new();
@@ -587,4 +595,59 @@ fn bad_segmentations_are_refused() {
         &[("S1.stl", None), ("L5.stl", Some("S1.stl"))],
     );
     refuses(&sacrum, &["S1.stl"]);
+}
+
+/// `palpate` writes `SR`/`SL`/`IR`/`IL` at the endplate regions' furthest
+/// points (the report says so), `--laterals rim-middle` at the rims'
+/// middles: on every level of a label map the furthest point is at least
+/// as far out as the rim's middle, in the vertebra's own frame, and the
+/// other ten landmarks are the same points.
+#[test]
+fn palpate_takes_the_furthest_lateral_points_unless_asked() {
+    let Some(dev) = dev() else { return };
+    let map = dev.join("D01_thoracic45/segmentation/labelmap.nii.gz");
+    let far = palpated_ok(&map);
+    let mid = segmentation::palpate(&map, &Options::default()).unwrap();
+    assert_eq!(far.laterals, Laterals::Furthest);
+    assert_eq!(mid.laterals, Laterals::RimMiddle);
+    let (mut moved, mut checked) = (0, 0);
+    for (a, b) in far.levels.iter().zip(&mid.levels) {
+        assert_eq!(a.level, b.level);
+        for code in &Code::ALL {
+            let (Some(p), Some(q)) = (a.palpation.local(*code), b.palpation.local(*code)) else {
+                continue;
+            };
+            let side = match code {
+                Code::SR | Code::IR => 1.0,
+                Code::SL | Code::IL => -1.0,
+                _ => {
+                    assert!((p - q).norm() < 1e-12, "{}_{code} moved", a.level);
+                    continue;
+                }
+            };
+            checked += 1;
+            assert!(
+                side * p.z >= side * q.z - 1e-9,
+                "{}_{code}: furthest {:.2} mm, rim middle {:.2} mm out",
+                a.level,
+                side * p.z * 1e3,
+                side * q.z * 1e3
+            );
+            moved += usize::from((p - q).norm() > 1e-4);
+        }
+    }
+    assert!(checked >= 4 * 17, "{checked} lateral landmarks");
+    assert!(moved > 0, "no lateral landmark differs between the rules");
+    // The command: the report names the rule.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("L.csv");
+    let o = bin()
+        .args(["palpate", map.to_str().unwrap(), "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("L_report.json")).unwrap()).unwrap();
+    assert_eq!(report["lateral_landmarks"], "furthest");
 }

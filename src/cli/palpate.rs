@@ -1,5 +1,6 @@
 //! `osim-spine palpate SEGMENTATION --out LANDMARKS.csv [--units mm|m]
-//! [--frame LPS|RAS|opensim] [--levels T1..S1] [--labels FILE]`: patient
+//! [--frame LPS|RAS|opensim] [--levels T1..S1] [--labels FILE]
+//! [--laterals furthest|rim-middle]`: patient
 //! landmarks from vertebra segmentations (see [`crate::segmentation`]).
 //! Writes the landmark CSV, `<stem>_report.json` and the figures
 //! `<stem>_frontal.svg` / `<stem>_sagittal.svg`, each atomically, and
@@ -7,7 +8,7 @@
 
 use crate::error::Error;
 use crate::landmarks::{Frame, Level, Units};
-use crate::segmentation::{self, report, Options, Palpated, Severity};
+use crate::segmentation::{self, report, Laterals, Options, Palpated, Severity};
 use std::path::{Path, PathBuf};
 
 /// Arguments of `palpate`.
@@ -22,9 +23,23 @@ pub struct Args {
     /// Allow the output to go where an input is (it may be replaced).
     #[arg(long)]
     pub force: bool,
+    /// Where SR, SL, IR, IL are taken: the endplate regions' furthest points
+    /// (the protocol's words, as an operator places them) or the middles of
+    /// their lateral rims (the rule of a base model's markers, which
+    /// `generate --segmentation` uses).
+    #[arg(long, value_enum, default_value = "furthest")]
+    pub laterals: LateralsArg,
     #[command(flatten)]
     /// Segmentation options (clap ignores this comment on a flattened field).
     pub seg: SegArgs,
+}
+
+/// `--laterals`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+#[allow(missing_docs)] // clap prints variant doc comments in --help; the names say it
+pub enum LateralsArg {
+    Furthest,
+    RimMiddle,
 }
 
 /// The segmentation options shared by `palpate` and `generate --segmentation`.
@@ -73,6 +88,7 @@ impl SegArgs {
             levels,
             labels: self.labels.clone(),
             progress: true,
+            laterals: Laterals::RimMiddle,
         })
     }
 }
@@ -111,12 +127,16 @@ pub fn print_summary(p: &Palpated) {
         .filter(|f| f.code.is_some() && f.severity == Severity::Warning)
         .count();
     crate::outln!(
-        "palpated {} levels ({}) of {}: {} landmarks, {} uncertain; segmentation frame {}, landmarks written in {} {}",
+        "palpated {} levels ({}) of {}: {} landmarks, {} uncertain; SR/SL/IR/IL at the {}; segmentation frame {}, landmarks written in {} {}",
         levels.len(),
         levels.join(" "),
         p.source,
         p.set.len(),
         uncertain,
+        match p.laterals {
+            Laterals::Furthest => "endplates' furthest points",
+            Laterals::RimMiddle => "middles of the endplates' lateral rims",
+        },
         p.world,
         p.units,
         p.frame
@@ -160,7 +180,13 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
     {
         return Err(Error::invalid("--out", "the landmark set is written as .csv").into());
     }
-    let opts = args.seg.options()?;
+    let opts = Options {
+        laterals: match args.laterals {
+            LateralsArg::Furthest => Laterals::Furthest,
+            LateralsArg::RimMiddle => Laterals::RimMiddle,
+        },
+        ..args.seg.options()?
+    };
     let p = segmentation::palpate(&args.segmentation, &opts)?;
     let files = output_files(&p, &args.out);
     if files.iter().any(|(f, _)| same_file(f, &args.segmentation)) {

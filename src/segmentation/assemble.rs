@@ -231,6 +231,7 @@ pub fn assemble(
         levels,
         findings: loaded.findings,
         resolution: loaded.resolution,
+        laterals: opts.laterals,
     })
 }
 

@@ -88,6 +88,26 @@ pub struct Options {
     pub labels: Option<PathBuf>,
     /// Show a progress bar on label maps.
     pub progress: bool,
+    /// Where `SR`, `SL`, `IR`, `IL` are taken on the endplate regions.
+    pub laterals: Laterals,
+}
+
+/// Where the lateral endplate landmarks (`SR`, `SL`, `IR`, `IL`) are taken.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Laterals {
+    /// The middles of the lateral rims, the rule a base model's markers
+    /// follow (see [`crate::palpation`]): the same point along a flat rim on
+    /// a mesh, its decimation and its label map. `generate --segmentation`
+    /// fits the base's markers to these, the same rule on both sides.
+    #[default]
+    RimMiddle,
+    /// The literal furthest points of the endplate regions, as
+    /// `landmarks.md` words the protocol and an operator palpating the CT
+    /// places them: as far out and as high as the operator's, but anywhere
+    /// along a flat rim (its anterior-posterior position follows a voxel
+    /// step or a mesh vertex). What `osim-spine palpate` writes by default.
+    Furthest,
 }
 
 /// One level's surface, metres, in the segmentation's axes.
@@ -162,6 +182,8 @@ pub struct Palpated {
     pub findings: Vec<Finding>,
     /// The voxel size (label maps).
     pub resolution: Option<labelmap::Resolution>,
+    /// Where `SR`, `SL`, `IR`, `IL` were taken.
+    pub laterals: Laterals,
 }
 
 /// Read a segmentation: a folder of meshes or a NIfTI label map.
@@ -380,6 +402,12 @@ pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
     }
     let world = assemble::world_frame(&mut loaded, &hints)?;
     let mut results = palpate_levels(&loaded.levels, &hints);
+    // SR/SL/IR/IL at the literal furthest points when asked.
+    if opts.laterals == Laterals::Furthest {
+        for p in results.iter_mut().filter_map(|(_, r)| r.as_mut().ok()) {
+            *p = p.with_furthest_laterals();
+        }
+    }
     for l in loaded.levels.iter_mut() {
         shift_mesh(&mut l.mesh, local);
     }

@@ -86,6 +86,9 @@ pub struct Report {
     pub resolution: Option<super::labelmap::Resolution>,
     /// Levels palpated, cranial to caudal.
     pub levels_palpated: Vec<Level>,
+    /// Where `SR`, `SL`, `IR`, `IL` were taken: `furthest` (the literal
+    /// furthest points of the endplate regions) or `rim-middle`.
+    pub lateral_landmarks: super::Laterals,
     /// Number of warning findings.
     pub warnings: usize,
     /// Every finding.
@@ -140,6 +143,7 @@ pub fn report(p: &Palpated) -> Report {
         segmentation_frame: p.world,
         resolution: p.resolution,
         levels_palpated: p.levels.iter().map(|r| r.level).collect(),
+        lateral_landmarks: p.laterals,
         warnings: p
             .findings
             .iter()
