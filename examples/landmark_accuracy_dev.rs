@@ -105,6 +105,42 @@ fn main() {
             };
             let e = errors(&p.set, &truth);
             let d: Vec<f64> = e.iter().map(|x| x.dist).collect();
+            // Does the spread flag the landmarks over 3 mm?
+            let spread = |name: &str| {
+                p.levels
+                    .iter()
+                    .flat_map(|r| {
+                        r.palpation
+                            .landmarks
+                            .iter()
+                            .map(move |(c, l)| (format!("{}_{}", r.level, c.as_str()), l.spread))
+                    })
+                    .find(|(n, _)| n == name)
+                    .map_or(0.0, |(_, s)| s * 1e3)
+            };
+            let far: Vec<&Err> = e.iter().filter(|x| x.dist > 3.0).collect();
+            if std::env::var_os("MISSED").is_some() {
+                for x in far.iter().filter(|x| spread(&x.name) <= 1.5) {
+                    println!(
+                        "   missed {:>8} {:5.2} mm (x {:6.2} y {:6.2} z {:6.2}) spread {:.2}",
+                        x.name,
+                        x.dist,
+                        x.local.x,
+                        x.local.y,
+                        x.local.z,
+                        spread(&x.name)
+                    );
+                }
+            }
+            let flagged: Vec<&Err> = e.iter().filter(|x| spread(&x.name) > 1.5).collect();
+            println!(
+                "   spread > 1.5 mm: {} of the {} over 3 mm; {} of the {} flagged are over 3 mm, {} over 2 mm",
+                far.iter().filter(|x| spread(&x.name) > 1.5).count(),
+                far.len(),
+                flagged.iter().filter(|x| x.dist > 3.0).count(),
+                flagged.len(),
+                flagged.iter().filter(|x| x.dist > 2.0).count(),
+            );
             println!(
                 "{patient} {kind}: median {:.2} mm, 95th {:.2} mm",
                 median(&d).unwrap(),

@@ -98,6 +98,7 @@ fn given(point: nalgebra::Point3<f64>, src: &str) -> PalpatedLandmark {
         point,
         confidence: 1.0,
         note: Some(format!("given in {src}")),
+        spread: 0.0,
     }
 }
 

@@ -125,11 +125,26 @@ pub(crate) struct Endplate {
     pub tol: f64,
 }
 
-/// The endplate region by the protocol: body faces within 40 deg of the
-/// endplate normal, within a few mm of its plane, between the walls.
+/// The protocol's bound on the angle between an endplate face's normal and
+/// the endplate's (deg).
+pub(crate) const ENDPLATE_MAX_ANGLE_DEG: f64 = 40.0;
+
+/// The endplate region by the protocol: body faces within
+/// [`ENDPLATE_MAX_ANGLE_DEG`] of the endplate normal, within a few mm of
+/// its plane, between the walls.
 pub(crate) fn find_endplate(lm: &LocalMesh, w: &Walls, superior: bool) -> Option<Endplate> {
+    find_endplate_within(lm, w, superior, ENDPLATE_MAX_ANGLE_DEG)
+}
+
+/// [`find_endplate`] with another bound on the faces' angle (deg).
+pub(crate) fn find_endplate_within(
+    lm: &LocalMesh,
+    w: &Walls,
+    superior: bool,
+    max_angle_deg: f64,
+) -> Option<Endplate> {
     let s = if superior { 1.0 } else { -1.0 };
-    let cos40 = 40f64.to_radians().cos();
+    let cos_max = max_angle_deg.to_radians().cos();
     let margin = 0.04 * w.depth();
     let tol = (0.1 * w.height()).max(0.003);
     let in_column = |c: &Point3<f64>| {
@@ -146,7 +161,7 @@ pub(crate) fn find_endplate(lm: &LocalMesh, w: &Walls, superior: bool) -> Option
         faces = (0..lm.tris.len())
             .filter(|&f| {
                 let c = &lm.centroids[f];
-                lm.normals[f].dot(&normal) >= cos40
+                lm.normals[f].dot(&normal) >= cos_max
                     && in_column(c)
                     && plane.is_none_or(|d| (normal.dot(&c.coords) - d).abs() <= tol)
             })

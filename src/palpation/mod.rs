@@ -19,7 +19,9 @@
 //!    body's anterior-surface nodes (points spread evenly over that
 //!    surface, so the centre does not depend on the mesh's resolution);
 //! 7. [`checks`]: protocol invariants and anatomy (upside-down, not a
-//!    vertebra) as findings; confidence per landmark.
+//!    vertebra) as findings; confidence per landmark;
+//! 8. `spread::region_spread`: how far each landmark moves when the
+//!    endplate regions' 40 deg bound moves by 8 deg either way.
 //!
 //! The sacrum ([`palpate_sacrum`]) uses the same plane and endplate steps
 //! on the S1 plateau, with the coarse-mesh fallback of the protocol.
@@ -30,6 +32,7 @@ mod frame;
 mod local;
 mod pedicle;
 mod sacrum;
+mod spread;
 
 use crate::error::{Error, Result};
 use crate::landmarks::{Code, Level};
@@ -74,6 +77,10 @@ pub struct PalpatedLandmark {
     pub confidence: f64,
     /// Why the confidence is reduced, if it is.
     pub note: Option<String>,
+    /// How far (m) the landmark moves when the endplate regions' 40 deg
+    /// bound is moved by 8 deg either way: large where it hangs on a face
+    /// near the bound (see `spread.rs`); 0 where not measured.
+    pub spread: f64,
 }
 
 /// How serious a finding is.
@@ -320,6 +327,12 @@ pub fn palpate_vertebra(
     let mut findings = Vec::new();
     place_endplate_landmarks(&st, level, &mut landmarks, &mut findings);
     place_pedicles(&ctx, &st, level, &mut landmarks)?;
+    // How far each landmark moves with the endplate regions' angle bound.
+    for (code, s) in spread::region_spread(&st) {
+        if let Some(l) = landmarks.get_mut(&code) {
+            l.spread = s;
+        }
+    }
     let (centre, radius, centre_fit) = centre_of(&ctx, &st)?;
     let lm = &st.lm;
     let sec = landmarks[&Code::SEC].point;
@@ -366,6 +379,7 @@ fn landmark(point: Point3<f64>, confidence: f64, note: Option<String>) -> Palpat
         point,
         confidence,
         note,
+        spread: 0.0,
     }
 }
 

@@ -41,9 +41,15 @@ pub struct LandmarkEntry {
     pub position: [f64; 3],
     /// The palpation engine's confidence, 0..1.
     pub confidence: f64,
-    /// The label map's resolution as a position uncertainty (output
-    /// units): half its largest voxel edge; `None` for a mesh folder.
+    /// Position uncertainty (output units): the label map's resolution
+    /// (half its largest voxel edge; none for a mesh folder) and the
+    /// landmark's `region_spread`, added in quadrature.
     pub uncertainty: Option<f64>,
+    /// How far the landmark moves when the endplate regions' 40 deg bound
+    /// moves by 8 deg either way (output units): large where the landmark
+    /// hangs on a face near the bound, as a vertebra scaled differently
+    /// along its axes, or another operator, could place it elsewhere.
+    pub region_spread: f64,
     /// Distance to the level's surface (output units).
     pub distance_to_surface: Option<f64>,
     /// True when the confidence is below 0.5.
@@ -126,7 +132,12 @@ pub fn report(p: &Palpated) -> Report {
                     name: format!("{}_{code}", r.level),
                     position: out(&lm.point),
                     confidence: r4(lm.confidence),
-                    uncertainty: p.resolution.map(|v| r4(v.uncertainty_mm() * 1e-3 * s)),
+                    uncertainty: Some(r4(p
+                        .resolution
+                        .map_or(0.0, |v| v.uncertainty_mm() * 1e-3)
+                        .hypot(lm.spread)
+                        * s)),
+                    region_spread: r4(lm.spread * s),
                     distance_to_surface: r.distance.get(code).map(|d| r4(d * s)),
                     uncertain: lm.confidence < super::assemble::UNCERTAIN,
                     note: lm.note.clone(),

@@ -81,6 +81,7 @@ pub fn carry_base_markers(
                 point: q,
                 confidence: 1.0,
                 note: Some("the base model's marker carried onto the sacrum's surface".into()),
+                spread: 0.0,
             },
         );
         p.set.insert(Level::S1, *code, (to_os * q.coords).into());
