@@ -10,7 +10,7 @@
 use super::TriMesh;
 use crate::error::{Error, Result};
 use nalgebra::{Affine3, Isometry3, Matrix3, Point3, SymmetricEigen, Vector3};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 
 /// Principal axes of a mesh surface or a point set.
 #[derive(Debug, Clone, PartialEq)]
@@ -326,7 +326,8 @@ impl TriMesh {
                 [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits() as i64)
             }
         };
-        let mut grid: BTreeMap<[i64; 3], Vec<u32>> = BTreeMap::new();
+        // Looked up only (never iterated): the order of a hash map is moot.
+        let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::with_capacity(self.vertices.len());
         let mut rep = vec![0u32; self.vertices.len()];
         for (i, p) in self.vertices.iter().enumerate() {
             let k = key(p);
@@ -405,8 +406,9 @@ impl TriMesh {
         let (_, map) = self.welded(0.0);
         let canon = |k: u32| map[k as usize];
         let nt = self.triangles.len();
-        // Edge -> triangles using it.
-        let mut edge_tris: BTreeMap<[u32; 2], Vec<usize>> = BTreeMap::new();
+        // Edge -> triangles using it (iterated only to set flags: the
+        // order of a hash map is moot).
+        let mut edge_tris: HashMap<[u32; 2], Vec<usize>> = HashMap::with_capacity(3 * nt / 2);
         for (i, t) in self.triangles.iter().enumerate() {
             let c = t.map(canon);
             if c[0] == c[1] || c[1] == c[2] || c[0] == c[2] {
