@@ -307,15 +307,15 @@ fn accuracy(dev: &Path) -> Vec<(String, &'static str, f64, f64)> {
 /// Landmark accuracy against `landmarks_clean.csv` (SR/SL/IR/IL without
 /// their component along the endplate's SA->SP direction): the
 /// acceptance's medians (mesh folders <= 0.8 mm, measured 0.10-0.16 mm,
-/// asserted <= 0.3 mm; label maps <= 1.2 mm, measured 0.94-1.01 mm); every
-/// 95th percentile <= 5.5 mm (measured 4.4-5.0 mm), the acceptance's 3 and
+/// asserted <= 0.3 mm; label maps <= 1.2 mm, measured 0.93-1.00 mm); every
+/// 95th percentile <= 5.5 mm (measured 4.1-4.9 mm), the acceptance's 3 and
 /// 3.5 mm being not met: see `landmarks_meet_the_acceptance_thresholds`
 /// (ignored). What is over: landmarks taken on an endplate face whose
 /// angle to the endplate's normal is near the protocol's 40 deg (a face at
 /// 40.2 deg on the maker's generic vertebra is at 44.7 deg once scaled into
 /// the patient, and the region changes), the pedicle cuts that move with
 /// those `IP`s, and pedicle bases on label maps (a spike of the cut thinner
-/// than a voxel).
+/// than a voxel; see `pedicle_bases_on_label_maps_follow_the_voxels`).
 #[test]
 fn landmarks_agree_with_the_protocol() {
     let Some(dev) = dev() else { return };
@@ -330,7 +330,7 @@ fn landmarks_agree_with_the_protocol() {
 /// 95th percentile <= 3 mm, label maps median <= 1.2 mm and 95th
 /// percentile <= 3.5 mm, per patient.
 #[test]
-#[ignore = "not met: 95th percentiles 4.4-5.0 mm (see landmarks_agree_with_the_protocol)"]
+#[ignore = "not met: 95th percentiles 4.1-4.9 mm (see landmarks_agree_with_the_protocol)"]
 fn landmarks_meet_the_acceptance_thresholds() {
     let Some(dev) = dev() else { return };
     let mut failed = Vec::new();
@@ -700,4 +700,46 @@ fn region_spread_flags_the_far_landmarks() {
             }
         }
     }
+}
+
+/// Pedicle bases on label maps, taken at the bottom of the lowest labelled
+/// voxel of the cut where the smoothed surface rounds a thin base off:
+/// median distance to the truth <= 3.5 mm per map and <= 3 mm pooled
+/// (measured 2.37, 2.29 and 3.32 mm, 2.6 mm pooled; 3.8 mm pooled from
+/// the surface alone), and every moved base carries its note.
+#[test]
+fn pedicle_bases_on_label_maps_follow_the_voxels() {
+    let Some(dev) = dev() else { return };
+    let mut pooled = Vec::new();
+    for patient in PATIENTS {
+        let t = truth(&dev, patient);
+        let p = palpated_ok(&dev.join(patient).join("segmentation/labelmap.nii.gz"));
+        let d: Vec<f64> = errors(&p.set, &t)
+            .into_iter()
+            .filter(|(n, _)| n.ends_with("_PBR") || n.ends_with("_PBL"))
+            .map(|x| x.1)
+            .collect();
+        let med = osim_spine::util::median(&d).unwrap();
+        println!(
+            "{patient} map: pedicle bases median {med:.2} mm over {}",
+            d.len()
+        );
+        assert!(med <= 3.5, "{patient}: {med:.2} mm");
+        let moved = p
+            .levels
+            .iter()
+            .flat_map(|r| [Code::PBR, Code::PBL].map(|c| r.palpation.landmarks.get(&c)))
+            .flatten()
+            .filter(|l| {
+                l.note
+                    .as_deref()
+                    .is_some_and(|n| n.contains("lowest labelled voxel"))
+            })
+            .count();
+        assert!(moved > 0, "{patient}: no base taken from the voxels");
+        pooled.extend(d);
+    }
+    let med = osim_spine::util::median(&pooled).unwrap();
+    println!("pooled: {med:.2} mm");
+    assert!(med <= 3.0, "pooled {med:.2} mm");
 }

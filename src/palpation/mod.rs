@@ -41,6 +41,7 @@ use nalgebra::{Isometry3, Point3, Rotation3, Translation3, Vector3};
 use std::collections::BTreeMap;
 
 pub use checks::protocol_findings;
+pub(crate) use pedicle::cut_x as pedicle_cut_x;
 pub use sacrum::palpate_sacrum;
 
 /// Rough anatomical directions in the mesh's coordinates (may be off by up

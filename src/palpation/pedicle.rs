@@ -30,8 +30,13 @@ pub(crate) struct Pedicle {
 /// X of the frontal cut: a fifth of the body depth behind the posterior
 /// wall (walls from the endplates' mid-sagittal ends).
 pub(crate) fn pedicle_cut_x(sup: &EndplatePoints, inf: &EndplatePoints) -> f64 {
-    let x_post = 0.5 * (sup.back.x + inf.back.x);
-    let x_ant = 0.5 * (sup.front.x + inf.front.x);
+    cut_x([sup.front.x, sup.back.x, inf.front.x, inf.back.x])
+}
+
+/// X of the frontal cut from the local X of `SA`, `SP`, `IA`, `IP`.
+pub(crate) fn cut_x([sa, sp, ia, ip]: [f64; 4]) -> f64 {
+    let x_post = 0.5 * (sp + ip);
+    let x_ant = 0.5 * (sa + ia);
     x_post - 0.2 * (x_ant - x_post)
 }
 

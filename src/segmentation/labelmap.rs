@@ -255,12 +255,18 @@ fn extract_levels(
     let out = inside
         .par_iter()
         .map(|(level, labels, b)| {
-            let mesh = surface::extract(map, labels, b.min, b.max).scaled(&Vector3::repeat(1e-3));
+            let (mesh, mut voxels) = surface::extract_with_voxels(map, labels, b.min, b.max);
+            // Metres, as every level surface.
+            for c in voxels.centres.iter_mut() {
+                *c *= 1e-3;
+            }
+            voxels.edges = voxels.edges.map(|e| e * 1e-3);
             bar.inc(1);
             LevelInput {
                 level: *level,
-                mesh,
+                mesh: mesh.scaled(&Vector3::repeat(1e-3)),
                 origin: format!("label {}", join(labels)),
+                voxels: Some(voxels),
             }
         })
         .collect();

@@ -24,6 +24,7 @@ pub mod hints;
 pub mod labelmap;
 pub mod labels;
 pub mod nifti;
+mod pedicle_voxels;
 pub mod report;
 pub mod sacrum;
 pub mod surface;
@@ -119,6 +120,9 @@ pub struct LevelInput {
     pub mesh: TriMesh,
     /// File or label it came from.
     pub origin: String,
+    /// A label map's boundary voxels of the level (m, the segmentation's
+    /// axes); `None` for a mesh.
+    pub voxels: Option<surface::BoundaryVoxels>,
 }
 
 /// A segmentation read: its level surfaces and what was noticed.
@@ -272,6 +276,7 @@ fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
             level,
             mesh,
             origin,
+            voxels: None,
         });
     }
     Ok(Loaded {
@@ -388,7 +393,7 @@ pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
     // Palpated about a local origin, moved back before assembling.
     let local = local_origin(&loaded.levels);
     for l in loaded.levels.iter_mut() {
-        shift_mesh(&mut l.mesh, -local);
+        shift_level(l, -local);
     }
     assemble::select_levels(&mut loaded, opts.levels)?;
     assemble::screen(&mut loaded);
@@ -402,6 +407,13 @@ pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
     }
     let world = assemble::world_frame(&mut loaded, &hints)?;
     let mut results = palpate_levels(&loaded.levels, &hints);
+    // A label map's pedicle bases from its voxels.
+    for (level, r) in results.iter_mut() {
+        let voxels = loaded.levels.iter().find(|l| l.level == *level);
+        if let (Some(v), Ok(p)) = (voxels.and_then(|l| l.voxels.as_ref()), r.as_mut()) {
+            pedicle_voxels::refine_pedicle_bases(p, v);
+        }
+    }
     // SR/SL/IR/IL at the literal furthest points when asked.
     if opts.laterals == Laterals::Furthest {
         for p in results.iter_mut().filter_map(|(_, r)| r.as_mut().ok()) {
@@ -409,7 +421,7 @@ pub fn palpate(path: &Path, opts: &Options) -> Result<Palpated> {
         }
     }
     for l in loaded.levels.iter_mut() {
-        shift_mesh(&mut l.mesh, local);
+        shift_level(l, local);
     }
     for p in results.iter_mut().filter_map(|(_, r)| r.as_mut().ok()) {
         shift_palpation(p, local);
@@ -436,6 +448,16 @@ fn local_origin(levels: &[LevelInput]) -> nalgebra::Vector3<f64> {
         return Vector3::zeros();
     }
     ((lo + hi) * 0.5).map(f64::round)
+}
+
+/// Move a level's surface and voxels by `by` (metres).
+fn shift_level(l: &mut LevelInput, by: nalgebra::Vector3<f64>) {
+    shift_mesh(&mut l.mesh, by);
+    if let Some(v) = l.voxels.as_mut() {
+        for c in v.centres.iter_mut() {
+            *c += by;
+        }
+    }
 }
 
 /// Move a mesh by `by` (metres).

@@ -108,15 +108,73 @@ const PAD: usize = 2;
 /// The closed surface of the voxels whose label is in `labels`, inside the
 /// (inclusive) box `min..=max`, in world millimetres.
 pub fn extract(map: &LabelMap, labels: &[u16], min: [usize; 3], max: [usize; 3]) -> TriMesh {
+    extract_with_voxels(map, labels, min, max).0
+}
+
+/// A label's boundary voxels: the voxels inside with a face-neighbour
+/// outside, where the label's surface runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoundaryVoxels {
+    /// Voxel centres (world millimetres).
+    pub centres: Vec<Point3<f64>>,
+    /// The voxel's edge vectors along i, j, k (world millimetres).
+    pub edges: [nalgebra::Vector3<f64>; 3],
+}
+
+/// [`extract`] and the boundary voxels the surface was drawn around.
+pub fn extract_with_voxels(
+    map: &LabelMap,
+    labels: &[u16],
+    min: [usize; 3],
+    max: [usize; 3],
+) -> (TriMesh, BoundaryVoxels) {
     let size = [0, 1, 2].map(|k| max[k] - min[k] + 1 + 2 * PAD);
     let occupancy = box_occupancy(map, labels, min, size);
+    let voxels = boundary_voxels(map, &occupancy, min, size);
     let smooth = smooth121(occupancy, size);
     let sdf: Vec<f32> = smooth.iter().map(|&o| 0.5 - o).collect();
     let shape = RuntimeShape::<u32, 3>::new(size.map(|s| s as u32));
     let mut buf = SurfaceNetsBuffer::default();
     let hi = size.map(|s| s as u32 - 1);
     surface_nets(&sdf, &shape, [0; 3], hi, &mut buf);
-    to_world(map, &buf, min)
+    (to_world(map, &buf, min), voxels)
+}
+
+/// The occupied voxels of the padded box with a face-neighbour empty (the
+/// padding is empty, so every neighbour index is inside the box).
+fn boundary_voxels(
+    map: &LabelMap,
+    occ: &[f32],
+    min: [usize; 3],
+    size: [usize; 3],
+) -> BoundaryVoxels {
+    let at = |i: usize, j: usize, k: usize| occ[i + size[0] * (j + size[1] * k)] > 0.5;
+    let mut centres = Vec::new();
+    for k in PAD..size[2] - PAD {
+        for j in PAD..size[1] - PAD {
+            for i in PAD..size[0] - PAD {
+                let edge = !(at(i - 1, j, k)
+                    && at(i + 1, j, k)
+                    && at(i, j - 1, k)
+                    && at(i, j + 1, k)
+                    && at(i, j, k - 1)
+                    && at(i, j, k + 1));
+                if at(i, j, k) && edge {
+                    let ijk = [i, j, k].map(|c| c as f64 - PAD as f64);
+                    centres.push(map.world(&Point3::new(
+                        ijk[0] + min[0] as f64,
+                        ijk[1] + min[1] as f64,
+                        ijk[2] + min[2] as f64,
+                    )));
+                }
+            }
+        }
+    }
+    let a = map.affine.fixed_view::<3, 3>(0, 0).into_owned();
+    BoundaryVoxels {
+        centres,
+        edges: [a.column(0).into(), a.column(1).into(), a.column(2).into()],
+    }
 }
 
 /// 1.0 inside the labels, 0.0 outside, on the padded box.
