@@ -233,10 +233,10 @@ pub fn generate_with_geometry(
     let poses2 = kin2.body_poses(&kin2.default_values())?;
     let centres = model_centres(&out_model, &poses2, CentreDef::default())?;
     let (rows, outliers, landmark_rms) = vertebra_rows(&fits, &poses2, &filled);
-    let levels_from_base: Vec<String> = markers
+    let levels_from_base: Vec<Level> = markers
         .keys()
         .filter(|l| !l.is_sacrum() && !fits.contains_key(l))
-        .map(|l| l.to_string())
+        .copied()
         .collect();
     let self_check = if opts.self_check {
         Some(self_check(&out_model, vertebrae.as_deref(), &spheres)?)
@@ -259,7 +259,7 @@ pub fn generate_with_geometry(
         landmarks: file_name_of(set_name),
         detection: set.detection.as_ref().map(|d| d.summary()),
         method: opts.method,
-        levels_from_landmarks: vert_levels.iter().map(|l| l.to_string()).collect(),
+        levels_from_landmarks: vert_levels.clone(),
         levels_from_base,
         registration,
         vertebrae: rows,
