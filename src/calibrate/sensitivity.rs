@@ -596,7 +596,7 @@ pub fn run(
         joints: fam0
             .levels
             .iter()
-            .map(|l| (l.upper_name.clone(), l.lower_name.clone()))
+            .map(|l| (l.level.upper_body.clone(), l.level.lower_body.clone()))
             .collect(),
         bushings: fam0
             .levels

@@ -32,7 +32,7 @@ pub mod table;
 
 pub use table::{read_table, CurveSpec, Form, Interp, LevelLaw, Row, Table};
 
-use crate::anatomy::bushing_level_name;
+use crate::anatomy::{bushing_level_name, BushingLevel};
 use crate::error::{Error, Result};
 use crate::osim::function::{CubicSpline, Function as OFunction};
 use crate::osim::model::{Force, Model};
@@ -44,20 +44,6 @@ use crate::solver::from_model::{EBBF_EXPRESSIONS, FBBF_FUNCTIONS};
 use crate::solver::spec::DOF_NAMES;
 use crate::util::fmt_f64;
 use std::path::Path;
-
-/// A level of a model: one bushing of its ForceSet, named by
-/// [`bushing_level_name`].
-#[derive(Debug, Clone, PartialEq)]
-pub struct ModelLevel {
-    /// Level name (the bushing's name without `_bushing`).
-    pub name: String,
-    /// Anatomical alias `<upper>_<lower>`, when both bodies have vertebral names.
-    pub alias: Option<String>,
-    /// The bushing's name in the ForceSet.
-    pub bushing: String,
-    /// Its class.
-    pub class: String,
-}
 
 /// Region rank and number of a vertebral body name (`lumbar5` -> (2, 5)).
 fn vertebra(body: &str) -> Option<(u8, u32, String)> {
@@ -83,9 +69,11 @@ fn vertebra(body: &str) -> Option<(u8, u32, String)> {
     None
 }
 
-fn alias(b1: &str, b2: &str) -> Option<String> {
-    let (r1, n1, s1) = vertebra(b1)?;
-    let (r2, n2, s2) = vertebra(b2)?;
+/// Anatomical alias `<upper>_<lower>` of a level, when both bodies have
+/// vertebral names (cervical ones too: `C7_T1`).
+pub fn alias(l: &BushingLevel) -> Option<String> {
+    let (r1, n1, s1) = vertebra(&l.upper_body)?;
+    let (r2, n2, s2) = vertebra(&l.lower_body)?;
     if (r1, n1) == (r2, n2) {
         return None;
     }
@@ -96,23 +84,28 @@ fn alias(b1: &str, b2: &str) -> Option<String> {
     })
 }
 
-/// The levels of a model, in ForceSet order.
-pub fn levels(doc: &Document) -> Result<Vec<ModelLevel>> {
+/// The levels of a model (one per bushing of its ForceSet), in ForceSet order.
+pub fn levels(doc: &Document) -> Result<Vec<BushingLevel>> {
     let model = doc.model()?;
     levels_of(&model)
 }
 
-fn levels_of(model: &Model) -> Result<Vec<ModelLevel>> {
-    let mut out: Vec<ModelLevel> = Vec::new();
+/// The bodies of socket frames 1 and 2, cranial first: by their vertebral
+/// names when both have one, else socket 2's (a bushing's frame 1 is on
+/// the parent, the caudal body, in the models this tool writes).
+fn cranial_first(b1: String, b2: String) -> (String, String) {
+    match (vertebra(&b1), vertebra(&b2)) {
+        (Some((r1, n1, _)), Some((r2, n2, _))) if (r1, n1) < (r2, n2) => (b1, b2),
+        _ => (b2, b1),
+    }
+}
+
+fn levels_of(model: &Model) -> Result<Vec<BushingLevel>> {
+    let mut out: Vec<BushingLevel> = Vec::new();
     for f in &model.forces {
-        let (name, class, s1, s2) = match f {
-            Force::Bushing(b) => (&b.name, "BushingForce", &b.socket_frame1, &b.socket_frame2),
-            Force::OtherBushing(b) => (
-                &b.name,
-                b.class.as_str(),
-                &b.socket_frame1,
-                &b.socket_frame2,
-            ),
+        let (name, s1, s2) = match f {
+            Force::Bushing(b) => (&b.name, &b.socket_frame1, &b.socket_frame2),
+            Force::OtherBushing(b) => (&b.name, &b.socket_frame1, &b.socket_frame2),
             _ => continue,
         };
         let owner = format!("/forceset/{name}");
@@ -128,12 +121,8 @@ fn levels_of(model: &Model) -> Result<Vec<ModelLevel>> {
                 ),
             ));
         }
-        out.push(ModelLevel {
-            name: lname.to_string(),
-            alias: alias(&b1, &b2),
-            bushing: name.clone(),
-            class: class.to_string(),
-        });
+        let (upper, lower) = cranial_first(b1, b2);
+        out.push(BushingLevel::new(name, &upper, &lower));
     }
     Ok(out)
 }
@@ -585,7 +574,7 @@ pub fn resolve(
     table: &Table,
     doc: &Document,
     allow_softening: bool,
-) -> Result<Vec<(ModelLevel, LevelLaw)>> {
+) -> Result<Vec<(BushingLevel, LevelLaw)>> {
     let lv = levels(doc)?;
     let tpath = table.path.display().to_string();
     // Each row names one level of the model, and no level twice.
@@ -629,7 +618,7 @@ pub fn resolve(
 /// already named is an error.
 fn match_rows(
     table: &Table,
-    lv: &[ModelLevel],
+    lv: &[BushingLevel],
     doc: &Document,
     tpath: &str,
 ) -> Result<Vec<Option<usize>>> {
@@ -638,15 +627,15 @@ fn match_rows(
         let hits: Vec<usize> = lv
             .iter()
             .enumerate()
-            .filter(|(_, l)| l.name == r.name || l.alias.as_deref() == Some(r.name.as_str()))
+            .filter(|(_, l)| l.name == r.name || alias(l).as_deref() == Some(r.name.as_str()))
             .map(|(i, _)| i)
             .collect();
         match hits.as_slice() {
             [] => {
                 let names: Vec<String> = lv
                     .iter()
-                    .map(|l| match &l.alias {
-                        Some(a) if *a != l.name => format!("{} ({a})", l.name),
+                    .map(|l| match alias(l) {
+                        Some(a) if a != l.name => format!("{} ({a})", l.name),
                         _ => l.name.clone(),
                     })
                     .collect();
@@ -999,8 +988,11 @@ fn rewrite_bushing(e: &Element, law: &LevelLaw) -> Element {
 }
 
 /// Write the laws into the document. A bushing whose current law equals the
-/// new one is left untouched. Returns the names of the bushings rewritten.
-pub fn apply(doc: &mut Document, laws: &[(ModelLevel, LevelLaw)]) -> Result<Vec<String>> {
+/// new one is left untouched. Returns the levels whose bushing was rewritten.
+pub fn apply<'a>(
+    doc: &mut Document,
+    laws: &'a [(BushingLevel, LevelLaw)],
+) -> Result<Vec<&'a BushingLevel>> {
     let file = doc.path().to_path_buf();
     let mut changed = Vec::new();
     for (l, law) in laws {
@@ -1015,7 +1007,7 @@ pub fn apply(doc: &mut Document, laws: &[(ModelLevel, LevelLaw)]) -> Result<Vec<
         }
         let new = rewrite_bushing(e, law);
         doc.replace_component("ForceSet", &l.bushing, new)?;
-        changed.push(l.bushing.clone());
+        changed.push(l);
     }
     Ok(changed)
 }
@@ -1088,6 +1080,7 @@ mod tests {
 
     #[test]
     fn anatomical_aliases() {
+        let alias = |b1: &str, b2: &str| alias(&BushingLevel::new("b", b1, b2));
         assert_eq!(alias("sacrum", "lumbar5").as_deref(), Some("L5_S1"));
         assert_eq!(alias("L5", "sacrum").as_deref(), Some("L5_S1"));
         assert_eq!(alias("thoracic12", "lumbar1").as_deref(), Some("T12_L1"));
@@ -1098,6 +1091,17 @@ mod tests {
         );
         assert_eq!(alias("pelvis", "lumbar5"), None);
         assert_eq!(alias("lumbar5", "lumbar5"), None);
+    }
+
+    #[test]
+    fn bodies_are_put_cranial_first() {
+        let pair = |b1: &str, b2: &str| cranial_first(b1.into(), b2.into());
+        let lumbar = ("lumbar5".to_string(), "sacrum".to_string());
+        assert_eq!(pair("sacrum", "lumbar5"), lumbar);
+        assert_eq!(pair("lumbar5", "sacrum"), lumbar);
+        assert_eq!(pair("T2", "T3"), ("T2".into(), "T3".into()));
+        // without vertebral names: socket 2's body first
+        assert_eq!(pair("pelvis", "torso"), ("torso".into(), "pelvis".into()));
     }
 
     #[test]
