@@ -38,13 +38,13 @@ pub mod place;
 pub mod report;
 pub mod views;
 
-use crate::calibrate::lm::LmResult;
 use crate::error::{Error, Result};
 use crate::landmarks::metrics::FrontalTilts;
 use crate::landmarks::radiograph::{self, FilmPoint, Radiograph};
 use crate::landmarks::{Code, LandmarkId, Level};
 use crate::osim::model::Model;
 use crate::personalise::table::{write_toml_ratios, LevelLaw};
+use crate::util::lm::LmResult;
 use bend::BendModel;
 use fit::{fit_films, sum_zero_basis, Estimated, FilmData, FilmState, Problem};
 use nalgebra::{DMatrix, Vector2};
@@ -155,7 +155,7 @@ pub struct EstimateSummary {
     /// Least-squares iterations run.
     pub iterations: usize,
     /// Why the least-squares optimiser stopped.
-    pub stop: crate::calibrate::lm::LmStop,
+    pub stop: crate::util::lm::LmStop,
     /// Whether it converged.
     pub converged: bool,
 }
