@@ -212,6 +212,43 @@ impl serde::Serialize for MotionSegment {
     }
 }
 
+/// A bushing of a model and the intervertebral level it stands for: its
+/// level name by the one naming rule ([`bushing_level_name`]) and the two
+/// bodies it joins, cranial first. The stiffness tables (`personalise`) and
+/// the calibration (`calibrate`) name levels with it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BushingLevel {
+    /// Level name: the bushing's name without `_bushing` (`L4_L5`).
+    pub name: String,
+    /// The bushing's name in the model's ForceSet (`L4_L5_bushing`).
+    pub bushing: String,
+    /// Name of the cranial body (`lumbar4`).
+    pub upper_body: String,
+    /// Name of the caudal body (`lumbar5`).
+    pub lower_body: String,
+}
+
+impl BushingLevel {
+    /// The level of bushing `bushing` joining `upper_body` (cranial) to
+    /// `lower_body`, named by [`bushing_level_name`].
+    pub fn new(bushing: &str, upper_body: &str, lower_body: &str) -> BushingLevel {
+        BushingLevel {
+            name: bushing_level_name(bushing).to_string(),
+            bushing: bushing.to_string(),
+            upper_body: upper_body.to_string(),
+            lower_body: lower_body.to_string(),
+        }
+    }
+
+    /// The motion segment it belongs to, when its bodies are two adjacent
+    /// vertebrae of the model's naming (`lumbar4` over `lumbar5`).
+    pub fn segment(&self) -> Option<MotionSegment> {
+        let upper = Level::from_body_name(&self.upper_body)?;
+        MotionSegment::below(upper)
+            .filter(|m| Level::from_body_name(&self.lower_body) == Some(m.lower))
+    }
+}
+
 /// The embedded CSV text.
 pub const EMBEDDED_CSV: &str = include_str!("../templates/vertebra_dimensions.csv");
 
@@ -518,5 +555,29 @@ mod tests {
             serde_json::to_string(&MotionSegment::below(Level::L5).unwrap()).unwrap(),
             "\"L5_S1\""
         );
+    }
+
+    #[test]
+    fn a_bushing_level_is_named_by_the_rule_and_knows_its_segment() {
+        let l = BushingLevel::new("L4_L5_bushing", "lumbar4", "lumbar5");
+        assert_eq!(
+            (l.name.as_str(), l.bushing.as_str()),
+            ("L4_L5", "L4_L5_bushing")
+        );
+        assert_eq!(l.segment(), "L4_L5".parse().ok());
+        // the segment comes from the bodies, not from the bushing's name
+        let odd = BushingLevel::new("disc", "thoracic12", "lumbar1");
+        assert_eq!(
+            (odd.name.as_str(), odd.segment()),
+            ("disc", MotionSegment::below(Level::T12))
+        );
+        // bodies caudal first, not adjacent, or not vertebrae: no segment
+        for (u, w) in [
+            ("lumbar5", "lumbar4"),
+            ("lumbar3", "lumbar5"),
+            ("torso", "lumbar1"),
+        ] {
+            assert_eq!(BushingLevel::new("b", u, w).segment(), None, "{u} {w}");
+        }
     }
 }

@@ -45,7 +45,7 @@
 //! let model = generate(&base, &set, "example-scoliosis.csv", &opts, None)?;
 //! // T9..L5 placed from the landmarks, the levels above from the base
 //! assert_eq!(model.report.levels_from_landmarks.len(), 9);
-//! assert!(model.report.levels_from_base.contains(&"T1".to_string()));
+//! assert!(model.report.levels_from_base.contains(&osim_spine::anatomy::Level::T1));
 //! # Ok::<(), osim_spine::Error>(())
 //! ```
 //!

@@ -2,11 +2,13 @@
 //! ([`input`]), atomic output, deterministic number formatting,
 //! reports at a stated precision ([`report`]), the one quantile helper
 //! ([`quantiles`]), the one progress bar ([`progress`]), the one CSV layer
-//! ([`table`]) and the shared SVG figures ([`svg`]).
+//! ([`table`]), the one least-squares optimiser ([`lm`]) and the shared SVG
+//! figures ([`svg`]).
 
 pub mod charts;
 pub mod guard;
 pub mod input;
+pub mod lm;
 pub mod messages;
 pub mod output;
 pub mod progress;

@@ -136,7 +136,11 @@ fn truth_params(fam: &StiffnessFamily, truth: &[(BushingIndex, BushingModel)]) -
                 }]
             };
             if let Some((level, d)) = n.split_once('.') {
-                let li = fam.levels.iter().position(|l| l.name == level).unwrap();
+                let li = fam
+                    .levels
+                    .iter()
+                    .position(|l| l.level.name == level)
+                    .unwrap();
                 return slope(li, dof(d).unwrap());
             }
             if matches!(n, "rx" | "ry" | "rz") {

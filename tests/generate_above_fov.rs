@@ -45,10 +45,16 @@ fn balance_puts_t1_over_the_sacrum_and_keep_does_not() {
         "balanced T1 is {bal:.1} mm lateral of S1_SEC"
     );
     let a = rep.above_fov.expect("T8-T1 are above the field of view");
-    let expect: Vec<String> = ["T8", "T7", "T6", "T5", "T4", "T3", "T2", "T1"]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
+    let expect = [
+        Level::T8,
+        Level::T7,
+        Level::T6,
+        Level::T5,
+        Level::T4,
+        Level::T3,
+        Level::T2,
+        Level::T1,
+    ];
     assert_eq!(a.unmeasured, expect);
     assert_eq!(a.balanced, expect);
     // No joint bends past the limit; T1 is level unless the limit was hit.

@@ -455,7 +455,7 @@ fn planar_arc_has_its_cobb_angle_and_apex() {
     }
     let cobb = metrics::cobb(&set, None).unwrap();
     assert!((cobb.angle_deg.abs() - arc_deg).abs() < 1e-9, "{cobb:?}");
-    assert_eq!((cobb.upper.as_str(), cobb.lower.as_str()), ("T11", "L4"));
+    assert_eq!((cobb.upper, cobb.lower), (Level::T11, Level::L4));
     // Convex to the left: negative by the documented sign.
     assert!(cobb.angle_deg < 0.0);
     let apex = metrics::apex(&centres_of(&set), Level::T11, Level::L4).unwrap();

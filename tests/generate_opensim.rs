@@ -726,7 +726,7 @@ impl ShapeTruth {
         let other = other_curve(&ground, tc.angle_deg)
             .map(|o| format!("; other curve {:.1} ({}-{})", o.angle_deg, o.upper, o.lower))
             .unwrap_or_default();
-        let ends: (Level, Level) = (tc.upper.parse().unwrap(), tc.lower.parse().unwrap());
+        let ends: (Level, Level) = (tc.upper, tc.lower);
         ShapeTruth {
             truth,
             clean,

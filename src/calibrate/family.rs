@@ -23,7 +23,7 @@
 //! they are ([`Scale::Linear`], neutral value 0 inside the bounds).
 
 use super::forms::{self, CurveForm};
-use crate::anatomy::bushing_level_name;
+use crate::anatomy::BushingLevel;
 use crate::calibrate::experiment::DOF_NAMES;
 use crate::error::{Error, Result};
 use crate::solver::scalar::Scalar;
@@ -197,22 +197,35 @@ fn stiffness_unit(d: usize) -> &'static str {
     }
 }
 
-/// An intervertebral level of a system: a bushing between a parent-child
-/// pair of bodies, named by [`bushing_level_name`].
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct BushingLevel {
-    /// Level name: the bushing name without a `_bushing` suffix (e.g. `L4_L5`).
-    pub name: String,
+/// An intervertebral level of a system: the model's [`BushingLevel`] (a
+/// bushing between a parent-child pair of bodies) and where it sits in the
+/// system.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SystemLevel {
+    /// The level: its name, bushing and bodies by name.
+    pub level: BushingLevel,
     /// Bushing index in the system.
     pub bushing: BushingIndex,
     /// Cranial body.
     pub upper: BodyIndex,
     /// Caudal body.
     pub lower: BodyIndex,
-    /// Name of the cranial body.
-    pub upper_name: String,
-    /// Name of the caudal body.
-    pub lower_name: String,
+}
+
+/// In the calibration report: the level's name, its bushing and bodies by
+/// index, then the bodies by name.
+impl Serialize for SystemLevel {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        use serde::ser::SerializeStruct;
+        let mut st = s.serialize_struct("SystemLevel", 6)?;
+        st.serialize_field("name", &self.level.name)?;
+        st.serialize_field("bushing", &self.bushing)?;
+        st.serialize_field("upper", &self.upper)?;
+        st.serialize_field("lower", &self.lower)?;
+        st.serialize_field("upper_name", &self.level.upper_body)?;
+        st.serialize_field("lower_name", &self.level.lower_body)?;
+        st.end()
+    }
 }
 
 /// Normalised level key for matching tables: upper case, no `_`/`-`/space
@@ -227,7 +240,7 @@ fn level_key(name: &str) -> String {
 /// The levels of `sys` on the paths between `fixed` and each of `loaded`
 /// (system body indices), cranial to caudal order of the bushing list.
 /// A level is a bushing whose two bodies are a parent-child pair of the tree.
-pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<BushingLevel> {
+pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<SystemLevel> {
     let mut on_path = vec![false; sys.n_bodies()];
     for &b in loaded {
         // bodies from b up to (excluding) the common ancestor with fixed
@@ -269,14 +282,12 @@ pub fn find_levels(sys: &System, fixed: BodyIndex, loaded: &[BodyIndex]) -> Vec<
         if !(on_path[upper.0] && on_path[lower.0]) {
             continue;
         }
-        let name = bushing_level_name(bname).to_string();
-        out.push(BushingLevel {
-            name,
+        let body = |b: BodyIndex| names.get(b.0).copied().unwrap_or("");
+        out.push(SystemLevel {
+            level: BushingLevel::new(bname, body(upper), body(lower)),
             bushing: BushingIndex(i),
             upper,
             lower,
-            upper_name: names.get(upper.0).copied().unwrap_or("").to_string(),
-            lower_name: names.get(lower.0).copied().unwrap_or("").to_string(),
         });
     }
     out
@@ -368,7 +379,7 @@ pub struct StiffnessFamily {
     /// Reference rotation (rad) of the stiffening parameters per rotational DoF.
     theta_ref: [f64; 3],
     /// The levels the family acts on.
-    pub levels: Vec<BushingLevel>,
+    pub levels: Vec<SystemLevel>,
     /// The stiffness DoFs that are parameters.
     pub dofs: Vec<usize>,
 }
@@ -385,7 +396,7 @@ fn geomean(v: &[f64]) -> f64 {
 /// nominal values from the bushings' `nominal` stiffness.
 fn linear_params(
     kind: &Parameterisation,
-    levels: &[BushingLevel],
+    levels: &[SystemLevel],
     dofs: &[usize],
     nominal: &[[f64; 6]],
 ) -> Result<ParamMap> {
@@ -446,7 +457,7 @@ fn linear_params(
             for l in levels {
                 for &d in dofs {
                     params.push(ParamInfo::log(
-                        format!("{}.{}", l.name, DOF_NAMES[d]),
+                        format!("{}.{}", l.level.name, DOF_NAMES[d]),
                         stiffness_unit(d),
                         LITERATURE_BOUNDS[d].0,
                         LITERATURE_BOUNDS[d].1,
@@ -463,17 +474,17 @@ fn linear_params(
 /// The ratio of DoF `d` of each level in a ratio table (present, positive).
 fn table_ratios(
     table: &BTreeMap<String, [Option<f64>; 6]>,
-    levels: &[BushingLevel],
+    levels: &[SystemLevel],
     d: usize,
 ) -> Result<Vec<f64>> {
     let mut raw = Vec::new();
     for l in levels {
-        let Some(row) = table.get(&level_key(&l.name)) else {
+        let Some(row) = table.get(&level_key(&l.level.name)) else {
             return Err(Error::invalid(
                 "ratio table",
                 format!(
                     "no row for level '{}' (table levels: {})",
-                    l.name,
+                    l.level.name,
                     table.keys().cloned().collect::<Vec<_>>().join(", ")
                 ),
             ));
@@ -481,7 +492,7 @@ fn table_ratios(
         let Some(v) = row[d] else {
             return Err(Error::invalid(
                 "ratio table",
-                format!("level '{}' has no {} value", l.name, DOF_NAMES[d]),
+                format!("level '{}' has no {} value", l.level.name, DOF_NAMES[d]),
             ));
         };
         if !(v > 0.0 && v.is_finite()) {
@@ -489,7 +500,7 @@ fn table_ratios(
                 "ratio table",
                 format!(
                     "level '{}' {}: ratio must be positive, got {v}",
-                    l.name, DOF_NAMES[d]
+                    l.level.name, DOF_NAMES[d]
                 ),
             ));
         }
@@ -604,11 +615,11 @@ impl NominalLaws {
 
     /// Every level's bushing is linear, with a positive nominal stiffness
     /// in each DoF of `dofs`.
-    fn check_levels(&self, levels: &[BushingLevel], dofs: &[usize]) -> Result<()> {
+    fn check_levels(&self, levels: &[SystemLevel], dofs: &[usize]) -> Result<()> {
         for l in levels {
             if !self.linear.get(l.bushing.0).copied().unwrap_or(false) {
                 return Err(Error::invalid(
-                    format!("level {}", l.name),
+                    format!("level {}", l.level.name),
                     "its bushing is not a linear BushingForce: calibration starts from a linear nominal model (the non-linear and coupled forms are chosen with --params; write linear values first with `osim-spine stiffness --table`)",
                 ));
             }
@@ -618,7 +629,7 @@ impl NominalLaws {
             for &d in dofs {
                 if k[d].is_nan() || k[d] <= 0.0 {
                     return Err(Error::invalid(
-                        format!("level {}", l.name),
+                        format!("level {}", l.level.name),
                         format!(
                             "nominal {} stiffness is {} {}: a calibrated stiffness must start from a positive value",
                             DOF_NAMES[d], k[d], stiffness_unit(d)
@@ -640,7 +651,7 @@ impl StiffnessFamily {
     /// Bounds are the literature ranges ([`LITERATURE_BOUNDS`]).
     pub fn new(
         sys: &System,
-        levels: Vec<BushingLevel>,
+        levels: Vec<SystemLevel>,
         dofs: &[usize],
         kind: &Parameterisation,
     ) -> Result<StiffnessFamily> {

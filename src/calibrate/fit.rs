@@ -7,9 +7,9 @@
 use super::experiment::DOF_NAMES;
 use super::family::{ParamInfo, Scale};
 use super::lhs;
-use super::lm::{self, LmOptions, LmStop};
 use super::problem::{Evaluator, Predictions, Problem};
 use crate::error::{Error, Result};
+use crate::util::lm::{self, LmOptions, LmStop};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::Serialize;

@@ -13,7 +13,6 @@ pub mod family;
 pub mod fit;
 pub mod forms;
 pub mod lhs;
-pub mod lm;
 pub mod measure;
 pub mod problem;
 pub mod report;

@@ -27,7 +27,6 @@
 
 use super::fit::{self, error_table, FitOptions};
 use super::lhs;
-use super::lm::LmStop;
 use super::problem::Problem;
 use super::setup::{build_problem_with, Setup};
 use crate::calibrate::experiment::Experiment;
@@ -36,6 +35,7 @@ use crate::landmarks::frames::vertebra_frame;
 use crate::landmarks::synth::{generate, SynthOptions};
 use crate::landmarks::{Code, Level};
 use crate::solver::{System, SystemSpec};
+use crate::util::lm::LmStop;
 use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -596,7 +596,7 @@ pub fn run(
         joints: fam0
             .levels
             .iter()
-            .map(|l| (l.upper_name.clone(), l.lower_name.clone()))
+            .map(|l| (l.level.upper_body.clone(), l.level.lower_body.clone()))
             .collect(),
         bushings: fam0
             .levels

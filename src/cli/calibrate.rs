@@ -122,7 +122,7 @@ struct Report<'a> {
     tool: &'static str,
     experiment: ExperimentInfo,
     options: OptionsInfo,
-    levels: Vec<crate::calibrate::family::BushingLevel>,
+    levels: Vec<crate::calibrate::family::SystemLevel>,
     calibration: &'a Calibration,
     fit: FitSummary,
     nominal_fit: FitSummary,

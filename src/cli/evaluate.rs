@@ -118,7 +118,7 @@ pub fn run(args: Args) -> anyhow::Result<i32> {
             m.centre_rmse_sacral_frame_mm
                 .map(|v| format!(", {v:.2} mm in the sacral frame"))
                 .unwrap_or_default(),
-            m.apex.as_deref().unwrap_or("-"),
+            m.apex.map_or("-".into(), |l| l.to_string()),
             m.lordosis_deg
                 .map(|v| format!("{v:.1} deg"))
                 .unwrap_or_else(|| "-".into()),

@@ -19,6 +19,7 @@ use crate::landmarks::LandmarkSet;
 use crate::osim::geometry::check_relative;
 use crate::osim::model::Geometry;
 use crate::osim::Document;
+use crate::util::messages::joined;
 use std::path::{Path, PathBuf};
 
 pub use crate::landmarks::check::GENERATE_BLOCKING as BLOCKING;
@@ -272,7 +273,7 @@ fn print_summary(r: &GenerateReport, out: &Path) {
         out.display(),
         r.method,
         r.levels_from_landmarks.len(),
-        r.levels_from_landmarks.join(" "),
+        joined(&r.levels_from_landmarks, " "),
         r.filled_levels.len(),
         if r.filled_levels.is_empty() {
             String::new()
@@ -320,7 +321,7 @@ fn print_geometry(g: &crate::generate::geometry::GeometryReport) {
         "geometry: the patient's own meshes ({}) on {} levels: {} (at most {most} triangles each); wrap spheres at the patient's vertebral centres; {} joints at the patient's disc centres; {}",
         g.segmentation,
         g.patient_levels.len(),
-        g.patient_levels.join(" "),
+        joined(&g.patient_levels, " "),
         g.joints_at_patient_discs.len(),
         g.mass_rule
     );
@@ -412,7 +413,7 @@ fn print_shape(s: &crate::landmarks::metrics::Shape) {
         .unwrap_or_else(|| "n/a".into());
     crate::outln!(
         "shape: Cobb {cobb} (+ convex right), apex {}, lumbar lordosis L1-S1 {}, kyphosis T4-T12 {}, sacral slope {}",
-        s.apex.as_deref().unwrap_or("n/a"),
+        s.apex.map_or("n/a".into(), |l| l.to_string()),
         deg(s.lumbar_lordosis_deg),
         deg(s.kyphosis_t4_t12_deg),
         deg(s.sacral_slope_deg)
@@ -450,7 +451,7 @@ fn print_above_fov(a: Option<&crate::generate::AboveFovReport>, no_vertebra: boo
         let max = a.bend_deg.iter().fold(0.0f64, |m, b| m.max(b.abs()));
         format!(
             "balanced {} by a compensatory frontal curve (largest bend {max:.1} deg per joint{})",
-            a.balanced.join(" "),
+            joined(&a.balanced, " "),
             if a.bend_limited {
                 format!(
                     ", the limit of {:.0} deg: too few unmeasured levels to bring T1 over the sacrum",
@@ -463,7 +464,7 @@ fn print_above_fov(a: Option<&crate::generate::AboveFovReport>, no_vertebra: boo
     };
     crate::outln!(
         "above the field of view: {} not measured; {done}; T1 ends {:.1} mm {} of the vertical through S1_SEC, {:.1} mm anterior, coronal tilt {:.1} deg",
-        a.unmeasured.join(" "),
+        joined(&a.unmeasured, " "),
         a.t1_lateral_offset_mm.abs(),
         if a.t1_lateral_offset_mm >= 0.0 { "right" } else { "left" },
         a.t1_anterior_offset_mm,

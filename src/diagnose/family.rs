@@ -273,7 +273,7 @@ impl Family {
             .iter()
             .zip(&self.mask)
             .filter(|p| *p.1)
-            .map(|p| p.0.name.as_str())
+            .map(|p| p.0.level.name.as_str())
     }
 
     /// The kind's own parameters (after the global block).
@@ -284,13 +284,13 @@ impl Family {
             Kind::Baseline => {}
             Kind::LevelScalar => {
                 for l in sim.levels.iter().skip(1) {
-                    self.push(format!("{}.log_m", l.name), 0.0, -3.0, 3.0);
+                    self.push(format!("{}.log_m", l.level.name), 0.0, -3.0, 3.0);
                 }
             }
             Kind::LevelPerDof => {
                 for l in &sim.levels {
                     for (d, g) in start_global.iter().enumerate() {
-                        let name = format!("{}.log_k_{}", l.name, DOF3[d]);
+                        let name = format!("{}.log_k_{}", l.level.name, DOF3[d]);
                         self.push(name, *g, -GBOX, GBOX);
                     }
                 }
@@ -492,7 +492,7 @@ impl Family {
     pub fn physical_params(&self, sim: &Sim, x: &[f64]) -> std::collections::BTreeMap<String, f64> {
         let mut out = std::collections::BTreeMap::new();
         let scale = rotation_scale(sim);
-        let level = |name: &str| sim.levels.iter().position(|l| l.name == name);
+        let level = |name: &str| sim.levels.iter().position(|l| l.level.name == name);
         let kn = |li: usize, d: usize| sim.k_nominal.get(li).map(|k| k[d]).unwrap_or(f64::NAN);
         // the global factor of DoF d (1 for per-level-per-DoF families)
         let global = |d: usize| {
@@ -526,12 +526,15 @@ impl Family {
                     let span = sim.position[far] - sim.position[near];
                     let key = format!(
                         "k_{d}_ratio_{}_to_{}",
-                        sim.levels[far].name, sim.levels[near].name
+                        sim.levels[far].level.name, sim.levels[near].level.name
                     );
                     out.insert(key, (v * span).exp());
                 }
             } else if key == "log_m" {
-                out.insert(format!("{pre}k_ratio_to_{}", sim.levels[0].name), v.exp());
+                out.insert(
+                    format!("{pre}k_ratio_to_{}", sim.levels[0].level.name),
+                    v.exp(),
+                );
             } else if key.starts_with("log_lambda_") {
                 out.insert(format!("lambda_{}_1/rad", DOF3[dof]), v.exp());
             } else if key.starts_with("log_c_") {

@@ -1,5 +1,5 @@
 //! Fitting a candidate family on the training cells: weighted least
-//! squares by the bounded Levenberg-Marquardt of `calibrate::lm`, with a
+//! squares by the bounded Levenberg-Marquardt of `util::lm`, with a
 //! forward-difference Jacobian (the families move joint frames and
 //! follower-load guide points, so the generic route through the predicted
 //! increments is used; columns are evaluated in parallel, each from the
@@ -7,8 +7,8 @@
 
 use super::family::{Family, Kind};
 use super::sim::{Sim, Warm};
-use crate::calibrate::lm::{self, LmOptions};
 use crate::error::Result;
+use crate::util::lm::{self, LmOptions};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 

@@ -150,7 +150,7 @@ type Grouping = (&'static str, String, bool);
 fn keys(sim: &Sim, design: &Design, c: usize) -> Vec<Grouping> {
     let cell = &sim.cells[c];
     let info = &design.cases[cell.case];
-    let level = sim.levels[cell.level].name.clone();
+    let level = sim.levels[cell.level].level.name.clone();
     let dof = DOF_NAMES[cell.dof];
     let axis = info.axis.map(|a| AXIS_NAMES[a]).unwrap_or("none");
     let sign = match info.sign {

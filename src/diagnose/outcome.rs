@@ -126,9 +126,9 @@ impl Outcome {
                 let r = self.baseline.heldout_residual(&self.sim, c);
                 let l = &self.sim.levels[cell.level];
                 GapCell {
-                    upper: l.upper_name.clone(),
-                    lower: l.lower_name.clone(),
-                    level: l.name.clone(),
+                    upper: l.level.upper_body.clone(),
+                    lower: l.level.lower_body.clone(),
+                    level: l.level.name.clone(),
                     dof: DOF_NAMES[cell.dof].to_string(),
                     case: exp
                         .cases
@@ -173,7 +173,9 @@ impl Outcome {
         };
         let sim = &self.sim;
         let info = &self.design.cases;
-        agg("by_level", &|c| sim.levels[sim.cells[c].level].name.clone());
+        agg("by_level", &|c| {
+            sim.levels[sim.cells[c].level].level.name.clone()
+        });
         agg("by_dof", &|c| DOF_NAMES[sim.cells[c].dof].to_string());
         agg("by_load_axis", &|c| {
             info[sim.cells[c].case]
@@ -256,7 +258,7 @@ impl Outcome {
                 let b = rmse(&self.sim, &self.baseline, &cs, true);
                 let a = rmse(&self.sim, aug, &cs, true);
                 out.push(LevelDofRmse {
-                    level: l.name.clone(),
+                    level: l.level.name.clone(),
                     dof: DOF_NAMES[d].to_string(),
                     baseline_rmse: b,
                     augmented_rmse: a,

@@ -100,7 +100,7 @@ pub fn of_fit(sim: &Sim, f: &Fitted, inflate: f64) -> Vec<Ratio> {
                 continue;
             };
             let span = sim.position[far] - sim.position[near];
-            let (n, fa) = (&sim.levels[near].name, &sim.levels[far].name);
+            let (n, fa) = (&sim.levels[near].level.name, &sim.levels[far].level.name);
             let words = |r: f64, ci: [f64; 2]| {
                 format!(
                     "{n} {} stiffness {r:.2} x {fa} {}",
@@ -124,7 +124,7 @@ pub fn of_fit(sim: &Sim, f: &Fitted, inflate: f64) -> Vec<Ratio> {
                 &words,
             ));
         } else if key == "log_m" {
-            let (l, first) = (lvl.unwrap_or(""), &sim.levels[0].name);
+            let (l, first) = (lvl.unwrap_or(""), &sim.levels[0].level.name);
             let words =
                 |r: f64, ci: [f64; 2]| format!("{l} stiffness {r:.2} x {first} {}", interval(ci));
             out.push(ratio(format!("{l}/{first}"), v, se, 1.0, &words));

@@ -163,7 +163,7 @@ pub fn separating_measurements(o: &Outcome) -> Vec<Value> {
             let r = &o.sim.levels[o.sim.cells.iter().find(|c| c.row == row).map(|c| c.level).unwrap_or(0)];
             let case = o.sim.cells.iter().find(|c| c.row == row).map(|c| c.case).unwrap_or(0);
             json!({"case": o.design.cases.get(case).map(|c| c.id.as_str()).unwrap_or(""),
-                   "upper": r.upper_name, "lower": r.lower_name, "dof": DOF_NAMES[d],
+                   "upper": r.level.upper_body, "lower": r.level.lower_body, "dof": DOF_NAMES[d],
                    "effect": names, "difference": r4(diff),
                    "reason": format!("not measured: the two fitted models predict values {:.3} {} apart ({z:.1} noise SD)",
                                      diff.abs(), if d < 3 { "deg" } else { "mm" })})
@@ -462,7 +462,7 @@ pub fn residual_map_svg(o: &Outcome, exp: &Experiment) -> String {
         subtitle: format!(
             "predicted - measured; rows: levels; columns: cases 1..{nc}, each DoF {dof_list} in turn; held-out cases underlined"
         ),
-        rows: sim.levels.iter().map(|l| l.name.clone()).collect(),
+        rows: sim.levels.iter().map(|l| l.level.name.clone()).collect(),
         columns: nc * nd,
         cell: (6, 14),
         x_label: "load case".into(),

@@ -4,7 +4,7 @@
 //! nominal one), with warm starts so repeated evaluations are cheap.
 
 use crate::calibrate::experiment::Experiment;
-use crate::calibrate::family::{find_levels, BushingLevel};
+use crate::calibrate::family::{find_levels, SystemLevel};
 use crate::calibrate::measure::{pair_increment, Convention};
 use crate::error::{Error, Result};
 use crate::solver::kinematics;
@@ -47,7 +47,7 @@ pub struct Sim {
     pub base: System,
     /// Intervertebral levels between the fixed and the loaded bodies, in
     /// bushing order.
-    pub levels: Vec<BushingLevel>,
+    pub levels: Vec<SystemLevel>,
     /// Nominal law of each level.
     pub nominal: Vec<BushingModel>,
     /// Nominal linear stiffness `(rx .. tz)` of each level.
@@ -157,7 +157,7 @@ impl Sim {
                             "pair {}/{} is not an intervertebral level on the load path (levels: {})",
                             r.upper,
                             r.lower,
-                            levels.iter().map(|l| format!("{}/{}", l.upper_name, l.lower_name)).collect::<Vec<_>>().join(", ")
+                            levels.iter().map(|l| format!("{}/{}", l.level.upper_body, l.level.lower_body)).collect::<Vec<_>>().join(", ")
                         ),
                     )
                 })?;
@@ -325,7 +325,7 @@ fn tree_distance(sys: &System, a: BodyIndex, b: BodyIndex) -> usize {
 /// The spread over the levels of the angle (deg) between each ground axis
 /// and the level's own joint axis at the default pose (the first bushing
 /// frame carried by its body).
-fn axis_tilt_spread(sys: &System, levels: &[BushingLevel]) -> [f64; 3] {
+fn axis_tilt_spread(sys: &System, levels: &[SystemLevel]) -> [f64; 3] {
     let mut kb = KinBuf::<f64>::new(sys);
     let q = sys.default_q();
     kb.q.copy_from_slice(q.as_slice());
@@ -352,7 +352,7 @@ fn axis_tilt_spread(sys: &System, levels: &[BushingLevel]) -> [f64; 3] {
 
 /// Each level's position along the spine from the fixed body (the joints
 /// between its nearer body and the fixed one).
-fn level_positions(sys: &System, fixed: BodyIndex, levels: &[BushingLevel]) -> Vec<f64> {
+fn level_positions(sys: &System, fixed: BodyIndex, levels: &[SystemLevel]) -> Vec<f64> {
     levels
         .iter()
         .map(|l| {
@@ -390,7 +390,7 @@ fn case_loads(
 #[allow(clippy::type_complexity)]
 fn nominal_levels(
     base: &System,
-    levels: &[BushingLevel],
+    levels: &[SystemLevel],
     ctx: &str,
 ) -> Result<(
     Vec<BushingModel>,
@@ -412,19 +412,19 @@ fn nominal_levels(
                 ..
             } => [r.x, r.y, r.z, t.x, t.y, t.z],
             _ => return Err(Error::invalid(
-                format!("{ctx}: level {}", l.name),
+                format!("{ctx}: level {}", l.level.name),
                 "the nominal model must have linear, uncoupled BushingForces (the baseline form)",
             )),
         };
         if !k.iter().all(|v| v.is_finite() && *v > 0.0) {
             return Err(Error::invalid(
-                format!("{ctx}: level {}", l.name),
+                format!("{ctx}: level {}", l.level.name),
                 format!("nominal stiffness must be positive, got {k:?}"),
             ));
         }
         if !base.bushing_on_joint_frames(l.bushing) {
             return Err(Error::invalid(
-                format!("{ctx}: level {}", l.name),
+                format!("{ctx}: level {}", l.level.name),
                 "the bushing must sit on the two offset frames of its 6-DoF joint",
             ));
         }

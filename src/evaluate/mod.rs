@@ -467,9 +467,9 @@ pub struct ModelMetrics {
     /// Model minus truth Cobb angle (deg).
     pub cobb_error_deg: Option<f64>,
     /// Apex level of the model's Cobb curve.
-    pub apex: Option<String>,
+    pub apex: Option<Level>,
     /// Apex level of the truth's curve.
-    pub truth_apex: Option<String>,
+    pub truth_apex: Option<Level>,
     /// The model's lumbar lordosis (deg, negative = lordosis).
     pub lordosis_deg: Option<f64>,
     /// The truth's lumbar lordosis (deg, negative = lordosis).
@@ -617,14 +617,13 @@ pub fn evaluate_model(
     let cobb = metrics::cobb(&ml, cobb_ends);
     let tl = truth.landmarks.as_ref();
     let truth_cobb = tl.and_then(|s| metrics::cobb(s, cobb_ends));
-    let lvl = |s: &str| s.parse::<Level>().ok();
     let apex = cobb
         .as_ref()
-        .and_then(|c| metrics::apex(&m.centres, lvl(&c.upper)?, lvl(&c.lower)?));
+        .and_then(|c| metrics::apex(&m.centres, c.upper, c.lower));
     let truth_apex = truth_cobb
         .as_ref()
         .or(cobb.as_ref())
-        .and_then(|c| metrics::apex(&tc, lvl(&c.upper)?, lvl(&c.lower)?));
+        .and_then(|c| metrics::apex(&tc, c.upper, c.lower));
     Ok(ModelMetrics {
         model: m.name.clone(),
         align,
@@ -640,8 +639,8 @@ pub fn evaluate_model(
         },
         cobb,
         truth_cobb,
-        apex: apex.map(|l| l.to_string()),
-        truth_apex: truth_apex.map(|l| l.to_string()),
+        apex,
+        truth_apex,
         lordosis_deg: metrics::lordosis(&ml),
         truth_lordosis_deg: tl.and_then(metrics::lordosis),
         sacral_slope_deg: metrics::sacral_slope(&m.landmarks),
@@ -761,7 +760,7 @@ pub fn summarise(all: &[ModelMetrics]) -> Summary {
     let mut apex_counts = BTreeMap::new();
     for m in all {
         if let Some(a) = &m.apex {
-            *apex_counts.entry(a.clone()).or_insert(0) += 1;
+            *apex_counts.entry(a.to_string()).or_insert(0) += 1;
         }
     }
     Summary {

@@ -145,12 +145,12 @@ pub struct Reference {
     /// The reference's file.
     pub source: String,
     /// Levels with a reference centre.
-    pub levels: Vec<String>,
+    pub levels: Vec<Level>,
     /// The reference's own Cobb angle, apex and lordosis (truth landmarks
     /// or consensus model markers; `None` without them).
     pub cobb: Option<metrics::Cobb>,
     /// The reference's apex level.
-    pub apex: Option<String>,
+    pub apex: Option<Level>,
     /// The reference's lumbar lordosis (deg).
     pub lordosis_deg: Option<f64>,
 }
@@ -293,12 +293,7 @@ fn model_of(
 /// own registration.
 fn consensus_truth(g: &Generated, shape: &ModelShape, source: String) -> Truth {
     let back = g.report.registration.isometry().inverse();
-    let landmarked: Vec<Level> = g
-        .report
-        .levels_from_landmarks
-        .iter()
-        .filter_map(|l| l.parse().ok())
-        .collect();
+    let landmarked = &g.report.levels_from_landmarks;
     Truth {
         source,
         centres: shape
@@ -433,13 +428,13 @@ fn reference_metrics(
     let ref_cobb = ref_landmarks.and_then(|s| metrics::cobb(s, opts.cobb_ends));
     let ref_apex = ref_cobb
         .as_ref()
-        .and_then(|c| metrics::apex(&ref_centres, c.upper.parse().ok()?, c.lower.parse().ok()?));
+        .and_then(|c| metrics::apex(&ref_centres, c.upper, c.lower));
     Reference {
         kind: kind.into(),
         source: truth.source.clone(),
-        levels: truth.centres.keys().map(|l| l.to_string()).collect(),
+        levels: truth.centres.keys().copied().collect(),
         cobb: ref_cobb,
-        apex: ref_apex.map(|l| l.to_string()),
+        apex: ref_apex,
         lordosis_deg: ref_landmarks.and_then(metrics::lordosis),
     }
 }
@@ -453,12 +448,10 @@ fn choose_cobb_ends(
     consensus: &ConsensusModel,
     opts: &PropagationOptions,
 ) -> (Option<(Level, Level)>, &'static str) {
-    let parse_ends = |c: &metrics::Cobb| -> Option<(Level, Level)> {
-        Some((c.upper.parse().ok()?, c.lower.parse().ok()?))
-    };
+    let ends = |c: &metrics::Cobb| (c.upper, c.lower);
     match opts.cobb_ends {
         Some(e) => (Some(e), "given"),
-        None => match ref_cobb.as_ref().and_then(parse_ends) {
+        None => match ref_cobb.as_ref().map(ends) {
             Some(e) if kind == "truth" => (Some(e), "truth landmarks"),
             Some(e) => (Some(e), "consensus model"),
             None => match consensus
@@ -466,7 +459,7 @@ fn choose_cobb_ends(
                 .ok()
                 .and_then(|(_, s)| metrics::cobb(&s.landmarks, None))
                 .as_ref()
-                .and_then(parse_ends)
+                .map(ends)
             {
                 Some(e) => (Some(e), "consensus model"),
                 None => (None, "automatic per model"),

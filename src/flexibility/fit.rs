@@ -15,16 +15,16 @@
 //! A Gaussian prior on the log multipliers adds the residuals `A log m`
 //! (rows of `A`: a joint's `log m_j / sd`, or a neighbour difference
 //! `(log m_{j+1} - log m_j) / sd`). Minimised by
-//! the crate's one Levenberg-Marquardt ([`crate::calibrate::lm`]) with the
+//! the crate's one Levenberg-Marquardt ([`crate::util::lm`]) with the
 //! exact Jacobian of [`super::bend`].
 
 use super::bend::BendModel;
 use super::place::{procrustes, Placement};
-use crate::calibrate::lm::{self, LmOptions, LmResult};
 use crate::error::{Error, Result};
 use crate::landmarks::radiograph::FilmPoint;
 use crate::landmarks::Level;
 use crate::solver::Workspace;
+use crate::util::lm::{self, LmOptions, LmResult};
 use nalgebra::{DMatrix, DVector, Vector2};
 
 /// A film ready for fitting.

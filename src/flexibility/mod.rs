@@ -38,13 +38,13 @@ pub mod place;
 pub mod report;
 pub mod views;
 
-use crate::calibrate::lm::LmResult;
 use crate::error::{Error, Result};
 use crate::landmarks::metrics::FrontalTilts;
 use crate::landmarks::radiograph::{self, FilmPoint, Radiograph};
 use crate::landmarks::{Code, LandmarkId, Level};
 use crate::osim::model::Model;
 use crate::personalise::table::{write_toml_ratios, LevelLaw};
+use crate::util::lm::LmResult;
 use bend::BendModel;
 use fit::{fit_films, sum_zero_basis, Estimated, FilmData, FilmState, Problem};
 use nalgebra::{DMatrix, Vector2};
@@ -155,7 +155,7 @@ pub struct EstimateSummary {
     /// Least-squares iterations run.
     pub iterations: usize,
     /// Why the least-squares optimiser stopped.
-    pub stop: crate::calibrate::lm::LmStop,
+    pub stop: crate::util::lm::LmStop,
     /// Whether it converged.
     pub converged: bool,
 }
@@ -907,7 +907,7 @@ fn main_curve_ends(bm: &BendModel, all: &[Film]) -> Result<Option<(Level, Level)
     let (_, tilts) = unbent_tilts(bm, all)?;
     Ok(report::curves_of(&tilts)
         .first()
-        .and_then(|(_, c)| Some((c.upper.parse().ok()?, c.lower.parse().ok()?))))
+        .map(|(_, c)| (c.upper, c.lower)))
 }
 
 /// The curves of the unbent shape and their angles on every film.
@@ -943,8 +943,8 @@ fn curves(bm: &BendModel, all: &[Film], personalised: bool) -> Result<Vec<report
         }
         out.push(report::Curve {
             curve: name,
-            upper: c.upper.clone(),
-            lower: c.lower.clone(),
+            upper: c.upper,
+            lower: c.lower,
             defined_on: source.clone(),
             unbent_cobb_deg: unbent,
             films,
@@ -995,8 +995,8 @@ fn figure(bm: &BendModel, f: &Film, curves: &[report::Curve]) -> Result<(String,
             .filter_map(|c| {
                 let ends = crate::landmarks::metrics::Cobb {
                     angle_deg: 0.0,
-                    upper: c.upper.clone(),
-                    lower: c.lower.clone(),
+                    upper: c.upper,
+                    lower: c.lower,
                     automatic: false,
                 };
                 report::cobb_between(&t, &ends)

@@ -148,9 +148,9 @@ pub struct Curve {
     /// `main` or `secondary`.
     pub curve: String,
     /// The curve's upper end vertebra.
-    pub upper: String,
+    pub upper: Level,
     /// The curve's lower end vertebra.
-    pub lower: String,
+    pub lower: Level,
     /// Where the ends and the unbent angle come from (a film, or `model`).
     pub defined_on: String,
     /// Cobb angle of the unbent curve (deg).
@@ -193,8 +193,7 @@ pub fn curves_of(tilts: &FrontalTilts) -> Vec<(String, Cobb)> {
 
 /// The Cobb angle (deg) between the ends of `c` on `tilts`.
 pub fn cobb_between(tilts: &FrontalTilts, c: &Cobb) -> Option<f64> {
-    let ends = (c.upper.parse().ok()?, c.lower.parse().ok()?);
-    cobb_of_tilts(tilts, Some(ends)).map(|x| x.angle_deg)
+    cobb_of_tilts(tilts, Some((c.upper, c.lower))).map(|x| x.angle_deg)
 }
 
 /// The film points of `film` moved into the model's frontal plane by the

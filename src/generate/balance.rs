@@ -87,9 +87,9 @@ pub struct AboveFovReport {
     /// What was done above the field of view.
     pub mode: AboveFov,
     /// Levels above the field of view (not measured), caudal to cranial.
-    pub unmeasured: Vec<String>,
+    pub unmeasured: Vec<Level>,
     /// Levels whose joint to the level below was bent (balance), caudal to cranial.
-    pub balanced: Vec<String>,
+    pub balanced: Vec<Level>,
     /// Frontal bend added at each balanced joint (deg, + about anterior).
     pub bend_deg: Vec<f64>,
     /// T1 centre minus the vertical through S1_SEC, along the right axis (mm).
@@ -157,9 +157,9 @@ pub fn place_above_fov(
     let (centre, axis) = t1_state(&links, &x_top, &thetas, &t1);
     Ok(Some(AboveFovReport {
         mode,
-        unmeasured: links.iter().map(|l| l.level.to_string()).collect(),
+        unmeasured: links.iter().map(|l| l.level).collect(),
         balanced: match mode {
-            AboveFov::Balance => links.iter().map(|l| l.level.to_string()).collect(),
+            AboveFov::Balance => links.iter().map(|l| l.level).collect(),
             AboveFov::Keep => Vec::new(),
         },
         bend_deg: match mode {

@@ -348,7 +348,7 @@ pub struct GeometryReport {
     /// The segmentation's name.
     pub segmentation: String,
     /// Levels wearing the patient's mesh, cranial to caudal.
-    pub patient_levels: Vec<String>,
+    pub patient_levels: Vec<Level>,
     /// Vertebrae and sacrum still wearing the scaled base mesh, and why.
     pub base_levels: Vec<String>,
     /// One row per patient mesh in the model.
@@ -429,7 +429,7 @@ pub fn apply(doc: &mut Document, pg: &PatientGeometry, at: &Placement) -> Result
         };
         let row = wear(doc, &model, pg, pl, x, at, &mut out)?;
         out.report.meshes.push(row);
-        out.report.patient_levels.push(l.to_string());
+        out.report.patient_levels.push(l);
         out.bodies.push(body);
     }
     // Step 3: joints at the patient's disc centres.

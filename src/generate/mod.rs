@@ -120,93 +120,49 @@ pub fn generate_with_geometry(
     meshes: Option<&dyn MeshSource>,
     patient_geometry: Option<&PatientGeometry>,
 ) -> Result<Generated> {
-    let bfile = base.path().display().to_string();
-    let model = base.model()?;
-    let kin = Kinematics::new(&model)?;
-    let q0 = kin.default_values();
-    let poses0 = kin.body_poses(&q0)?;
-    let markers = base_markers(&model)?;
-    let levels = set_levels(set, set_name)?;
-    let vert_levels: Vec<Level> = levels.iter().copied().filter(|l| !l.is_sacrum()).collect();
-
-    let mut patient = landmarks_per_level(set);
-    let mut reduced_fits = landmark_coverage(&levels, &patient, &markers, set_name, &bfile)?;
-    let borrowed = borrowed_scales(&vert_levels, &patient, &markers, &mut reduced_fits);
+    // ---- 0. the base model at its default pose; what the set measures
+    let b = BaseState::read(base)?;
+    let mut m = Measured::read(set, set_name, &b)?;
 
     // ---- 1. registration through the sacrum
-    let x_sacrum = poses0
-        .get("sacrum")
-        .copied()
-        .ok_or_else(|| Error::invalid(&bfile, "the base model has no body 'sacrum'"))?;
-    let registration = register_sacrum(&mut patient, &markers, &x_sacrum, set_name)?;
+    let x_sacrum = b.sacrum_pose()?;
+    let registration = register_sacrum(&mut m.patient, &b.markers, &x_sacrum, set_name)?;
 
-    // ---- 2. fits (lsq: palpation noise estimated over the whole set for
-    // the outlier test); a code off the same way at several levels is a
-    // protocol mismatch, compensated ([`fit_with_protocol_check`])
+    // ---- 2. per-vertebra fits, protocol mismatches compensated; 2b. gaps filled
     let input = FitInput {
-        vert_levels: &vert_levels,
-        markers: &markers,
-        joint_centres: base_joint_centres(&model, &poses0)?,
-        body_centres: base_body_centres(&model)?,
-        borrowed,
+        vert_levels: &m.vert_levels,
+        markers: &b.markers,
+        joint_centres: base_joint_centres(&b.model, &b.poses)?,
+        body_centres: base_body_centres(&b.model)?,
+        borrowed: std::mem::take(&mut m.borrowed),
         opts,
     };
-    let (
-        LevelFits {
-            fits,
-            noise,
-            smoothing,
-        },
-        landmark_residuals,
-        protocol_mismatches,
-    ) = fit_with_protocol_check(&input, &patient)?;
-    let mut fits = fits;
+    let fitted = fit_and_fill(&input, &m.patient, &b, &x_sacrum)?;
 
-    // ---- 2b. levels missing between measured ones, from their neighbours
-    let filled = fill::fill_gaps(&mut fits, &x_sacrum, &poses0, &input.joint_centres);
-
-    // ---- 3. scaling
+    // ---- 3-4b. scaling, joint frames, levels above the field of view
     let mut doc = base.clone();
-    let (mut scales, scaling) = scale_bodies(&mut doc, &fits)?;
+    let mut placed = place_bodies(&mut doc, &b, &m, &fitted.fits, &x_sacrum, opts)?;
 
-    // ---- 4. joint frames
-    let (rewritten, prefixes) =
-        rewrite_joint_frames(&mut doc, &model, &fits, &markers, &x_sacrum, &bfile)?;
-
-    // ---- 4b. levels above the field of view ([`balance`])
-    let above_fov = match vert_levels.first() {
-        Some(top) => balance::place_above_fov(
-            &mut doc,
-            &model,
-            *top,
-            patient[&Level::S1][&Code::SEC],
-            markers.get(&Level::T1).map(|(_, m)| m),
-            opts.above_fov,
-        )?,
-        None => None,
+    // ---- 4c. the patient's own vertebrae ([`geometry`])
+    let mut radii = sphere_radii(&b.model);
+    let placement = PatientPlacement {
+        fits: &fitted.fits,
+        input: &input,
+        smoothing: &fitted.smoothing,
+        registration: registration.isometry(),
+        patient: &m.patient,
     };
-
-    // ---- 4c. the patient's own vertebrae ([`geometry`]): meshes, markers,
-    // sphere centres, joints at the discs, mass, attachments out of bone
-    let mut radii = sphere_radii(&model);
     let applied = match patient_geometry {
-        Some(pg) => {
-            let placement = PatientPlacement {
-                fits: &fits,
-                input: &input,
-                smoothing: &smoothing,
-                registration: registration.isometry(),
-                patient: &patient,
-            };
-            let a = wear_patient_geometry(&mut doc, pg, &placement, meshes)?;
-            radii.extend(a.sphere_radii.iter().map(|(n, r)| (n.clone(), *r)));
-            for b in &a.bodies {
-                scales.remove(b);
-            }
-            Some(a)
-        }
+        Some(pg) => Some(wear_patient_geometry(&mut doc, pg, &placement, meshes)?),
         None => None,
     };
+    if let Some(a) = &applied {
+        radii.extend(a.sphere_radii.iter().map(|(n, r)| (n.clone(), *r)));
+        for body in &a.bodies {
+            placed.scales.remove(body);
+        }
+    }
+    // the self-check's bones: the patient's own where it has them
     let own_meshes = applied
         .as_ref()
         .map(|a| a.meshes.clone())
@@ -220,76 +176,267 @@ pub fn generate_with_geometry(
         (None, m) => m,
     };
 
-    // ---- 5. wrap spheres
-    let spheres = wraps::refit_spheres(&mut doc, &scales, &radii, &prefixes)?;
-
-    // ---- 5b. muscle paths clear of the vertebrae ([`clear`])
+    // ---- 5. wrap spheres; 5b. muscle paths clear of the vertebrae ([`clear`])
+    let spheres = wraps::refit_spheres(&mut doc, &placed.scales, &radii, &placed.prefixes)?;
     let vertebrae = vertebra_queries(&doc, meshes)?;
     let path_edits = clear_muscle_paths(&mut doc, vertebrae.as_deref())?;
 
     // ---- 6. report, views, self-check
+    let steps = Steps {
+        measured: m,
+        registration,
+        fitted,
+        placed,
+        spheres,
+        vertebrae,
+        path_edits,
+        geometry: applied.map(|a| a.report),
+        own_meshes,
+    };
+    finish(doc, &b, set, set_name, opts, steps)
+}
+
+/// The base model at its default pose: what the steps read from it.
+struct BaseState {
+    /// The base model's file (or label).
+    file: String,
+    model: Model,
+    /// Body poses in ground at the default pose.
+    poses: BTreeMap<String, Isometry3<f64>>,
+    markers: BTreeMap<Level, (String, Points)>,
+}
+
+impl BaseState {
+    fn read(base: &Document) -> Result<BaseState> {
+        let model = base.model()?;
+        let kin = Kinematics::new(&model)?;
+        let poses = kin.body_poses(&kin.default_values())?;
+        let markers = base_markers(&model)?;
+        Ok(BaseState {
+            file: base.path().display().to_string(),
+            model,
+            poses,
+            markers,
+        })
+    }
+
+    /// The sacrum's pose in ground (the registration's target).
+    fn sacrum_pose(&self) -> Result<Isometry3<f64>> {
+        self.poses
+            .get("sacrum")
+            .copied()
+            .ok_or_else(|| Error::invalid(&self.file, "the base model has no body 'sacrum'"))
+    }
+}
+
+/// What the landmark set measures: its vertebrae, landmarks by level, the
+/// vertebrae fitted on fewer landmarks than the protocol's and the scale
+/// factors they borrow from their neighbours.
+struct Measured {
+    vert_levels: Vec<Level>,
+    patient: BTreeMap<Level, Points>,
+    reduced_fits: Vec<ReducedFit>,
+    borrowed: BTreeMap<Level, pose::Borrowed>,
+}
+
+impl Measured {
+    fn read(set: &LandmarkSet, set_name: &str, b: &BaseState) -> Result<Measured> {
+        let levels = set_levels(set, set_name)?;
+        let vert_levels: Vec<Level> = levels.iter().copied().filter(|l| !l.is_sacrum()).collect();
+        let patient = landmarks_per_level(set);
+        let mut reduced_fits = landmark_coverage(&levels, &patient, &b.markers, set_name, &b.file)?;
+        let borrowed = borrowed_scales(&vert_levels, &patient, &b.markers, &mut reduced_fits);
+        Ok(Measured {
+            vert_levels,
+            patient,
+            reduced_fits,
+            borrowed,
+        })
+    }
+}
+
+/// Steps 2 and 2b: the vertebrae's fits and what they found.
+struct Fitted {
+    fits: BTreeMap<Level, pose::VertebraFit>,
+    noise: Option<f64>,
+    smoothing: SmoothingReport,
+    landmark_residuals: Vec<residuals::LandmarkResidual>,
+    protocol_mismatches: Vec<residuals::ProtocolMismatch>,
+    filled: Vec<fill::FilledLevel>,
+}
+
+/// Steps 2 and 2b: fit every vertebra (lsq: palpation noise estimated over
+/// the whole set for the outlier test; a code off the same way at several
+/// levels is a protocol mismatch, compensated: [`fit_with_protocol_check`]),
+/// then the levels missing between measured ones from their neighbours.
+fn fit_and_fill(
+    input: &FitInput,
+    patient: &BTreeMap<Level, Points>,
+    b: &BaseState,
+    x_sacrum: &Isometry3<f64>,
+) -> Result<Fitted> {
+    let (
+        LevelFits {
+            mut fits,
+            noise,
+            smoothing,
+        },
+        landmark_residuals,
+        protocol_mismatches,
+    ) = fit_with_protocol_check(input, patient)?;
+    let filled = fill::fill_gaps(&mut fits, x_sacrum, &b.poses, &input.joint_centres);
+    Ok(Fitted {
+        fits,
+        noise,
+        smoothing,
+        landmark_residuals,
+        protocol_mismatches,
+        filled,
+    })
+}
+
+/// Steps 3 to 4b: what placing the bodies did.
+struct Placed {
+    /// Scale factors by body name.
+    scales: BTreeMap<String, Vector3<f64>>,
+    scaling: BTreeMap<String, scale::ScaleCount>,
+    /// The joints whose frames were rewritten.
+    rewritten: Vec<String>,
+    /// The prefixes (`L4_L5`) of every IVD joint.
+    prefixes: Vec<String>,
+    above_fov: Option<AboveFovReport>,
+}
+
+/// Steps 3 to 4b: scale the fitted bodies, rewrite the joint frames, place
+/// the levels above the field of view ([`balance`]).
+fn place_bodies(
+    doc: &mut Document,
+    b: &BaseState,
+    m: &Measured,
+    fits: &BTreeMap<Level, pose::VertebraFit>,
+    x_sacrum: &Isometry3<f64>,
+    opts: &GenerateOptions,
+) -> Result<Placed> {
+    let (scales, scaling) = scale_bodies(doc, fits)?;
+    let (rewritten, prefixes) =
+        rewrite_joint_frames(doc, &b.model, fits, &b.markers, x_sacrum, &b.file)?;
+    let above_fov = match m.vert_levels.first() {
+        Some(top) => balance::place_above_fov(
+            doc,
+            &b.model,
+            *top,
+            m.patient[&Level::S1][&Code::SEC],
+            b.markers.get(&Level::T1).map(|(_, mk)| mk),
+            opts.above_fov,
+        )?,
+        None => None,
+    };
+    Ok(Placed {
+        scales,
+        scaling,
+        rewritten,
+        prefixes,
+        above_fov,
+    })
+}
+
+/// What steps 0 to 5 hand to step 6.
+struct Steps {
+    measured: Measured,
+    registration: Registration,
+    fitted: Fitted,
+    placed: Placed,
+    spheres: Vec<wraps::SphereOut>,
+    /// The vertebrae's bones, for the self-check's through-bone test.
+    vertebrae: Option<Vec<(String, crate::mesh::MeshQuery)>>,
+    path_edits: Vec<clear::PathEdit>,
+    geometry: Option<geometry::GeometryReport>,
+    /// The patient's meshes by file name.
+    own_meshes: BTreeMap<String, crate::mesh::TriMesh>,
+}
+
+/// Step 6: the generated model `doc` with its report, self-check and views.
+fn finish(
+    doc: Document,
+    b: &BaseState,
+    set: &LandmarkSet,
+    set_name: &str,
+    opts: &GenerateOptions,
+    steps: Steps,
+) -> Result<Generated> {
+    let Steps {
+        measured: m,
+        fitted,
+        placed,
+        ..
+    } = steps;
     let out_model = doc.model()?;
-    let kin2 = Kinematics::new(&out_model)?;
-    let poses2 = kin2.body_poses(&kin2.default_values())?;
-    let centres = model_centres(&out_model, &poses2, CentreDef::default())?;
-    let (rows, outliers, landmark_rms) = vertebra_rows(&fits, &poses2, &filled);
-    let levels_from_base: Vec<String> = markers
+    let kin = Kinematics::new(&out_model)?;
+    let poses = kin.body_poses(&kin.default_values())?;
+    let centres = model_centres(&out_model, &poses, CentreDef::default())?;
+    let (rows, outliers, landmark_rms) = vertebra_rows(&fitted.fits, &poses, &fitted.filled);
+    let levels_from_base: Vec<Level> = b
+        .markers
         .keys()
-        .filter(|l| !l.is_sacrum() && !fits.contains_key(l))
-        .map(|l| l.to_string())
+        .filter(|l| !l.is_sacrum() && !fitted.fits.contains_key(l))
+        .copied()
         .collect();
     let self_check = if opts.self_check {
-        Some(self_check(&out_model, vertebrae.as_deref(), &spheres)?)
+        Some(self_check(
+            &out_model,
+            steps.vertebrae.as_deref(),
+            &steps.spheres,
+        )?)
     } else {
         None
     };
     // the model's shape and the frontal/sagittal views
     let (shape, views) = shape_and_views(
         &out_model,
-        &poses2,
+        &poses,
         &centres,
-        &patient,
-        &own_meshes,
+        &m.patient,
+        &steps.own_meshes,
         opts.views,
     )?;
     let report = GenerateReport {
         // File names only: the report is the same wherever the inputs lie
         // and whatever the working directory (determinism).
-        base_model: file_name_of(&bfile),
+        base_model: file_name_of(&b.file),
         landmarks: file_name_of(set_name),
         detection: set.detection.as_ref().map(|d| d.summary()),
         method: opts.method,
-        levels_from_landmarks: vert_levels.iter().map(|l| l.to_string()).collect(),
+        levels_from_landmarks: m.vert_levels,
         levels_from_base,
-        registration,
+        registration: steps.registration,
         vertebrae: rows,
-        noise_sd_mm: noise.map(|n| n * 1e3),
+        noise_sd_mm: fitted.noise.map(|n| n * 1e3),
         outliers,
-        protocol_mismatches,
-        smoothing,
+        protocol_mismatches: fitted.protocol_mismatches,
+        smoothing: fitted.smoothing,
         landmark_rms_mm: landmark_rms * 1e3,
-        joints_rewritten: rewritten,
-        scaling,
-        spheres,
-        path_edits,
+        joints_rewritten: placed.rewritten,
+        scaling: placed.scaling,
+        spheres: steps.spheres,
+        path_edits: steps.path_edits,
         centres: centres
             .iter()
             .map(|(l, p)| (l.to_string(), [p.x, p.y, p.z]))
             .collect(),
         self_check,
-        above_fov,
-        reduced_fits,
-        filled_levels: filled.iter().map(|f| f.level).collect(),
-        filled,
+        above_fov: placed.above_fov,
+        reduced_fits: m.reduced_fits,
+        filled_levels: fitted.filled.iter().map(|f| f.level).collect(),
+        filled: fitted.filled,
         shape,
-        landmark_residuals,
-        geometry: applied.map(|a| a.report),
+        landmark_residuals: fitted.landmark_residuals,
+        geometry: steps.geometry,
     };
     Ok(Generated {
         doc,
         report,
         views,
-        meshes: own_meshes,
+        meshes: steps.own_meshes,
     })
 }
 

@@ -124,9 +124,9 @@ pub struct GenerateReport {
     /// The fitting method used.
     pub method: Method,
     /// Vertebrae placed from landmarks, cranial to caudal.
-    pub levels_from_landmarks: Vec<String>,
+    pub levels_from_landmarks: Vec<Level>,
     /// Vertebrae of the base model kept with the base shape and alignment.
-    pub levels_from_base: Vec<String>,
+    pub levels_from_base: Vec<Level>,
     /// Landmark frame to ground, from the sacral landmarks.
     pub registration: Registration,
     /// One row per vertebra placed from landmarks, cranial to caudal.

@@ -63,7 +63,7 @@ pub struct ProtocolMismatch {
     /// Protocol or shape mismatch.
     pub kind: MismatchKind,
     /// Levels where its residual points along the mean offset.
-    pub levels: Vec<String>,
+    pub levels: Vec<Level>,
     /// The code's offset from the base's marker, vertebra frame (x
     /// anterior, y cranial, z right), mm: its mean residual over the
     /// levels, or, when compensated, the offset the refit settled on.
@@ -140,10 +140,10 @@ pub fn protocol_mismatches(res: &[LandmarkResidual], noise_sd: f64) -> Vec<Proto
         }
         // Levels whose residual points along it (at least half its size).
         let dir = mean.normalize();
-        let agree: Vec<String> = rs
+        let agree: Vec<Level> = rs
             .iter()
             .filter(|r| v(r).dot(&dir) >= 0.5 * mean.norm())
-            .map(|r| r.level.to_string())
+            .map(|r| r.level)
             .collect();
         if agree.len() < MISMATCH_MIN_LEVELS
             || (agree.len() as f64) < MISMATCH_MIN_AGREEMENT * n as f64

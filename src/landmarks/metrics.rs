@@ -123,9 +123,9 @@ pub struct Cobb {
     /// Signed angle (deg), positive convex to the right.
     pub angle_deg: f64,
     /// Upper end vertebra (e.g. `T11`).
-    pub upper: String,
+    pub upper: Level,
     /// Lower end vertebra (e.g. `L4`).
-    pub lower: String,
+    pub lower: Level,
     /// Whether the end vertebrae were found automatically.
     pub automatic: bool,
 }
@@ -181,8 +181,8 @@ pub fn cobb_of_tilts(frontal: &FrontalTilts, ends: Option<(Level, Level)>) -> Op
     };
     Some(Cobb {
         angle_deg: a.to_degrees(),
-        upper: u.to_string(),
-        lower: w.to_string(),
+        upper: u,
+        lower: w,
         automatic: auto,
     })
 }
@@ -214,8 +214,8 @@ pub fn secondary_of_tilts(frontal: &FrontalTilts, main: &Cobb) -> Option<Cobb> {
     let (u, w, a) = largest_curve(frontal, |a| a * sign < 0.0)?;
     Some(Cobb {
         angle_deg: a.to_degrees(),
-        upper: u.to_string(),
-        lower: w.to_string(),
+        upper: u,
+        lower: w,
         automatic: true,
     })
 }
@@ -243,7 +243,7 @@ pub struct Shape {
     /// the right.
     pub cobb: Option<Cobb>,
     /// Apex of the main curve (farthest from the line through its ends).
-    pub apex: Option<String>,
+    pub apex: Option<Level>,
     /// Lumbar lordosis L1-S1, negative lordotic.
     pub lumbar_lordosis_deg: Option<f64>,
     /// Thoracic kyphosis T4-T12, positive kyphotic.
@@ -258,10 +258,7 @@ pub struct Shape {
 /// vertebral centres are `centres`.
 pub fn shape(set: &LandmarkSet, centres: &BTreeMap<Level, Point3<f64>>) -> Shape {
     let cobb = cobb(set, None);
-    let apex = cobb
-        .as_ref()
-        .and_then(|c| apex(centres, c.upper.parse().ok()?, c.lower.parse().ok()?))
-        .map(|l| l.to_string());
+    let apex = cobb.as_ref().and_then(|c| apex(centres, c.upper, c.lower));
     Shape {
         cobb,
         apex,

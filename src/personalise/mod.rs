@@ -30,9 +30,9 @@
 
 pub mod table;
 
-pub use table::{read_table, CurveSpec, Form, Interp, LevelLaw, Row, Table};
+pub use table::{curve_points, points_curve, read_table, Form, Interp, LevelLaw, Row, Table};
 
-use crate::anatomy::bushing_level_name;
+use crate::anatomy::{bushing_level_name, BushingLevel};
 use crate::error::{Error, Result};
 use crate::osim::function::{CubicSpline, Function as OFunction};
 use crate::osim::model::{Force, Model};
@@ -42,22 +42,9 @@ use crate::osim::Document;
 use crate::solver::expr::{Expr, Fn1, Fn2, Op, VARIABLES};
 use crate::solver::from_model::{EBBF_EXPRESSIONS, FBBF_FUNCTIONS};
 use crate::solver::spec::DOF_NAMES;
+use crate::solver::Curve;
 use crate::util::fmt_f64;
 use std::path::Path;
-
-/// A level of a model: one bushing of its ForceSet, named by
-/// [`bushing_level_name`].
-#[derive(Debug, Clone, PartialEq)]
-pub struct ModelLevel {
-    /// Level name (the bushing's name without `_bushing`).
-    pub name: String,
-    /// Anatomical alias `<upper>_<lower>`, when both bodies have vertebral names.
-    pub alias: Option<String>,
-    /// The bushing's name in the ForceSet.
-    pub bushing: String,
-    /// Its class.
-    pub class: String,
-}
 
 /// Region rank and number of a vertebral body name (`lumbar5` -> (2, 5)).
 fn vertebra(body: &str) -> Option<(u8, u32, String)> {
@@ -83,9 +70,11 @@ fn vertebra(body: &str) -> Option<(u8, u32, String)> {
     None
 }
 
-fn alias(b1: &str, b2: &str) -> Option<String> {
-    let (r1, n1, s1) = vertebra(b1)?;
-    let (r2, n2, s2) = vertebra(b2)?;
+/// Anatomical alias `<upper>_<lower>` of a level, when both bodies have
+/// vertebral names (cervical ones too: `C7_T1`).
+pub fn alias(l: &BushingLevel) -> Option<String> {
+    let (r1, n1, s1) = vertebra(&l.upper_body)?;
+    let (r2, n2, s2) = vertebra(&l.lower_body)?;
     if (r1, n1) == (r2, n2) {
         return None;
     }
@@ -96,23 +85,28 @@ fn alias(b1: &str, b2: &str) -> Option<String> {
     })
 }
 
-/// The levels of a model, in ForceSet order.
-pub fn levels(doc: &Document) -> Result<Vec<ModelLevel>> {
+/// The levels of a model (one per bushing of its ForceSet), in ForceSet order.
+pub fn levels(doc: &Document) -> Result<Vec<BushingLevel>> {
     let model = doc.model()?;
     levels_of(&model)
 }
 
-fn levels_of(model: &Model) -> Result<Vec<ModelLevel>> {
-    let mut out: Vec<ModelLevel> = Vec::new();
+/// The bodies of socket frames 1 and 2, cranial first: by their vertebral
+/// names when both have one, else socket 2's (a bushing's frame 1 is on
+/// the parent, the caudal body, in the models this tool writes).
+fn cranial_first(b1: String, b2: String) -> (String, String) {
+    match (vertebra(&b1), vertebra(&b2)) {
+        (Some((r1, n1, _)), Some((r2, n2, _))) if (r1, n1) < (r2, n2) => (b1, b2),
+        _ => (b2, b1),
+    }
+}
+
+fn levels_of(model: &Model) -> Result<Vec<BushingLevel>> {
+    let mut out: Vec<BushingLevel> = Vec::new();
     for f in &model.forces {
-        let (name, class, s1, s2) = match f {
-            Force::Bushing(b) => (&b.name, "BushingForce", &b.socket_frame1, &b.socket_frame2),
-            Force::OtherBushing(b) => (
-                &b.name,
-                b.class.as_str(),
-                &b.socket_frame1,
-                &b.socket_frame2,
-            ),
+        let (name, s1, s2) = match f {
+            Force::Bushing(b) => (&b.name, &b.socket_frame1, &b.socket_frame2),
+            Force::OtherBushing(b) => (&b.name, &b.socket_frame1, &b.socket_frame2),
             _ => continue,
         };
         let owner = format!("/forceset/{name}");
@@ -128,12 +122,8 @@ fn levels_of(model: &Model) -> Result<Vec<ModelLevel>> {
                 ),
             ));
         }
-        out.push(ModelLevel {
-            name: lname.to_string(),
-            alias: alias(&b1, &b2),
-            bushing: name.clone(),
-            class: class.to_string(),
-        });
+        let (upper, lower) = cranial_first(b1, b2);
+        out.push(BushingLevel::new(name, &upper, &lower));
     }
     Ok(out)
 }
@@ -173,42 +163,30 @@ fn damping_of(e: &Element, file: &Path) -> Result<[f64; 6]> {
     Ok([r[0], r[1], r[2], t[0], t[1], t[2]])
 }
 
-fn curve_of_function(f: &OFunction) -> Option<CurveSpec> {
+fn curve_of_function(f: &OFunction) -> Option<Curve> {
     Some(match f {
-        OFunction::Linear { slope, intercept } if *intercept == 0.0 => {
-            CurveSpec::Linear { k: *slope }
+        OFunction::Linear { slope, intercept } if *intercept == 0.0 => Curve::Linear { k: *slope },
+        OFunction::Linear { slope, intercept } => {
+            Curve::Function(OFunction::Polynomial(vec![*slope, *intercept]))
         }
-        OFunction::Linear { slope, intercept } => CurveSpec::Polynomial {
-            coefficients: vec![*slope, *intercept],
-        },
-        OFunction::Constant(c) => CurveSpec::Polynomial {
-            coefficients: vec![*c],
-        },
+        OFunction::Constant(c) => Curve::Function(OFunction::Polynomial(vec![*c])),
         OFunction::Polynomial(c) => match c.as_slice() {
-            [c3, z2, k, z0] if *z2 == 0.0 && *z0 == 0.0 => CurveSpec::Cubic { k: *k, c: *c3 },
-            _ => CurveSpec::Polynomial {
-                coefficients: c.clone(),
-            },
+            [c3, z2, k, z0] if *z2 == 0.0 && *z0 == 0.0 => Curve::Cubic { k: *k, c: *c3 },
+            _ => Curve::Function(OFunction::Polynomial(c.clone())),
         },
         OFunction::PiecewiseLinear { x, y } => {
             if x.as_slice() == [-1.0, 0.0, 1.0] && y.len() == 3 && y[1] == 0.0 {
-                CurveSpec::Bilinear {
+                Curve::Bilinear {
                     k_neg: -y[0],
                     k_pos: y[2],
                 }
             } else {
-                CurveSpec::Points {
-                    x: x.clone(),
-                    y: y.clone(),
-                    interp: Interp::Linear,
-                }
+                points_curve(x.clone(), y.clone(), Interp::Linear)
             }
         }
-        OFunction::Spline { spline, .. } => CurveSpec::Points {
-            x: spline.x.clone(),
-            y: spline.y.clone(),
-            interp: Interp::Spline,
-        },
+        OFunction::Spline { spline, .. } => {
+            points_curve(spline.x.clone(), spline.y.clone(), Interp::Spline)
+        }
         _ => return None,
     })
 }
@@ -233,9 +211,9 @@ fn scaled_var(e: &Expr) -> Option<(f64, usize)> {
 }
 
 /// Recognise the per-DoF expression patterns this module writes.
-fn curve_of_expr(e: &Expr, dof: usize) -> Option<CurveSpec> {
+fn curve_of_expr(e: &Expr, dof: usize) -> Option<Curve> {
     if let Some((k, i)) = scaled_var(e) {
-        return (i == dof).then_some(CurveSpec::Linear { k });
+        return (i == dof).then_some(Curve::Linear { k });
     }
     match e {
         // k*a*sinh(v/a)
@@ -251,7 +229,7 @@ fn curve_of_expr(e: &Expr, dof: usize) -> Option<CurveSpec> {
             };
             let (k, a, a2) = (num_of(k)?, num_of(a)?, num_of(a2)?);
             (matches!(v.as_ref(), Expr::Var(i) if *i == dof) && a.to_bits() == a2.to_bits())
-                .then_some(CurveSpec::Sinh { k, a })
+                .then_some(Curve::Sinh { k, a })
         }
         Expr::Bin(Op::Add, l, r) => {
             // k*v + c*v^3
@@ -263,7 +241,7 @@ fn curve_of_expr(e: &Expr, dof: usize) -> Option<CurveSpec> {
                 return (i == dof
                     && matches!(v.as_ref(), Expr::Var(j) if *j == dof)
                     && num_of(n) == Some(3.0))
-                .then_some(CurveSpec::Cubic { k, c });
+                .then_some(Curve::Cubic { k, c });
             }
             // k_neg*min(v,0) + k_pos*max(v,0)
             let (Expr::Bin(Op::Mul, kn, mn), Expr::Bin(Op::Mul, kp, mx)) = (l.as_ref(), r.as_ref())
@@ -279,7 +257,7 @@ fn curve_of_expr(e: &Expr, dof: usize) -> Option<CurveSpec> {
                 && matches!(v2.as_ref(), Expr::Var(i) if *i == dof)
                 && num_of(z1) == Some(0.0)
                 && num_of(z2) == Some(0.0);
-            ok.then_some(CurveSpec::Bilinear {
+            ok.then_some(Curve::Bilinear {
                 k_neg: num_of(kn)?,
                 k_pos: num_of(kp)?,
             })
@@ -302,7 +280,7 @@ pub fn read_law(e: &Element, file: &Path) -> Result<LevelLaw> {
             })
         }
         "FunctionBasedBushingForce" => {
-            let mut curves: Vec<CurveSpec> = Vec::with_capacity(6);
+            let mut curves: Vec<Curve> = Vec::with_capacity(6);
             for prop in FBBF_FUNCTIONS {
                 let f = match e.child(prop) {
                     Some(p) => OFunction::from_parent(p, file)?,
@@ -315,7 +293,7 @@ pub fn read_law(e: &Element, file: &Path) -> Result<LevelLaw> {
                     )
                 })?);
             }
-            let curves: [CurveSpec; 6] = curves
+            let curves: [Curve; 6] = curves
                 .try_into()
                 .map_err(|_| Error::invalid(here(), "six functions expected"))?;
             Ok(LevelLaw::Nonlinear {
@@ -345,13 +323,13 @@ pub fn read_law(e: &Element, file: &Path) -> Result<LevelLaw> {
                 }
                 return Ok(LevelLaw::Coupled { k, c });
             }
-            let curves: Option<Vec<CurveSpec>> = exprs
+            let curves: Option<Vec<Curve>> = exprs
                 .iter()
                 .enumerate()
                 .map(|(i, x)| curve_of_expr(x, i))
                 .collect();
             if let Some(cv) = curves {
-                if let Ok(arr) = <[CurveSpec; 6]>::try_from(cv) {
+                if let Ok(arr) = <[Curve; 6]>::try_from(cv) {
                     return Ok(LevelLaw::Nonlinear {
                         curves: Box::new(arr),
                         c,
@@ -401,7 +379,7 @@ fn check_range(dof: usize) -> f64 {
     }
 }
 
-fn validate_curve(c: &CurveSpec, dof: usize, allow_softening: bool, ctx: &str) -> Result<()> {
+fn validate_curve(c: &Curve, dof: usize, allow_softening: bool, ctx: &str) -> Result<()> {
     let bad = |m: String| Error::invalid(ctx, m);
     let d = DOF_NAMES[dof];
     let pos = |v: f64, what: &str| -> Result<()> {
@@ -412,8 +390,8 @@ fn validate_curve(c: &CurveSpec, dof: usize, allow_softening: bool, ctx: &str) -
         }
     };
     match c {
-        CurveSpec::Linear { k } => pos(*k, "k"),
-        CurveSpec::Cubic { k, c } => {
+        Curve::Linear { k } => pos(*k, "k"),
+        Curve::Cubic { k, c } => {
             pos(*k, "k")?;
             if !c.is_finite() {
                 return Err(bad(format!("curve {d}: c is not finite")));
@@ -426,15 +404,23 @@ fn validate_curve(c: &CurveSpec, dof: usize, allow_softening: bool, ctx: &str) -
             }
             Ok(())
         }
-        CurveSpec::Sinh { k, a } => {
+        Curve::Sinh { k, a } => {
             pos(*k, "k")?;
             pos(*a, "a")
         }
-        CurveSpec::Bilinear { k_neg, k_pos } => {
+        Curve::Bilinear { k_neg, k_pos } => {
             pos(*k_neg, "k_neg")?;
             pos(*k_pos, "k_pos")
         }
-        CurveSpec::Points { x, y, interp } => {
+        Curve::Function(OFunction::Polynomial(coefficients)) => {
+            validate_polynomial(coefficients, dof, allow_softening, ctx)
+        }
+        Curve::Function(f) => {
+            let Some((x, y, interp)) = curve_points(c) else {
+                return Err(bad(format!(
+                    "curve {d}: not a curve a stiffness table states ({f:?})"
+                )));
+            };
             if x.len() != y.len() || x.len() < 2 {
                 return Err(bad(format!(
                     "curve {d}: points need x and y of the same length, at least 2"
@@ -459,8 +445,8 @@ fn validate_curve(c: &CurveSpec, dof: usize, allow_softening: bool, ctx: &str) -
                         w, y[w], w + 1, y[w + 1]
                     )));
                 }
-                if *interp == Interp::Spline {
-                    let s = CubicSpline::new(x.clone(), y.clone());
+                if interp == Interp::Spline {
+                    let s = CubicSpline::new(x.to_vec(), y.to_vec());
                     let (lo, hi) = (x[0], x[x.len() - 1]);
                     for i in 0..=1000 {
                         let t = lo + (hi - lo) * i as f64 / 1000.0;
@@ -472,25 +458,35 @@ fn validate_curve(c: &CurveSpec, dof: usize, allow_softening: bool, ctx: &str) -
             }
             Ok(())
         }
-        CurveSpec::Polynomial { coefficients } => {
-            if coefficients.is_empty() || !coefficients.iter().all(|v| v.is_finite()) {
-                return Err(bad(format!(
-                    "curve {d}: coefficients must be finite, at least one"
-                )));
+    }
+}
+
+/// Check a polynomial curve of DoF `dof`: finite coefficients, increasing
+/// on the DoF's range unless `allow_softening`.
+fn validate_polynomial(
+    coefficients: &[f64],
+    dof: usize,
+    allow_softening: bool,
+    ctx: &str,
+) -> Result<()> {
+    let d = DOF_NAMES[dof];
+    let bad = |m: String| Error::invalid(ctx, m);
+    if coefficients.is_empty() || !coefficients.iter().all(|v| v.is_finite()) {
+        return Err(bad(format!(
+            "curve {d}: coefficients must be finite, at least one"
+        )));
+    }
+    if !allow_softening {
+        let f = OFunction::Polynomial(coefficients.to_vec());
+        let r = check_range(dof);
+        for i in 0..=1000 {
+            let t = -r + 2.0 * r * i as f64 / 1000.0;
+            if f.d1(t) <= 0.0 {
+                return Err(bad(format!("curve {d}: the polynomial is not increasing at x = {t} (checked on +-{r}); pass --allow-softening to accept it")));
             }
-            if !allow_softening {
-                let f = OFunction::Polynomial(coefficients.clone());
-                let r = check_range(dof);
-                for i in 0..=1000 {
-                    let t = -r + 2.0 * r * i as f64 / 1000.0;
-                    if f.d1(t) <= 0.0 {
-                        return Err(bad(format!("curve {d}: the polynomial is not increasing at x = {t} (checked on +-{r}); pass --allow-softening to accept it")));
-                    }
-                }
-            }
-            Ok(())
         }
     }
+    Ok(())
 }
 
 /// Check a law: positive stiffness and ratios, non-negative damping,
@@ -521,11 +517,9 @@ fn validate_law(law: &LevelLaw, allow_softening: bool, ctx: &str) -> Result<()> 
             for (i, c) in curves.iter().enumerate() {
                 validate_curve(c, i, allow_softening, ctx)?;
             }
-            let has_sinh = curves.iter().any(|c| matches!(c, CurveSpec::Sinh { .. }));
+            let has_sinh = curves.iter().any(|c| matches!(c, Curve::Sinh { .. }));
             if has_sinh {
-                if let Some(i) = curves.iter().position(|c| {
-                    matches!(c, CurveSpec::Points { .. } | CurveSpec::Polynomial { .. })
-                }) {
+                if let Some(i) = curves.iter().position(|c| matches!(c, Curve::Function(_))) {
                     return Err(bad(format!(
                         "curve {}: a bushing with a sinh curve is written as an ExpressionBasedBushingForce, which cannot hold points or polynomial curves; use linear, cubic, sinh or bilinear curves in this level",
                         DOF_NAMES[i]
@@ -585,7 +579,7 @@ pub fn resolve(
     table: &Table,
     doc: &Document,
     allow_softening: bool,
-) -> Result<Vec<(ModelLevel, LevelLaw)>> {
+) -> Result<Vec<(BushingLevel, LevelLaw)>> {
     let lv = levels(doc)?;
     let tpath = table.path.display().to_string();
     // Each row names one level of the model, and no level twice.
@@ -629,7 +623,7 @@ pub fn resolve(
 /// already named is an error.
 fn match_rows(
     table: &Table,
-    lv: &[ModelLevel],
+    lv: &[BushingLevel],
     doc: &Document,
     tpath: &str,
 ) -> Result<Vec<Option<usize>>> {
@@ -638,15 +632,15 @@ fn match_rows(
         let hits: Vec<usize> = lv
             .iter()
             .enumerate()
-            .filter(|(_, l)| l.name == r.name || l.alias.as_deref() == Some(r.name.as_str()))
+            .filter(|(_, l)| l.name == r.name || alias(l).as_deref() == Some(r.name.as_str()))
             .map(|(i, _)| i)
             .collect();
         match hits.as_slice() {
             [] => {
                 let names: Vec<String> = lv
                     .iter()
-                    .map(|l| match &l.alias {
-                        Some(a) if *a != l.name => format!("{} ({a})", l.name),
+                    .map(|l| match alias(l) {
+                        Some(a) if a != l.name => format!("{} ({a})", l.name),
                         _ => l.name.clone(),
                     })
                     .collect();
@@ -787,13 +781,13 @@ fn linear_stiffness(
 }
 
 /// One curve per DoF: the table's curve, else its linear stiffness.
-fn curves(row: Option<&Row>, all: Option<&Row>, ctx: &str) -> Result<[CurveSpec; 6]> {
-    let mut curves: Vec<CurveSpec> = Vec::with_capacity(6);
+fn curves(row: Option<&Row>, all: Option<&Row>, ctx: &str) -> Result<[Curve; 6]> {
+    let mut curves: Vec<Curve> = Vec::with_capacity(6);
     for i in 0..6 {
         let cv = match pick(row, all, |r| r.curves[i].clone()) {
             Some(cv) => cv,
             None => match pick(row, all, |r| r.stiffness[i]) {
-                Some(k) => CurveSpec::Linear { k },
+                Some(k) => Curve::Linear { k },
                 None => {
                     return Err(Error::invalid(
                         ctx,
@@ -839,18 +833,18 @@ fn expr_num(x: f64) -> String {
     }
 }
 
-fn curve_expr(c: &CurveSpec, dof: usize) -> Option<String> {
+fn curve_expr(c: &Curve, dof: usize) -> Option<String> {
     let v = VARIABLES[dof];
     Some(match c {
-        CurveSpec::Linear { k } => format!("{}*{v}", expr_num(*k)),
-        CurveSpec::Cubic { k, c } => format!("{}*{v}+{}*{v}^3", expr_num(*k), expr_num(*c)),
-        CurveSpec::Sinh { k, a } => format!(
+        Curve::Linear { k } => format!("{}*{v}", expr_num(*k)),
+        Curve::Cubic { k, c } => format!("{}*{v}+{}*{v}^3", expr_num(*k), expr_num(*c)),
+        Curve::Sinh { k, a } => format!(
             "{}*{}*sinh({v}/{})",
             expr_num(*k),
             expr_num(*a),
             expr_num(*a)
         ),
-        CurveSpec::Bilinear { k_neg, k_pos } => {
+        Curve::Bilinear { k_neg, k_pos } => {
             format!(
                 "{}*min({v},0)+{}*max({v},0)",
                 expr_num(*k_neg),
@@ -875,30 +869,42 @@ fn coupled_expr(row: &[f64; 6]) -> String {
     }
 }
 
-fn function_element(c: &CurveSpec) -> Element {
-    match c {
-        CurveSpec::Linear { k } => {
+/// The OpenSim function element of curve `c` of DoF `dof`.
+fn function_element(c: &Curve, dof: usize) -> Result<Element> {
+    Ok(match c {
+        Curve::Linear { k } => {
             Element::new("LinearFunction").with_prop("coefficients", fmt_numbers(&[*k, 0.0]))
         }
-        CurveSpec::Cubic { k, c } => Element::new("PolynomialFunction")
+        Curve::Cubic { k, c } => Element::new("PolynomialFunction")
             .with_prop("coefficients", fmt_numbers(&[*c, 0.0, *k, 0.0])),
-        CurveSpec::Bilinear { k_neg, k_pos } => Element::new("PiecewiseLinearFunction")
+        Curve::Bilinear { k_neg, k_pos } => Element::new("PiecewiseLinearFunction")
             .with_prop("x", fmt_numbers(&[-1.0, 0.0, 1.0]))
             .with_prop("y", fmt_numbers(&[-k_neg, 0.0, *k_pos])),
-        CurveSpec::Points { x, y, interp } => Element::new(match interp {
-            Interp::Linear => "PiecewiseLinearFunction",
-            Interp::Spline => "SimmSpline",
-        })
-        .with_prop("x", fmt_numbers(x))
-        .with_prop("y", fmt_numbers(y)),
-        CurveSpec::Polynomial { coefficients } => {
+        Curve::Function(OFunction::Polynomial(coefficients)) => {
             Element::new("PolynomialFunction").with_prop("coefficients", fmt_numbers(coefficients))
         }
+        Curve::Function(f) => {
+            let Some((x, y, interp)) = curve_points(c) else {
+                return Err(Error::invalid(
+                    "stiffness writer",
+                    format!(
+                        "curve {}: not a curve a stiffness table states ({f:?})",
+                        DOF_NAMES[dof]
+                    ),
+                ));
+            };
+            Element::new(match interp {
+                Interp::Linear => "PiecewiseLinearFunction",
+                Interp::Spline => "SimmSpline",
+            })
+            .with_prop("x", fmt_numbers(x))
+            .with_prop("y", fmt_numbers(y))
+        }
         // not reached: sinh laws are written as expressions
-        CurveSpec::Sinh { k, .. } => {
+        Curve::Sinh { k, .. } => {
             Element::new("LinearFunction").with_prop("coefficients", fmt_numbers(&[*k, 0.0]))
         }
-    }
+    })
 }
 
 /// The OpenSim class a law is written as.
@@ -906,7 +912,7 @@ fn class_of(law: &LevelLaw) -> &'static str {
     match law {
         LevelLaw::Linear { .. } => "BushingForce",
         LevelLaw::Nonlinear { curves, .. } => {
-            if curves.iter().any(|c| matches!(c, CurveSpec::Sinh { .. })) {
+            if curves.iter().any(|c| matches!(c, Curve::Sinh { .. })) {
                 "ExpressionBasedBushingForce"
             } else {
                 "FunctionBasedBushingForce"
@@ -917,7 +923,7 @@ fn class_of(law: &LevelLaw) -> &'static str {
 }
 
 /// The law's properties, in the order OpenSim writes them.
-fn law_props(law: &LevelLaw) -> Vec<Element> {
+fn law_props(law: &LevelLaw) -> Result<Vec<Element>> {
     let c = law.damping();
     let damping = [
         Element::new("rotational_damping").with_text(fmt_numbers(&c[..3])),
@@ -930,8 +936,8 @@ fn law_props(law: &LevelLaw) -> Vec<Element> {
             out.push(Element::new("translational_stiffness").with_text(fmt_numbers(&k[3..])));
         }
         LevelLaw::Nonlinear { curves, .. } if class_of(law) == "FunctionBasedBushingForce" => {
-            for (prop, cv) in FBBF_FUNCTIONS.iter().zip(curves.iter()) {
-                out.push(Element::new(*prop).with_child(function_element(cv)));
+            for (i, (prop, cv)) in FBBF_FUNCTIONS.iter().zip(curves.iter()).enumerate() {
+                out.push(Element::new(*prop).with_child(function_element(cv, i)?));
             }
         }
         LevelLaw::Nonlinear { curves, .. } => {
@@ -953,7 +959,7 @@ fn law_props(law: &LevelLaw) -> Vec<Element> {
         }
     }
     out.extend(damping);
-    out
+    Ok(out)
 }
 
 /// Properties a bushing keeps when its law changes (everything that is not a law property).
@@ -973,7 +979,7 @@ fn is_law_prop(tag: &str) -> bool {
 
 /// The bushing element `e` rewritten with `law`: same name, sockets, frames
 /// and other non-law properties; class per [`class_of`].
-fn rewrite_bushing(e: &Element, law: &LevelLaw) -> Element {
+fn rewrite_bushing(e: &Element, law: &LevelLaw) -> Result<Element> {
     let mut out = Element::new(class_of(law));
     out.attrs = e.attrs.clone();
     out.line = 0;
@@ -992,15 +998,18 @@ fn rewrite_bushing(e: &Element, law: &LevelLaw) -> Element {
             _ => {}
         }
     }
-    for p in law_props(law) {
+    for p in law_props(law)? {
         out.children.push(Node::Element(p));
     }
-    out
+    Ok(out)
 }
 
 /// Write the laws into the document. A bushing whose current law equals the
-/// new one is left untouched. Returns the names of the bushings rewritten.
-pub fn apply(doc: &mut Document, laws: &[(ModelLevel, LevelLaw)]) -> Result<Vec<String>> {
+/// new one is left untouched. Returns the levels whose bushing was rewritten.
+pub fn apply<'a>(
+    doc: &mut Document,
+    laws: &'a [(BushingLevel, LevelLaw)],
+) -> Result<Vec<&'a BushingLevel>> {
     let file = doc.path().to_path_buf();
     let mut changed = Vec::new();
     for (l, law) in laws {
@@ -1013,9 +1022,9 @@ pub fn apply(doc: &mut Document, laws: &[(ModelLevel, LevelLaw)]) -> Result<Vec<
         if read_law(e, &file).ok().as_ref() == Some(law) && e.name == class_of(law) {
             continue;
         }
-        let new = rewrite_bushing(e, law);
+        let new = rewrite_bushing(e, law)?;
         doc.replace_component("ForceSet", &l.bushing, new)?;
-        changed.push(l.bushing.clone());
+        changed.push(l);
     }
     Ok(changed)
 }
@@ -1029,24 +1038,16 @@ pub fn law_of_model(
     m: &crate::solver::BushingModel,
     expressions: Option<&[String; 6]>,
 ) -> Result<LevelLaw> {
-    use crate::solver::{BushingModel, Curve};
+    use crate::solver::BushingModel;
     let c = m.damping();
-    let curve = |cv: &Curve| -> Result<CurveSpec> {
-        Ok(match cv {
-            Curve::Linear { k } => CurveSpec::Linear { k: *k },
-            Curve::Cubic { k, c } => CurveSpec::Cubic { k: *k, c: *c },
-            Curve::Sinh { k, a } => CurveSpec::Sinh { k: *k, a: *a },
-            Curve::Bilinear { k_neg, k_pos } => CurveSpec::Bilinear {
-                k_neg: *k_neg,
-                k_pos: *k_pos,
-            },
-            Curve::Function(_) => {
-                return Err(Error::invalid(
-                    "stiffness writer",
-                    "a tabulated solver curve cannot be converted to a table law",
-                ))
-            }
-        })
+    let curve = |cv: &Curve| -> Result<Curve> {
+        match cv {
+            Curve::Function(_) => Err(Error::invalid(
+                "stiffness writer",
+                "a tabulated solver curve cannot be converted to a table law",
+            )),
+            _ => Ok(cv.clone()),
+        }
     };
     Ok(match m {
         BushingModel::Linear { .. } => {
@@ -1057,8 +1058,8 @@ pub fn law_of_model(
             }
         }
         BushingModel::PerDof { curves, .. } => {
-            let specs: Vec<CurveSpec> = curves.iter().map(curve).collect::<Result<_>>()?;
-            let curves: [CurveSpec; 6] = specs
+            let specs: Vec<Curve> = curves.iter().map(curve).collect::<Result<_>>()?;
+            let curves: [Curve; 6] = specs
                 .try_into()
                 .map_err(|_| Error::invalid("stiffness writer", "six curves expected"))?;
             LevelLaw::Nonlinear {
@@ -1088,6 +1089,7 @@ mod tests {
 
     #[test]
     fn anatomical_aliases() {
+        let alias = |b1: &str, b2: &str| alias(&BushingLevel::new("b", b1, b2));
         assert_eq!(alias("sacrum", "lumbar5").as_deref(), Some("L5_S1"));
         assert_eq!(alias("L5", "sacrum").as_deref(), Some("L5_S1"));
         assert_eq!(alias("thoracic12", "lumbar1").as_deref(), Some("T12_L1"));
@@ -1101,17 +1103,28 @@ mod tests {
     }
 
     #[test]
+    fn bodies_are_put_cranial_first() {
+        let pair = |b1: &str, b2: &str| cranial_first(b1.into(), b2.into());
+        let lumbar = ("lumbar5".to_string(), "sacrum".to_string());
+        assert_eq!(pair("sacrum", "lumbar5"), lumbar);
+        assert_eq!(pair("lumbar5", "sacrum"), lumbar);
+        assert_eq!(pair("T2", "T3"), ("T2".into(), "T3".into()));
+        // without vertebral names: socket 2's body first
+        assert_eq!(pair("pelvis", "torso"), ("torso".into(), "pelvis".into()));
+    }
+
+    #[test]
     fn written_expressions_are_recognised_exactly() {
         let curves = [
-            CurveSpec::Sinh { k: 68.8, a: 0.05 },
-            CurveSpec::Cubic { k: 291.0, c: -12.5 },
-            CurveSpec::Bilinear {
+            Curve::Sinh { k: 68.8, a: 0.05 },
+            Curve::Cubic { k: 291.0, c: -12.5 },
+            Curve::Bilinear {
                 k_neg: 30.0,
                 k_pos: 0.1 + 0.2,
             },
-            CurveSpec::Linear { k: 149000.0 },
-            CurveSpec::Linear { k: 1.0e-7 },
-            CurveSpec::Sinh {
+            Curve::Linear { k: 149000.0 },
+            Curve::Linear { k: 1.0e-7 },
+            Curve::Sinh {
                 k: 135000.0,
                 a: 0.001,
             },

@@ -10,8 +10,10 @@
 //! [`super::resolve`] merges rows with the model and validates the laws.
 
 use crate::error::{Error, Result};
+use crate::osim::function::{CubicSpline, Function};
 use crate::osim::physics::MAX_STIFFNESS;
 use crate::solver::spec::DOF_NAMES;
+use crate::solver::Curve;
 use crate::util::table::{strip_bom, CsvReader, CsvRecord};
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -61,49 +63,34 @@ pub enum Interp {
     Spline,
 }
 
-/// A per-DoF curve `g(x)` in SI units (N m or N against rad or m).
-#[derive(Debug, Clone, PartialEq)]
-pub enum CurveSpec {
-    /// `g(x) = k x`.
-    Linear {
-        /// Stiffness (N m/rad or N/m).
-        k: f64,
-    },
-    /// `g(x) = k x + c x^3`.
-    Cubic {
-        /// Linear stiffness (N m/rad or N/m).
-        k: f64,
-        /// Cubic coefficient (N m/rad^3 or N/m^3).
-        c: f64,
-    },
-    /// `g(x) = k a sinh(x / a)`: slope `k` at 0.
-    Sinh {
-        /// Stiffness at 0 (N m/rad or N/m).
-        k: f64,
-        /// Scale of the stiffening (rad or m).
-        a: f64,
-    },
-    /// Slope `k_neg` for `x < 0`, `k_pos` for `x >= 0`.
-    Bilinear {
-        /// Stiffness for negative deflection (N m/rad or N/m).
-        k_neg: f64,
-        /// Stiffness for positive deflection (N m/rad or N/m).
-        k_pos: f64,
-    },
-    /// A curve through points, extrapolated linearly with the end slopes.
-    Points {
-        /// Deflections (rad or m), increasing.
-        x: Vec<f64>,
-        /// Generalised forces (N m or N).
-        y: Vec<f64>,
-        /// Interpolation between the points.
-        interp: Interp,
-    },
-    /// Coefficients, highest power first (OpenSim PolynomialFunction).
-    Polynomial {
-        /// Coefficients in SI units, highest power first.
-        coefficients: Vec<f64>,
-    },
+/// A curve through points `x`, `y` (the table's `points` kind): OpenSim's
+/// PiecewiseLinearFunction or, interpolated by a spline, its SimmSpline.
+/// Points a spline cannot go through (not as many values as knots, fewer
+/// than two) are kept as a PiecewiseLinearFunction, for the validation to
+/// refuse ([`super::resolve`]).
+pub fn points_curve(x: Vec<f64>, y: Vec<f64>, interp: Interp) -> Curve {
+    Curve::Function(
+        if interp == Interp::Spline && x.len() == y.len() && x.len() >= 2 {
+            Function::Spline {
+                class: "SimmSpline".into(),
+                spline: CubicSpline::new(x, y),
+            }
+        } else {
+            Function::PiecewiseLinear { x, y }
+        },
+    )
+}
+
+/// The points of a `points` curve ([`points_curve`]): `x`, `y` and the
+/// interpolation; `None` for other curves.
+pub fn curve_points(c: &Curve) -> Option<(&[f64], &[f64], Interp)> {
+    match c {
+        Curve::Function(Function::PiecewiseLinear { x, y }) => Some((x, y, Interp::Linear)),
+        Curve::Function(Function::Spline { spline, .. }) => {
+            Some((&spline.x, &spline.y, Interp::Spline))
+        }
+        _ => None,
+    }
 }
 
 /// The complete law of one level, SI units, as written into / read from a model.
@@ -121,7 +108,7 @@ pub enum LevelLaw {
     /// A curve per DoF: `f_i = -g_i(q_i) - c_i q_i'`.
     Nonlinear {
         /// Curve per DoF, rx..tz.
-        curves: Box<[CurveSpec; 6]>,
+        curves: Box<[Curve; 6]>,
         /// Damping per DoF, rx..tz (N m s/rad, then N s/m).
         c: [f64; 6],
     },
@@ -178,7 +165,7 @@ pub struct Row {
     /// Damping per DoF, rx..tz (N m s/rad, then N s/m).
     pub damping: [Option<f64>; 6],
     /// Curve per DoF (nonlinear form).
-    pub curves: [Option<CurveSpec>; 6],
+    pub curves: [Option<Curve>; 6],
     /// 6x6 stiffness, rows and columns rx..tz (coupled form, SI).
     pub matrix: Option<[[f64; 6]; 6]>,
     /// Lepton expression per DoF, rx..tz (expression form).
@@ -337,7 +324,7 @@ fn dof_map(
     Ok(out)
 }
 
-fn toml_curve(path: &Path, loc: &str, c: &TomlCurve) -> Result<(usize, CurveSpec)> {
+fn toml_curve(path: &Path, loc: &str, c: &TomlCurve) -> Result<(usize, Curve)> {
     let i = dof_index(&c.dof).ok_or_else(|| {
         Error::parse(
             path,
@@ -396,16 +383,16 @@ fn toml_curve(path: &Path, loc: &str, c: &TomlCurve) -> Result<(usize, CurveSpec
         ));
     }
     let spec = match c.kind.as_str() {
-        "linear" => CurveSpec::Linear { k: need(c.k, "k")? },
-        "cubic" => CurveSpec::Cubic {
+        "linear" => Curve::Linear { k: need(c.k, "k")? },
+        "cubic" => Curve::Cubic {
             k: need(c.k, "k")?,
             c: need(c.c, "c")?,
         },
-        "sinh" => CurveSpec::Sinh {
+        "sinh" => Curve::Sinh {
             k: need(c.k, "k")?,
             a: need(c.a, "a")?,
         },
-        "bilinear" => CurveSpec::Bilinear {
+        "bilinear" => Curve::Bilinear {
             k_neg: need(c.k_neg, "k_neg")?,
             k_pos: need(c.k_pos, "k_pos")?,
         },
@@ -428,17 +415,11 @@ fn toml_curve(path: &Path, loc: &str, c: &TomlCurve) -> Result<(usize, CurveSpec
                     "a 'points' curve needs `x` and `y`",
                 ));
             };
-            CurveSpec::Points {
-                x: x.clone(),
-                y: y.clone(),
-                interp,
-            }
+            points_curve(x.clone(), y.clone(), interp)
         }
-        _ => CurveSpec::Polynomial {
-            coefficients: c.coefficients.clone().ok_or_else(|| {
-                Error::parse(path, &cl, "a 'polynomial' curve needs `coefficients`")
-            })?,
-        },
+        _ => Curve::Function(Function::Polynomial(c.coefficients.clone().ok_or_else(
+            || Error::parse(path, &cl, "a 'polynomial' curve needs `coefficients`"),
+        )?)),
     };
     Ok((i, spec))
 }
@@ -953,37 +934,43 @@ fn toml_text(comments: &[String], levels: &[(String, LevelLaw, Option<[f64; 6]>)
                     s.push_str("[[level.curve]]\n");
                     s.push_str(&format!("dof = \"{d}\"\n"));
                     match cv {
-                        CurveSpec::Linear { k } => {
+                        Curve::Linear { k } => {
                             s.push_str(&format!("kind = \"linear\"\nk = {}\n", num(*k)))
                         }
-                        CurveSpec::Cubic { k, c } => s.push_str(&format!(
+                        Curve::Cubic { k, c } => s.push_str(&format!(
                             "kind = \"cubic\"\nk = {}\nc = {}\n",
                             num(*k),
                             num(*c)
                         )),
-                        CurveSpec::Sinh { k, a } => s.push_str(&format!(
+                        Curve::Sinh { k, a } => s.push_str(&format!(
                             "kind = \"sinh\"\nk = {}\na = {}\n",
                             num(*k),
                             num(*a)
                         )),
-                        CurveSpec::Bilinear { k_neg, k_pos } => s.push_str(&format!(
+                        Curve::Bilinear { k_neg, k_pos } => s.push_str(&format!(
                             "kind = \"bilinear\"\nk_neg = {}\nk_pos = {}\n",
                             num(*k_neg),
                             num(*k_pos)
                         )),
-                        CurveSpec::Points { x, y, interp } => s.push_str(&format!(
-                            "kind = \"points\"\ninterp = \"{}\"\nx = {}\ny = {}\n",
-                            match interp {
-                                Interp::Linear => "linear",
-                                Interp::Spline => "spline",
-                            },
-                            nums(x),
-                            nums(y)
-                        )),
-                        CurveSpec::Polynomial { coefficients } => s.push_str(&format!(
-                            "kind = \"polynomial\"\ncoefficients = {}\n",
-                            nums(coefficients)
-                        )),
+                        Curve::Function(Function::Polynomial(coefficients)) => {
+                            s.push_str(&format!(
+                                "kind = \"polynomial\"\ncoefficients = {}\n",
+                                nums(coefficients)
+                            ))
+                        }
+                        Curve::Function(f) => match curve_points(cv) {
+                            Some((x, y, interp)) => s.push_str(&format!(
+                                "kind = \"points\"\ninterp = \"{}\"\nx = {}\ny = {}\n",
+                                match interp {
+                                    Interp::Linear => "linear",
+                                    Interp::Spline => "spline",
+                                },
+                                nums(x),
+                                nums(y)
+                            )),
+                            // not reached: models' and tables' curves are stated by a kind
+                            None => s.push_str(&format!("# not a curve a table states: {f:?}\n")),
+                        },
                     }
                 }
             }

@@ -21,10 +21,17 @@ const EXTENSIONS: [&str; 4] = ["stl", "obj", "vtp", "ply"];
 
 use crate::mesh::MAX_MESH_BYTES;
 
-/// The level files of a folder, by level (one or, for TotalSegmentator's
-/// sacrum, two files), and notes on the files ignored.
-#[allow(clippy::type_complexity)]
-pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<String>)> {
+/// The mesh files of a folder named by a level, and what was left out.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LevelFiles {
+    /// The files of each level (one or, for TotalSegmentator's sacrum, two).
+    pub by_level: BTreeMap<Level, Vec<PathBuf>>,
+    /// Notes on the files ignored.
+    pub notes: Vec<String>,
+}
+
+/// The level files of a folder (see [`LevelFiles`]).
+pub fn level_files(dir: &Path) -> Result<LevelFiles> {
     let rd = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
     let mut paths: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();
     paths.sort();
@@ -83,7 +90,7 @@ pub fn level_files(dir: &Path) -> Result<(BTreeMap<Level, Vec<PathBuf>>, Vec<Str
             masks.join(", ")
         ));
     }
-    Ok((by_level, notes))
+    Ok(LevelFiles { by_level, notes })
 }
 
 /// The stem of a mesh file name (`vertebrae_L3` of `vertebrae_L3.stl`),

@@ -233,7 +233,10 @@ pub fn source_name(path: &Path) -> String {
 
 /// A folder of per-level meshes.
 fn load_folder(dir: &Path, opts: &Options) -> Result<Loaded> {
-    let (files, notes) = folder::level_files(dir)?;
+    let folder::LevelFiles {
+        by_level: files,
+        notes,
+    } = folder::level_files(dir)?;
     if files.is_empty() {
         return Err(Error::invalid(
             dir.display().to_string(),

@@ -45,6 +45,19 @@ pub fn bounded_list(items: &[String], n: usize) -> String {
     s
 }
 
+/// `items` written one after another with `sep` between them (a list of
+/// levels or segments in a console line).
+pub fn joined<T: std::fmt::Display>(items: &[T], sep: &str) -> String {
+    let mut s = String::new();
+    for (i, x) in items.iter().enumerate() {
+        if i > 0 {
+            s.push_str(sep);
+        }
+        s.push_str(&x.to_string());
+    }
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -390,7 +390,11 @@ pub(super) fn write_placeholder_rows(
     let mut t = String::from("case,upper,lower,rx,ry,rz,tx,ty,tz\n");
     for c in &cases {
         for lv in &levels {
-            let _ = writeln!(t, "{},{},{},0,0,0,,,", c.id, lv.upper_name, lv.lower_name);
+            let _ = writeln!(
+                t,
+                "{},{},{},0,0,0,,,",
+                c.id, lv.level.upper_body, lv.level.lower_body
+            );
         }
     }
     crate::util::write_atomic(&dir.join("kinematics.csv"), t.as_bytes())

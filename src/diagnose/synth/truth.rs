@@ -200,7 +200,7 @@ fn add_effect(
             let _ = write!(
                 notes,
                 "; {} x{:.3}/{:.3}/{:.3}",
-                c.sim.levels[c.li].name, f[0], f[1], f[2]
+                c.sim.levels[c.li].level.name, f[0], f[1], f[2]
             );
             return None;
         }
@@ -225,7 +225,7 @@ fn add_effect(
             for k in p.k.iter_mut().take(3) {
                 *k *= m * (0.05 * c.n.sample(rng)).exp();
             }
-            let _ = write!(notes, "; {} x{m:.3}", c.sim.levels[c.li].name);
+            let _ = write!(notes, "; {} x{m:.3}", c.sim.levels[c.li].level.name);
         }
         Effect::NonlinearStiffness => add_nonlinear(d, p),
         Effect::AsymmetricStiffness => add_asymmetry(d, p),
@@ -456,7 +456,7 @@ pub(super) fn truth_system(
     }
     let levels = (0..nl)
         .filter(|&li| masks.iter().any(|m| m[li]))
-        .map(|li| sim.levels[li].name.clone())
+        .map(|li| sim.levels[li].level.name.clone())
         .collect();
     let truth = Truth {
         effect: spec.effect,
