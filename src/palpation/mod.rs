@@ -329,7 +329,7 @@ pub fn palpate_vertebra(
     place_endplate_landmarks(&st, level, &mut landmarks, &mut findings);
     place_pedicles(&ctx, &st, level, &mut landmarks)?;
     // How far each landmark moves with the endplate regions' angle bound.
-    for (code, s) in spread::region_spread(&st) {
+    for (code, s) in spread::region_spread(&st, &landmarks) {
         if let Some(l) = landmarks.get_mut(&code) {
             l.spread = s;
         }
