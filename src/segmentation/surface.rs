@@ -153,13 +153,17 @@ fn boundary_voxels(
     for k in PAD..size[2] - PAD {
         for j in PAD..size[1] - PAD {
             for i in PAD..size[0] - PAD {
-                let edge = !(at(i - 1, j, k)
+                if !at(i, j, k) {
+                    continue;
+                }
+                // Inside, with a face-neighbour outside.
+                let interior = at(i - 1, j, k)
                     && at(i + 1, j, k)
                     && at(i, j - 1, k)
                     && at(i, j + 1, k)
                     && at(i, j, k - 1)
-                    && at(i, j, k + 1));
-                if at(i, j, k) && edge {
+                    && at(i, j, k + 1);
+                if !interior {
                     let ijk = [i, j, k].map(|c| c as f64 - PAD as f64);
                     centres.push(map.world(&Point3::new(
                         ijk[0] + min[0] as f64,
