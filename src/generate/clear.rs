@@ -35,8 +35,10 @@ use std::collections::{BTreeMap, BTreeSet};
 
 /// Distance kept between a via point and the bone surface (m).
 pub const CLEARANCE: f64 = 0.002;
-/// Largest detour searched (m).
-pub(crate) const MAX_OFFSET: f64 = 0.05;
+/// Offset step of the detour search (m).
+const OFFSET_STEP: f64 = 0.001;
+/// Offset steps searched: detours up to 50 mm from the chord.
+const OFFSET_STEPS: usize = 50;
 /// Rounds of the crossing fix.
 pub(crate) const MAX_ROUNDS: usize = 12;
 /// Length (m) a new segment may run inside another vertebra's mesh (a
@@ -334,8 +336,8 @@ type Candidate = (f64, f64, Point3<f64>);
 
 /// The detours found from one start.
 struct Detour {
-    /// The shortest clearing one (detour length, point).
-    clear: Option<(f64, Point3<f64>)>,
+    /// The shortest clearing one (offset steps, point).
+    clear: Option<(usize, Point3<f64>)>,
     /// The least-inside graze under [`FALLBACK_INSIDE`] (inside, detour,
     /// point).
     graze: Option<Candidate>,
@@ -360,22 +362,24 @@ fn detour_from(
     a: &Point3<f64>,
     b: &Point3<f64>,
 ) -> Detour {
-    let mut best: Option<(f64, Point3<f64>)> = None;
+    let mut best: Option<(usize, Point3<f64>)> = None;
     let mut fallback: Option<Candidate> = None;
     let mut least: Option<Candidate> = None;
     for i in 0..36 {
         let th = (i as f64) * std::f64::consts::TAU / 36.0;
         let d = u * th.cos() + v * th.sin();
-        let mut t = 0.001;
-        while t <= MAX_OFFSET {
+        for step in 1..=OFFSET_STEPS {
+            let t = step as f64 * OFFSET_STEP;
             let p = mid + d * t;
             let g = x * p;
             let detour = (g - a).norm() + (b - g).norm();
-            // The detour grows with `t` (the direction is perpendicular to
-            // the chord through `mid`): past the shortest clearing one,
-            // nothing further out can replace it, and the grazes are not
-            // used once a detour clears.
-            if best.is_some_and(|(bd, _)| detour >= bd) {
+            // The detour depends on the offset alone (every direction is
+            // perpendicular to the chord through `mid`), so offsets are
+            // compared as whole steps: equal ones tie exactly and the first
+            // direction keeps the place, not the round-off of the lengths.
+            // Past the shortest clearing offset nothing can replace it, and
+            // the grazes are not used once a detour clears.
+            if best.is_some_and(|(bs, _)| step >= bs) {
                 break;
             }
             let wanted = match (best, least) {
@@ -386,9 +390,7 @@ fn detour_from(
             if let Some(fit) = score(&p, &g, wanted) {
                 match fit {
                     Fit::Clear => {
-                        if best.map(|(bd, _)| detour < bd).unwrap_or(true) {
-                            best = Some((detour, g));
-                        }
+                        best = Some((step, g));
                         break;
                     }
                     Fit::Graze(inside) => {
@@ -404,7 +406,6 @@ fn detour_from(
                     }
                 }
             }
-            t += 0.001;
         }
     }
     Detour {
@@ -522,5 +523,42 @@ fn remove_path_wrap(doc: &mut Document, muscle: &str, sphere: &str) {
             Node::Element(e) => e.child_text("wrap_object").as_deref() != Some(sphere),
             _ => true,
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A point clears once it is 3 mm from the chord, whatever the
+    /// direction: every direction ties at the third step, and the first
+    /// one (`u`) keeps the place, as the search's steps are compared
+    /// exactly, not through the round-off of the detour lengths.
+    #[test]
+    fn equal_offsets_keep_the_first_direction() {
+        let (a, b) = (Point3::new(0.0, -0.1, 0.0), Point3::new(0.0, 0.2, 0.0));
+        let mid = Point3::new(0.0, 0.05, 0.0);
+        let (u, v) = (Vector3::z(), Vector3::x());
+        let x = nalgebra::Isometry3::translation(0.01, -0.02, 0.03);
+        let score = |p: &Point3<f64>, _: &Point3<f64>, _: Wanted| {
+            ((p - mid).norm() > 0.0025).then_some(Fit::Clear)
+        };
+        let found = detour_from(&mid, &u, &v, &x, score, &(x * a), &(x * b));
+        let (steps, g) = found.clear.expect("a clearing detour");
+        assert_eq!(steps, 3);
+        assert!((g - x * (mid + u * 0.003)).norm() < 1e-15, "{g}");
+    }
+
+    /// Offsets up to 50 mm are searched, the last one included.
+    #[test]
+    fn the_largest_offset_is_searched() {
+        let (a, b) = (Point3::new(0.0, -0.1, 0.0), Point3::new(0.0, 0.2, 0.0));
+        let mid = Point3::new(0.0, 0.05, 0.0);
+        let x = nalgebra::Isometry3::identity();
+        let score = |p: &Point3<f64>, _: &Point3<f64>, _: Wanted| {
+            ((p - mid).norm() > 0.0495).then_some(Fit::Clear)
+        };
+        let found = detour_from(&mid, &Vector3::z(), &Vector3::x(), &x, score, &a, &b);
+        assert_eq!(found.clear.map(|c| c.0), Some(50));
     }
 }
