@@ -136,6 +136,7 @@ pub fn fit(
         gtol: 1e-8,
         xtol: 1e-7,
         ftol: 1e-7,
+        ..LmOptions::default()
     };
     let res = lm::minimize(f, &family.x0, &family.lo, &family.hi, &opts)?;
     let se = standard_errors(&res.jac);

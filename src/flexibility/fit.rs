@@ -335,6 +335,7 @@ impl<'a> Problem<'a> {
             gtol: 1e-10,
             xtol: 1e-10,
             ftol: 1e-12,
+            ..LmOptions::default()
         };
         lm::minimize(|p, j| self.eval(p, j), p0, &lo, &hi, &opts)
     }

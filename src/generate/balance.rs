@@ -26,8 +26,11 @@ use crate::base::kin::Kinematics;
 use crate::landmarks::{Code, Level};
 use crate::osim::model::{JointFrames, Model};
 use crate::osim::Document;
+use crate::util::lm::{self, LmOptions};
 use crate::{Error, Result};
-use nalgebra::{Isometry3, Matrix2, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
+use nalgebra::{
+    DMatrix, DVector, Isometry3, Point3, Translation3, UnitQuaternion, Vector2, Vector3,
+};
 use std::collections::BTreeMap;
 
 /// Largest frontal bend added at one unmeasured joint (deg): the steepest
@@ -148,7 +151,7 @@ pub fn place_above_fov(
     let x_top = poses[&top.body_name()];
     // Solve the curve (balance) or keep zeros.
     let (thetas, bend_limited) = match mode {
-        AboveFov::Balance => solve_curve(&links, &x_top, &t1, s1_sec),
+        AboveFov::Balance => solve_curve(&links, &x_top, &t1, s1_sec)?,
         AboveFov::Keep => (vec![0.0; links.len()], false),
     };
     if mode == AboveFov::Balance {
@@ -264,87 +267,89 @@ fn solve_curve(
     x_top: &Isometry3<f64>,
     t1: &T1Markers,
     s1_sec: Point3<f64>,
-) -> (Vec<f64>, bool) {
+) -> Result<(Vec<f64>, bool)> {
     let n = links.len();
     // Level T1 with an even bend (position ignored).
-    let (q, limited) = fit_curve(links, x_top, t1, s1_sec, None);
+    let (q, limited) = fit_curve(links, x_top, t1, s1_sec, None)?;
     let even = curve(&q, n);
     let (c, _) = t1_state(links, x_top, &even, t1);
     let off = c.z - s1_sec.z;
     let tol = CORONAL_BALANCE_MM * 1e-3;
     if off.abs() <= tol {
-        return (even, limited);
+        return Ok((even, limited));
     }
     // Too far off: bring T1 to the edge of the balanced range.
-    let (q, limited) = fit_curve(links, x_top, t1, s1_sec, Some(tol.copysign(off)));
-    (curve(&q, n), limited)
+    let (q, limited) = fit_curve(links, x_top, t1, s1_sec, Some(tol.copysign(off)))?;
+    Ok((curve(&q, n), limited))
 }
 
-/// Solve `q` by projected Gauss-Newton (finite-difference Jacobian, both
-/// ends kept within [`MAX_BEND_DEG`]) so that T1 is level and, with
-/// `target` (m), its centre lies `target` to the right of the vertical
-/// through `s1_sec`; without it the bend is even (`q.x = q.y`) and only
-/// the tilt counts. Returns `q` and whether a bound was reached.
+/// Solve `q` by the one least-squares optimiser (finite-difference
+/// Jacobian, both ends kept within [`MAX_BEND_DEG`]) so that T1 is level
+/// and, with `target` (m), its centre lies `target` to the right of the
+/// vertical through `s1_sec`; without it the bend is even (`q.x = q.y`,
+/// one unknown) and only the tilt counts. Returns `q` and whether a bound
+/// was reached.
 fn fit_curve(
     links: &[Link],
     x_top: &Isometry3<f64>,
     t1: &T1Markers,
     s1_sec: Point3<f64>,
     target: Option<f64>,
-) -> (Vector2<f64>, bool) {
+) -> Result<(Vector2<f64>, bool)> {
     let n = links.len();
     let cap = MAX_BEND_DEG.to_radians();
     // Lateral offset over the chain length: both residuals in radians.
     let (c0, _) = t1_state(links, x_top, &vec![0.0; n], t1);
     let len = (c0 - x_top.translation.vector).coords.norm().max(1e-3);
-    // T1 at its place first: when the bends are limited, a T1 that leans
-    // is better than one that stands off to the side.
-    let resid = |q: &Vector2<f64>| {
-        let (c, a) = t1_state(links, x_top, &curve(q, n), t1);
-        let pos = target.map_or(0.0, |t| POSITION_WEIGHT * (c.z - s1_sec.z - t) / len);
-        Vector2::new(pos, a.z.atan2(a.y))
-    };
     // Both ends move together for an even bend or a single joint.
     let even = target.is_none() || n == 1;
-    let clamp = |q: Vector2<f64>| {
-        let q = q.map(|v| v.clamp(-cap, cap));
+    let ends = |x: &[f64]| {
         if even {
-            Vector2::new(q.x, q.x)
+            Vector2::new(x[0], x[0])
         } else {
-            q
+            Vector2::new(x[0], x[1])
         }
     };
-    let mut q = Vector2::zeros();
-    for _ in 0..50 {
-        let r = resid(&q);
-        if r.norm() < 1e-12 {
-            break;
-        }
-        let h = 1e-7;
-        let jx = if even {
-            (resid(&(q + Vector2::new(h, h))) - r) / h
-        } else {
-            (resid(&(q + Vector2::new(h, 0.0))) - r) / h
+    // T1 at its place first: when the bends are limited, a T1 that leans
+    // is better than one that stands off to the side.
+    let resid = |x: &[f64]| {
+        let (c, a) = t1_state(links, x_top, &curve(&ends(x), n), t1);
+        let pos = target.map_or(0.0, |t| POSITION_WEIGHT * (c.z - s1_sec.z - t) / len);
+        DVector::from_vec(vec![pos, a.z.atan2(a.y)])
+    };
+    let unknowns = if even { 1 } else { 2 };
+    let residuals =
+        |x: &[f64], want_jacobian: bool| -> Result<(DVector<f64>, Option<DMatrix<f64>>)> {
+            let r = resid(x);
+            let jac = want_jacobian.then(|| {
+                let h = 1e-7;
+                let columns: Vec<DVector<f64>> = (0..unknowns)
+                    .map(|k| {
+                        let mut xh = x.to_vec();
+                        xh[k] += h;
+                        (resid(&xh) - &r) / h
+                    })
+                    .collect();
+                DMatrix::from_columns(&columns)
+            });
+            Ok((r, jac))
         };
-        let jy = if even {
-            Vector2::zeros()
-        } else {
-            (resid(&(q + Vector2::new(0.0, h))) - r) / h
-        };
-        let j = Matrix2::from_columns(&[jx, jy]);
-        // Damped normal equations (an even bend has a zero column).
-        let jtj = j.transpose() * j + Matrix2::identity() * 1e-12;
-        let Some(step) = jtj.try_inverse().map(|m| m * (j.transpose() * r)) else {
-            break;
-        };
-        let next = clamp(q - step);
-        if (next - q).norm() < 1e-14 {
-            break;
-        }
-        q = next;
-    }
+    let fit = lm::minimize(
+        residuals,
+        &vec![0.0; unknowns],
+        &vec![-cap; unknowns],
+        &vec![cap; unknowns],
+        // The residuals reach zero unless a bend is limited: iterate to
+        // round-off, not to a relative gradient.
+        &LmOptions {
+            gtol: 0.0,
+            xtol: 1e-14,
+            ..LmOptions::default()
+        },
+    )?;
+    let q = ends(&fit.x);
     let limited = q.iter().any(|v| v.abs() >= cap * (1.0 - 1e-9));
-    (q, limited)
+    Ok((q, limited))
 }
 
 /// Write the bent joint frames: each parent frame turned about the joint

@@ -28,14 +28,14 @@
 //!   maximises the restricted marginal likelihood (Laplace on the model
 //!   linearised at the fits, `l(s) = -F/2 - m ln|s| - ln det(H)/2`, `m`
 //!   joints); a spine whose joints do shear gets a large `s` and keeps its
-//!   fits. The posterior mode is then refined by Gauss-Newton on the exact
-//!   (non-linear) mismatch.
+//!   fits. The posterior mode is then refined by the crate's least-squares
+//!   optimiser on the exact (non-linear) mismatch.
 //!
 //! Unlike a smoothness prior on the orientations, this one does not
 //! flatten a curve: a spine posed by rotations about its joints has zero
 //! mismatch whatever its curvature, so the estimate is unbiased for it.
 
-use super::smooth::maximise;
+use super::smooth::{maximise, posterior_mode, Posterior};
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
 
@@ -246,27 +246,17 @@ pub fn smooth_chain(
     }
     let s = log_s.map(f64::exp);
     let log_ml_at_s = log_ml(&s)?;
-    // Posterior mode on the exact mismatch (Gauss-Newton from the linear
-    // solution).
-    let lam = DVector::from_fn(e0.len(), |k, _| 1.0 / (s[k % 3] * s[k % 3]));
-    let mut x = linear_mode(&w, &jac, &e0, &s)?.x;
-    let mut hessian = DMatrix::zeros(dim, dim);
-    for _ in 0..10 {
-        let e = mismatch(v, joints, &x);
-        let jx = jacobian(v, joints, &x);
-        let lj = DMatrix::from_diagonal(&lam) * &jx;
-        hessian = &w + jx.transpose() * &lj;
-        let grad = &w * &x + lj.transpose() * &e;
-        let step = hessian
-            .clone()
-            .cholesky()
-            .ok_or_else(not_pd)?
-            .solve(&(-grad));
-        x += &step;
-        if step.amax() < 1e-12 {
-            break;
-        }
-    }
+    // Posterior mode on the exact mismatch, from the linear solution.
+    let lam_sqrt = DVector::from_fn(e0.len(), |k, _| 1.0 / s[k % 3]);
+    let start = linear_mode(&w, &jac, &e0, &s)?.x;
+    let Posterior { x, hessian, .. } = posterior_mode(
+        "chain smoothing",
+        &w,
+        &lam_sqrt,
+        &start,
+        |x| mismatch(v, joints, x),
+        |x| jacobian(v, joints, x),
+    )?;
     let cov = hessian.cholesky().ok_or_else(not_pd)?.inverse();
     let effective_dof = (0..6 * n)
         .map(|r| (0..6 * n).map(|c| cov[(r, c)] * w[(c, r)]).sum::<f64>())

@@ -28,7 +28,8 @@
 //!   prior (the improper directions, constant and uniformly changing
 //!   rotations, are integrated out). Grid over `log tau` then golden
 //!   section.
-//! * **Posterior**: mode by Gauss-Newton on `theta` (exact on the
+//! * **Posterior**: mode by the crate's least-squares optimiser
+//!   ([`crate::util::lm`]) on `theta` (exact on the
 //!   manifold: `d` is evaluated from the rotations `exp(theta_i) R_i`),
 //!   covariance `H^-1`. The posterior rotations replace the fitted ones;
 //!   each vertebra is turned about the centroid of its landmarks, so the
@@ -38,6 +39,7 @@
 //! of fewer than [`MIN_LEVELS`] vertebrae are not smoothed.
 
 use crate::error::{Error, Result};
+use crate::util::lm::{self, LmOptions};
 use nalgebra::{DMatrix, DVector, Matrix3, Point3, UnitQuaternion, Vector3};
 
 /// Fewest vertebrae in the chain for smoothing (a second difference needs
@@ -220,30 +222,98 @@ fn mode(
     tau: &Vector3<f64>,
     start: &DVector<f64>,
 ) -> Result<Mode> {
-    let lam = weights(3 * r.len().saturating_sub(2), tau);
-    let not_pd = || Error::numerical("orientation smoothing", "posterior precision not positive");
-    let mut theta = start.clone();
-    for _ in 0..30 {
-        let d = second_differences(r, &theta);
-        let jac = jacobian(r, &theta);
-        let lj = DMatrix::from_diagonal(&lam) * &jac;
-        let h = w + jac.transpose() * &lj;
-        let grad = w * &theta + lj.transpose() * &d;
-        let step = h.cholesky().ok_or_else(not_pd)?.solve(&(-grad));
-        theta += &step;
-        if step.amax() < 1e-10 {
-            break;
-        }
-    }
-    let d = second_differences(r, &theta);
-    let jac = jacobian(r, &theta);
-    let hessian = w + jac.transpose() * DMatrix::from_diagonal(&lam) * &jac;
-    let objective = theta.dot(&(w * &theta)) + d.component_mul(&d).dot(&lam);
+    let lam_sqrt = weights(3 * r.len().saturating_sub(2), tau).map(f64::sqrt);
+    let post = posterior_mode(
+        "orientation smoothing",
+        w,
+        &lam_sqrt,
+        start,
+        |theta| second_differences(r, theta),
+        |theta| jacobian(r, theta),
+    )?;
     Ok(Mode {
-        theta,
-        objective,
-        hessian,
+        theta: post.x,
+        objective: post.objective,
+        hessian: post.hessian,
     })
+}
+
+/// The mode of a Gaussian posterior with data precision `w` (3x3 blocks
+/// down its diagonal; trailing unknowns without data have zero rows) and
+/// prior residuals `e(x)` of precision `lam_sqrt^2`: the one least-squares
+/// optimiser on `[L_b^T x_b; lam_sqrt e(x)]` (`W_b = L_b L_b^T`), whose
+/// squares sum to `x^T W x + e^T Lam e`, from `start`.
+pub(super) fn posterior_mode(
+    ctx: &'static str,
+    w: &DMatrix<f64>,
+    lam_sqrt: &DVector<f64>,
+    start: &DVector<f64>,
+    prior: impl Fn(&DVector<f64>) -> DVector<f64>,
+    prior_jacobian: impl Fn(&DVector<f64>) -> DMatrix<f64>,
+) -> Result<Posterior> {
+    let dim = start.len();
+    let not_pd = || Error::numerical(ctx, "posterior precision not positive");
+    // Square roots of the data blocks, up to the last non-zero one (a zero
+    // block before it is not positive definite: an error).
+    let block = |b: usize| w.fixed_view::<3, 3>(3 * b, 3 * b).into_owned();
+    let with_data = (0..dim / 3)
+        .rposition(|b| block(b).iter().any(|v| *v != 0.0))
+        .map_or(0, |last| last + 1);
+    let blocks = (0..with_data)
+        .map(|b| Ok(block(b).cholesky().ok_or_else(not_pd)?.l().transpose()))
+        .collect::<Result<Vec<Matrix3<f64>>>>()?;
+    let data_rows = 3 * blocks.len();
+    let prior_rows = lam_sqrt.len();
+    let residuals = |x: &[f64], want_jacobian: bool| {
+        let x = DVector::from_column_slice(x);
+        let mut r = DVector::zeros(data_rows + prior_rows);
+        for (b, root) in blocks.iter().enumerate() {
+            r.fixed_rows_mut::<3>(3 * b)
+                .copy_from(&(root * x.fixed_rows::<3>(3 * b)));
+        }
+        r.rows_mut(data_rows, prior_rows)
+            .copy_from(&prior(&x).component_mul(lam_sqrt));
+        let jac = want_jacobian.then(|| {
+            let mut j = DMatrix::zeros(data_rows + prior_rows, dim);
+            for (b, root) in blocks.iter().enumerate() {
+                j.fixed_view_mut::<3, 3>(3 * b, 3 * b).copy_from(root);
+            }
+            let jp = DMatrix::from_diagonal(lam_sqrt) * prior_jacobian(&x);
+            j.rows_mut(data_rows, prior_rows).copy_from(&jp);
+            j
+        });
+        Ok((r, jac))
+    };
+    let fit = lm::minimize(
+        residuals,
+        start.as_slice(),
+        &vec![f64::NEG_INFINITY; dim],
+        &vec![f64::INFINITY; dim],
+        // Started at or near the linearised mode: Gauss-Newton steps
+        // first (a tight prior makes the valley narrow and curved, where
+        // damped steps crawl).
+        &LmOptions {
+            xtol: 1e-12,
+            initial_damping: 1e-12,
+            ..LmOptions::default()
+        },
+    )?;
+    // The Gauss-Newton Hessian W + J^T Lam J at the mode.
+    Ok(Posterior {
+        hessian: fit.jac.transpose() * &fit.jac,
+        objective: 2.0 * fit.cost,
+        x: DVector::from_vec(fit.x),
+    })
+}
+
+/// A posterior mode ([`posterior_mode`]).
+pub(super) struct Posterior {
+    /// The mode.
+    pub(super) x: DVector<f64>,
+    /// `x^T W x + e^T Lam e` there.
+    pub(super) objective: f64,
+    /// The Gauss-Newton Hessian there (the inverse covariance).
+    pub(super) hessian: DMatrix<f64>,
 }
 
 /// Log restricted marginal likelihood of tau (up to a constant) and the mode.

@@ -3,7 +3,7 @@
 //!
 //! [`fit_sphere`] first solves the algebraic (linear) fit
 //! `|p|^2 = 2 c.p + (r^2 - |c|^2)` and then refines the geometric residuals
-//! `|p - c| - r` with a damped Gauss-Newton (Levenberg-Marquardt) iteration.
+//! `|p - c| - r` with the crate's Levenberg-Marquardt ([`crate::util::lm`]).
 //! Points are centred and scaled internally for conditioning.
 //!
 //! [`anterior_body_nodes`] picks the vertices of a vertebral-body surface
@@ -11,7 +11,8 @@
 
 use super::TriMesh;
 use crate::error::{Error, Result};
-use nalgebra::{Matrix4, Point3, Unit, Vector3, Vector4};
+use crate::util::lm::{self, LmOptions};
+use nalgebra::{DMatrix, DVector, Matrix4, Point3, Unit, Vector3, Vector4};
 
 /// A fitted sphere.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,58 +77,38 @@ pub fn fit_sphere(points: &[Point3<f64>]) -> Result<Sphere> {
         .lu()
         .solve(&atb)
         .ok_or_else(|| Error::numerical(ctx, "singular algebraic system"))?;
-    let mut c = Vector3::new(sol[0], sol[1], sol[2]);
+    let c = Vector3::new(sol[0], sol[1], sol[2]);
     let r2 = sol[3] + c.norm_squared();
-    let mut r = if r2 > 0.0 { r2.sqrt() } else { 1.0 };
-    // Geometric refinement (Levenberg-Marquardt on 4 parameters).
-    let cost =
-        |c: &Vector3<f64>, r: f64| -> f64 { q.iter().map(|v| ((v - c).norm() - r).powi(2)).sum() };
-    let mut f = cost(&c, r);
-    let mut lambda = 1e-3;
-    for _ in 0..200 {
-        let mut jtj = Matrix4::zeros();
-        let mut jtr = Vector4::zeros();
-        for v in &q {
-            let d = v - c;
-            let dist = d.norm();
-            if dist == 0.0 {
-                continue;
+    let r = if r2 > 0.0 { r2.sqrt() } else { 1.0 };
+    // Geometric refinement: the residuals |q - c| - r by the one
+    // least-squares optimiser, unbounded.
+    let residuals = |x: &[f64], want_jacobian: bool| {
+        let c = Vector3::new(x[0], x[1], x[2]);
+        let r = DVector::from_iterator(q.len(), q.iter().map(|v| (v - c).norm() - x[3]));
+        let jac = want_jacobian.then(|| {
+            let mut j = DMatrix::zeros(q.len(), 4);
+            for (i, v) in q.iter().enumerate() {
+                let d = v - c;
+                let dist = d.norm();
+                let u = if dist > 0.0 { d / dist } else { d };
+                j.row_mut(i).copy_from_slice(&[-u.x, -u.y, -u.z, -1.0]);
             }
-            let res = dist - r;
-            let u = d / dist;
-            let j = Vector4::new(-u.x, -u.y, -u.z, -1.0);
-            jtj += j * j.transpose();
-            jtr += j * res;
-        }
-        let mut improved = false;
-        for _ in 0..20 {
-            let mut a = jtj;
-            for k in 0..4 {
-                a[(k, k)] += lambda * (1.0 + jtj[(k, k)]);
-            }
-            let Some(step) = a.lu().solve(&(-jtr)) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let c2 = c + Vector3::new(step[0], step[1], step[2]);
-            let r2 = r + step[3];
-            let f2 = cost(&c2, r2);
-            if f2 <= f {
-                let small = step.norm() < 1e-15 * (1.0 + c.norm() + r);
-                c = c2;
-                r = r2;
-                let df = f - f2;
-                f = f2;
-                lambda = (lambda * 0.3).max(1e-12);
-                improved = !small && df > 1e-30;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
+            j
+        });
+        Ok((r, jac))
+    };
+    let fit = lm::minimize(
+        residuals,
+        &[c.x, c.y, c.z, r],
+        &[f64::NEG_INFINITY; 4],
+        &[f64::INFINITY; 4],
+        &LmOptions::default(),
+    )?;
+    let (c, r, f) = (
+        Vector3::new(fit.x[0], fit.x[1], fit.x[2]),
+        fit.x[3],
+        fit.r.norm_squared(),
+    );
     if !r.is_finite() || r <= 0.0 || r > 1e6 {
         return Err(Error::numerical(
             ctx,

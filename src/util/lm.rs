@@ -20,6 +20,10 @@ pub struct LmOptions {
     pub xtol: f64,
     /// ... or the relative cost decrease is below `ftol`.
     pub ftol: f64,
+    /// Damping of the first trial step, relative to `diag(J^T J)`: small
+    /// for a nearly linear problem started near its solution (the first
+    /// step is then Gauss-Newton's).
+    pub initial_damping: f64,
 }
 
 impl Default for LmOptions {
@@ -29,6 +33,7 @@ impl Default for LmOptions {
             gtol: 1e-12,
             xtol: 1e-11,
             ftol: 1e-15,
+            initial_damping: 1e-3,
         }
     }
 }
@@ -180,7 +185,7 @@ where
         r,
         jac,
         cost,
-        lambda: 1e-3,
+        lambda: opts.initial_damping,
         nu: 2.0,
         it: 0,
     };
