@@ -149,6 +149,22 @@ impl<'de> serde::Deserialize<'de> for Level {
     }
 }
 
+/// Serialise a map keyed by level with its keys in the order of their
+/// names (`L1` ... `L5`, `S1`, `T1`, `T10` ...), the order the reports'
+/// JSON has always had; use with `#[serde(serialize_with = ...)]`.
+pub fn serialize_by_name<V, S>(
+    map: &std::collections::BTreeMap<Level, V>,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error>
+where
+    V: serde::Serialize,
+    S: serde::Serializer,
+{
+    let mut entries: Vec<(String, &V)> = map.iter().map(|(l, v)| (l.to_string(), v)).collect();
+    entries.sort_by(|a, b| a.0.cmp(&b.0));
+    s.collect_map(entries)
+}
+
 /// Suffix of a bushing's name that its level name drops.
 pub const BUSHING_SUFFIX: &str = "_bushing";
 

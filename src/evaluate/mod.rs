@@ -740,7 +740,8 @@ pub struct Summary {
     /// The models' lumbar lordosis (deg).
     pub lordosis_deg: Option<MeanSd>,
     /// Apex level -> number of models.
-    pub apex_counts: BTreeMap<String, usize>,
+    #[serde(serialize_with = "crate::anatomy::serialize_by_name")]
+    pub apex_counts: BTreeMap<Level, usize>,
 }
 
 /// Summarise several models' metrics.
@@ -760,7 +761,7 @@ pub fn summarise(all: &[ModelMetrics]) -> Summary {
     let mut apex_counts = BTreeMap::new();
     for m in all {
         if let Some(a) = &m.apex {
-            *apex_counts.entry(a.to_string()).or_insert(0) += 1;
+            *apex_counts.entry(*a).or_insert(0) += 1;
         }
     }
     Summary {

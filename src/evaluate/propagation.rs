@@ -134,7 +134,8 @@ pub struct GroupSummary {
     /// Mean and SD of the lordosis (deg).
     pub lordosis_mean_sd_deg: Option<MeanSd>,
     /// Apex level -> number of models.
-    pub apex_counts: BTreeMap<String, usize>,
+    #[serde(serialize_with = "crate::anatomy::serialize_by_name")]
+    pub apex_counts: BTreeMap<Level, usize>,
 }
 
 /// The reference the models were compared with.

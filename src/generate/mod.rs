@@ -419,10 +419,7 @@ fn finish(
         scaling: placed.scaling,
         spheres: steps.spheres,
         path_edits: steps.path_edits,
-        centres: centres
-            .iter()
-            .map(|(l, p)| (l.to_string(), [p.x, p.y, p.z]))
-            .collect(),
+        centres: centres.iter().map(|(l, p)| (*l, [p.x, p.y, p.z])).collect(),
         self_check,
         above_fov: placed.above_fov,
         reduced_fits: m.reduced_fits,

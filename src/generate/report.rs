@@ -153,7 +153,8 @@ pub struct GenerateReport {
     pub path_edits: Vec<clear::PathEdit>,
     /// Vertebral centres ([`crate::evaluate::CentreDef::Endplates`]) in
     /// ground at the default pose (m).
-    pub centres: BTreeMap<String, [f64; 3]>,
+    #[serde(serialize_with = "crate::anatomy::serialize_by_name")]
+    pub centres: BTreeMap<Level, [f64; 3]>,
     /// The generated model's self-check (`None` when not run).
     pub self_check: Option<crate::base::check::SelfCheck>,
     /// Levels above the landmarks' field of view and where T1 ended
