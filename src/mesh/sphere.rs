@@ -12,6 +12,7 @@
 use super::TriMesh;
 use crate::error::{Error, Result};
 use crate::util::lm::{self, LmOptions};
+use crate::util::quantiles::quantile;
 use nalgebra::{DMatrix, DVector, Matrix4, Point3, Unit, Vector3, Vector4};
 
 /// A fitted sphere.
@@ -167,9 +168,10 @@ impl AnatomicalFrame {
 /// Rule (all in the given anatomical frame):
 /// 1. outward vertex normals are computed on a consistently oriented copy
 ///    of the mesh (flipped triangles in the file do not matter);
-/// 2. the body's height is the 2nd-98th percentile range of the vertices
-///    along `cranial`; only vertices in the central 50 % of that height
-///    are kept (away from the endplates and their rims);
+/// 2. the body's height is the 2nd-98th percentile range (type 7,
+///    [`quantile`]) of the vertices along `cranial`; only vertices in the
+///    central 50 % of that height are kept (away from the endplates and
+///    their rims);
 /// 3. the vertex must lie anterior of the surface's area centroid;
 /// 4. its normal must point anteriorly, within 60 degrees of `anterior`
 ///    (`n . anterior >= 0.5`), and be mostly horizontal
@@ -185,14 +187,15 @@ pub fn anterior_body_nodes(mesh: &TriMesh, frame: &AnatomicalFrame) -> Result<Ve
     let centre = mesh
         .area_centroid()
         .ok_or_else(|| Error::invalid(ctx, "the mesh has no area"))?;
-    let mut h: Vec<f64> = mesh
+    let h: Vec<f64> = mesh
         .vertices
         .iter()
         .map(|p| (p - centre).dot(&frame.cranial))
         .collect();
-    h.sort_by(f64::total_cmp);
-    let pct = |f: f64| h[((h.len() - 1) as f64 * f).round() as usize];
-    let (lo, hi) = (pct(0.02), pct(0.98));
+    let pct = |p: f64| {
+        quantile(&h, p).ok_or_else(|| Error::invalid(ctx, "a vertex or the frame is not finite"))
+    };
+    let (lo, hi) = (pct(0.02)?, pct(0.98)?);
     let (band_lo, band_hi) = (lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo));
     let nodes: Vec<usize> = mesh
         .vertices
