@@ -5,9 +5,9 @@ use super::sanity::{self, SanityRow, Segment};
 use super::topology::Topology;
 use crate::error::{Error, Result};
 use crate::landmarks::Level;
-use crate::mesh::source::MeshSource;
+use crate::mesh::source::{body_mesh, MeshSource};
 use crate::mesh::{MeshQuery, TriMesh};
-use crate::osim::model::{Geometry, Model};
+use crate::osim::model::Model;
 use nalgebra::{Point3, Vector3};
 use std::collections::BTreeMap;
 
@@ -51,36 +51,14 @@ pub(crate) fn mesh_of(
             format!("no body '{body}'"),
         )
     })?;
-    let mut parts = Vec::new();
-    let mut names = Vec::new();
-    for g in &b.geometry {
-        if let Geometry::Mesh {
-            mesh_file,
-            scale_factors,
-            ..
-        } = g
-        {
-            if mesh_file.is_empty() {
-                continue;
-            }
-            match source.load(mesh_file)? {
-                Some(m) => {
-                    m.validate().map_err(|e| {
-                        Error::invalid(format!("mesh {mesh_file} of body {body}"), e.to_string())
-                    })?;
-                    parts.push(m.scaled(scale_factors));
-                    names.push(mesh_file.clone());
-                }
-                None => missing.push(format!("'{mesh_file}' (body {body})")),
-            }
-        }
-    }
-    if parts.is_empty() {
-        return Ok(None);
-    }
-    let refs: Vec<&TriMesh> = parts.iter().collect();
-    let merged = TriMesh::merge(&refs)?;
-    Ok(Some((names.join("+"), merged)))
+    let loaded = body_mesh(b, source)?;
+    missing.extend(
+        loaded
+            .missing
+            .iter()
+            .map(|f| format!("'{f}' (body {body})")),
+    );
+    Ok(loaded.mesh.map(|m| (loaded.found.join("+"), m)))
 }
 
 /// Load every kept body's mesh and check each vertebra's geometry.

@@ -33,8 +33,9 @@
 use super::kin::{muscle_path, Values};
 use super::MeshSource;
 use crate::error::{Error, Result};
-use crate::mesh::{MeshQuery, TriMesh};
-use crate::osim::model::{body_fixed_xyz, Geometry, Model, Muscle, WrapShape};
+use crate::mesh::source::body_mesh;
+use crate::mesh::MeshQuery;
+use crate::osim::model::{body_fixed_xyz, Model, Muscle, WrapShape};
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::collections::BTreeMap;
 
@@ -598,24 +599,10 @@ pub fn vertebra_meshes(model: &Model, source: &dyn MeshSource) -> Result<Vec<(St
         if !is_vertebra {
             continue;
         }
-        let mut parts = Vec::new();
-        for g in &b.geometry {
-            if let Geometry::Mesh {
-                mesh_file,
-                scale_factors,
-                ..
-            } = g
-            {
-                if let Some(m) = source.load(mesh_file)? {
-                    parts.push(m.scaled(scale_factors));
-                }
-            }
-        }
-        if parts.is_empty() {
+        // The meshes found (a missing one is the model check's to report).
+        let Some(m) = body_mesh(b, source)?.mesh else {
             continue;
-        }
-        let refs: Vec<&TriMesh> = parts.iter().collect();
-        let m = TriMesh::merge(&refs)?;
+        };
         let q = MeshQuery::new(&m)
             .map_err(|e| Error::invalid(format!("mesh of {}", b.name), e.to_string()))?;
         out.push((b.name.clone(), q));

@@ -51,9 +51,9 @@
 use crate::base::kin::Kinematics;
 use crate::error::{Error, Result};
 use crate::landmarks::Level;
-use crate::mesh::source::MeshSource;
+use crate::mesh::source::{body_mesh, MeshSource};
 use crate::mesh::{MeshQuery, TriMesh};
-use crate::osim::model::{Geometry, Model, PathPointKind, WrapShape};
+use crate::osim::model::{Model, PathPointKind, WrapShape};
 use crate::osim::props::{set_f64, set_numbers, set_vec3};
 use crate::osim::Document;
 use crate::segmentation::{Kind, Palpated};
@@ -594,25 +594,8 @@ fn scaled_base_mesh(
     source: Option<&dyn MeshSource>,
 ) -> Result<Option<TriMesh>> {
     let Some(src) = source else { return Ok(None) };
-    let mut parts = Vec::new();
-    for g in &b.geometry {
-        if let Geometry::Mesh {
-            mesh_file,
-            scale_factors,
-            ..
-        } = g
-        {
-            let Some(m) = src.load(mesh_file)? else {
-                return Ok(None);
-            };
-            parts.push(m.scaled(scale_factors));
-        }
-    }
-    if parts.is_empty() {
-        return Ok(None);
-    }
-    let refs: Vec<&TriMesh> = parts.iter().collect();
-    TriMesh::merge(&refs).map(Some)
+    let loaded = body_mesh(b, src)?;
+    Ok(loaded.mesh.filter(|_| loaded.missing.is_empty()))
 }
 
 /// The body's mesh geometry replaced by one visible Mesh of `mesh_file`

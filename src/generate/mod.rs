@@ -516,31 +516,16 @@ fn scale_bodies(
     Ok((scales, scaling))
 }
 
-/// The merged, scaled meshes of a body (None when it has none).
+/// The merged, scaled meshes of a body (None when none was found); the
+/// files not found are added to `missing`.
 fn mesh_of(
     b: &crate::osim::model::Body,
     source: &dyn MeshSource,
     missing: &mut Vec<String>,
 ) -> Result<Option<crate::mesh::TriMesh>> {
-    let mut parts = Vec::new();
-    for g in &b.geometry {
-        if let crate::osim::model::Geometry::Mesh {
-            mesh_file,
-            scale_factors,
-            ..
-        } = g
-        {
-            match source.load(mesh_file)? {
-                Some(m) => parts.push(m.scaled(scale_factors)),
-                None => missing.push(mesh_file.clone()),
-            }
-        }
-    }
-    if parts.is_empty() {
-        return Ok(None);
-    }
-    let refs: Vec<&crate::mesh::TriMesh> = parts.iter().collect();
-    Ok(Some(crate::mesh::TriMesh::merge(&refs)?))
+    let loaded = crate::mesh::source::body_mesh(b, source)?;
+    missing.extend(loaded.missing);
+    Ok(loaded.mesh)
 }
 
 /// The file name of `path` (the whole string when it has none).
