@@ -197,11 +197,19 @@ impl MeshQuery {
         }
         let len = (b - a).norm();
         let hits = self.segment_hits(a, b);
+        // No crossing lies inside a piece, so the piece from an end outside
+        // the bounding box to its first crossing is outside with that end:
+        // only the other pieces cast rays.
+        let (lo, hi) = &self.bounds;
+        let outside_box = |p: &Point3<f64>| (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]);
+        let (a_out, b_out) = (outside_box(a), outside_box(b));
+        let last = hits.len();
         // The pieces between consecutive crossings (and the ends).
         let mut inside = 0.0;
         let mut from = 0.0;
-        for to in hits.iter().map(|h| h.t).chain([1.0]) {
-            if to > from {
+        for (piece, to) in hits.iter().map(|h| h.t).chain([1.0]).enumerate() {
+            let by_its_end = (piece == 0 && a_out) || (piece == last && b_out);
+            if to > from && !by_its_end {
                 let mid = a + (b - a) * (0.5 * (from + to));
                 if self.contains(&mid) {
                     inside += (to - from) * len;
@@ -405,6 +413,14 @@ mod tests {
         assert_eq!(hits.len(), 2);
         assert!((hits[0].t - 1.0 / 3.0).abs() < 1e-12);
         assert!((q.segment_length_inside(&a, &b) - 1.0).abs() < 1e-12);
+        // One end inside (one crossing), both inside (none), both outside
+        // and missing the box.
+        let inside =
+            |a: [f64; 3], b: [f64; 3]| q.segment_length_inside(&Point3::from(a), &Point3::from(b));
+        assert!((inside([0.5, 0.5, 0.5], [3.0, 0.5, 0.5]) - 0.5).abs() < 1e-12);
+        assert!((inside([3.0, 0.4, 0.5], [0.25, 0.4, 0.5]) - 0.75).abs() < 1e-12);
+        assert!((inside([0.2, 0.5, 0.5], [0.8, 0.5, 0.5]) - 0.6).abs() < 1e-12);
+        assert_eq!(inside([-1.0, 2.0, 0.5], [2.0, 2.0, 0.5]), 0.0);
         assert!(!q.segment_intersects(&Point3::new(-1.0, 2.0, 0.0), &Point3::new(2.0, 2.0, 0.0)));
         // Through an edge (two triangles share it): counted once.
         let hits = q.ray_hits(
