@@ -203,39 +203,28 @@ fn jacobian(r: &[UnitQuaternion<f64>], theta: &DVector<f64>) -> DMatrix<f64> {
     jac
 }
 
-/// Posterior mode for one tau: `(theta, F, H)`.
-struct Mode {
-    theta: DVector<f64>,
-    objective: f64,
-    hessian: DMatrix<f64>,
-}
-
 /// Prior precision weights `1 / tau_a^2` for every row of the stacked
 /// second differences.
 fn weights(rows: usize, tau: &Vector3<f64>) -> DVector<f64> {
     DVector::from_fn(rows, |k, _| 1.0 / (tau[k % 3] * tau[k % 3]))
 }
 
+/// Posterior mode of the orientations `theta` for one tau.
 fn mode(
     r: &[UnitQuaternion<f64>],
     w: &DMatrix<f64>,
     tau: &Vector3<f64>,
     start: &DVector<f64>,
-) -> Result<Mode> {
+) -> Result<Posterior> {
     let lam_sqrt = weights(3 * r.len().saturating_sub(2), tau).map(f64::sqrt);
-    let post = posterior_mode(
+    posterior_mode(
         "orientation smoothing",
         w,
         &lam_sqrt,
         start,
         |theta| second_differences(r, theta),
         |theta| jacobian(r, theta),
-    )?;
-    Ok(Mode {
-        theta: post.x,
-        objective: post.objective,
-        hessian: post.hessian,
-    })
+    )
 }
 
 /// The mode of a Gaussian posterior with data precision `w` (3x3 blocks
@@ -322,7 +311,7 @@ fn log_marginal(
     w: &DMatrix<f64>,
     tau: &Vector3<f64>,
     start: &DVector<f64>,
-) -> Result<(f64, Mode)> {
+) -> Result<(f64, Posterior)> {
     let m = mode(r, w, tau, start)?;
     let per_axis = r.len() as f64 - 2.0;
     let ch = m.hessian.clone().cholesky().ok_or_else(|| {
@@ -450,7 +439,7 @@ pub fn smooth_orientations(
         })?;
     let effective_dof = (&cov * &w).trace();
     let theta: Vec<Vector3<f64>> = (0..n)
-        .map(|i| Vector3::new(m.theta[3 * i], m.theta[3 * i + 1], m.theta[3 * i + 2]))
+        .map(|i| Vector3::new(m.x[3 * i], m.x[3 * i + 1], m.x[3 * i + 2]))
         .collect();
     let rotations = theta
         .iter()
