@@ -314,8 +314,6 @@ enum Wanted {
     /// other vertebrae (the least found so far; the fallback graze is then
     /// that one or none).
     Below(f64),
-    /// Only a clearing point: one has been found.
-    Clear,
 }
 
 impl Wanted {
@@ -325,7 +323,6 @@ impl Wanted {
         match self {
             Wanted::Any => false,
             Wanted::Below(least) => inside > least,
-            Wanted::Clear => true,
         }
     }
 }
@@ -362,54 +359,55 @@ fn detour_from(
     a: &Point3<f64>,
     b: &Point3<f64>,
 ) -> Detour {
-    let mut best: Option<(usize, Point3<f64>)> = None;
     let mut fallback: Option<Candidate> = None;
     let mut least: Option<Candidate> = None;
-    for i in 0..36 {
-        let th = (i as f64) * std::f64::consts::TAU / 36.0;
-        let d = u * th.cos() + v * th.sin();
-        for step in 1..=OFFSET_STEPS {
-            let t = step as f64 * OFFSET_STEP;
+    let directions: Vec<Vector3<f64>> = (0..36)
+        .map(|i| {
+            let th = (i as f64) * std::f64::consts::TAU / 36.0;
+            u * th.cos() + v * th.sin()
+        })
+        .collect();
+    // Offsets outward, every direction at each: the first clearing point
+    // is at the shortest clearing offset, and of the directions there the
+    // first keeps the place. The detour depends on the offset alone (every
+    // direction is perpendicular to the chord through `mid`), so offsets
+    // are compared as whole steps, not through the round-off of the
+    // lengths. The grazes are used only when no detour clears.
+    for step in 1..=OFFSET_STEPS {
+        let t = step as f64 * OFFSET_STEP;
+        for d in &directions {
             let p = mid + d * t;
             let g = x * p;
-            let detour = (g - a).norm() + (b - g).norm();
-            // The detour depends on the offset alone (every direction is
-            // perpendicular to the chord through `mid`), so offsets are
-            // compared as whole steps: equal ones tie exactly and the first
-            // direction keeps the place, not the round-off of the lengths.
-            // Past the shortest clearing offset nothing can replace it, and
-            // the grazes are not used once a detour clears.
-            if best.is_some_and(|(bs, _)| step >= bs) {
-                break;
-            }
-            let wanted = match (best, least) {
-                (Some(_), _) => Wanted::Clear,
-                (None, Some((inside, _, _))) => Wanted::Below(inside),
-                (None, None) => Wanted::Any,
+            let wanted = match least {
+                Some((inside, _, _)) => Wanted::Below(inside),
+                None => Wanted::Any,
             };
-            if let Some(fit) = score(&p, &g, wanted) {
-                match fit {
-                    Fit::Clear => {
-                        best = Some((step, g));
-                        break;
+            match score(&p, &g, wanted) {
+                Some(Fit::Clear) => {
+                    return Detour {
+                        clear: Some((step, g)),
+                        graze: fallback,
+                        least,
+                    };
+                }
+                Some(Fit::Graze(inside)) => {
+                    let detour = (g - a).norm() + (b - g).norm();
+                    let better = |f: Option<Candidate>| {
+                        f.is_none_or(|(fi, fd, _)| (inside, detour) < (fi, fd))
+                    };
+                    if better(least) {
+                        least = Some((inside, detour, g));
                     }
-                    Fit::Graze(inside) => {
-                        let better = |f: Option<Candidate>| {
-                            f.is_none_or(|(fi, fd, _)| (inside, detour) < (fi, fd))
-                        };
-                        if better(least) {
-                            least = Some((inside, detour, g));
-                        }
-                        if inside < FALLBACK_INSIDE * wrapped::DEPTH_TOLERANCE && better(fallback) {
-                            fallback = Some((inside, detour, g));
-                        }
+                    if inside < FALLBACK_INSIDE * wrapped::DEPTH_TOLERANCE && better(fallback) {
+                        fallback = Some((inside, detour, g));
                     }
                 }
+                None => {}
             }
         }
     }
     Detour {
-        clear: best,
+        clear: None,
         graze: fallback,
         least,
     }
@@ -438,7 +436,7 @@ fn runs_inside<'a>(
 /// Is `p` (vertebra frame) outside the bone by more than [`CLEARANCE`]?
 /// The distance first: the inside test casts rays.
 fn clear_of_bone(mq: &MeshQuery, p: &Point3<f64>) -> bool {
-    mq.distance(p) > CLEARANCE && !mq.contains(p)
+    mq.farther_than(p, CLEARANCE) && !mq.contains(p)
 }
 
 /// The `objects` of a muscle's PathPointSet.

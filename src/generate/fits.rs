@@ -178,27 +178,43 @@ pub(super) fn fit_levels(
     patient: &BTreeMap<Level, Points>,
 ) -> Result<LevelFits> {
     let (vert_levels, opts) = (input.vert_levels, input.opts);
+    // The leave-one-out statistics of every vertebra: the set-wide noise
+    // estimate, then each vertebra's outlier test.
+    let loo: Vec<pose::VertebraLoo> = match opts.method {
+        Method::Lsq => vert_levels
+            .iter()
+            .map(|l| pose::vertebra_loo(*l, &patient[l], &markers[l].1))
+            .collect(),
+        Method::Thesis => Vec::new(),
+    };
     let noise = match opts.method {
-        Method::Lsq => {
-            let loo: Vec<pose::VertebraLoo> = vert_levels
-                .iter()
-                .map(|l| pose::vertebra_loo(*l, &patient[l], &markers[l].1))
-                .collect();
-            pose::set_noise_sd(&loo)
-        }
+        Method::Lsq => pose::set_noise_sd(&loo),
         Method::Thesis => None,
     };
     let mut fits: BTreeMap<Level, pose::VertebraFit> = BTreeMap::new();
-    for l in vert_levels {
-        let f = pose::fit_vertebra_with(
-            *l,
-            &patient[l],
-            &markers[l].1,
-            opts.method,
-            opts.outlier_sigmas,
-            noise,
-            input.borrowed.get(l).unwrap_or(&[None; 3]),
-        )?;
+    for (k, l) in vert_levels.iter().enumerate() {
+        let borrowed = input.borrowed.get(l).unwrap_or(&[None; 3]);
+        let (points, model) = (&patient[l], &markers[l].1);
+        let f = match loo.get(k) {
+            Some(v) => pose::fit_lsq(
+                *l,
+                points,
+                model,
+                &v.full,
+                opts.outlier_sigmas,
+                noise,
+                borrowed,
+            )?,
+            None => pose::fit_vertebra_with(
+                *l,
+                points,
+                model,
+                opts.method,
+                opts.outlier_sigmas,
+                noise,
+                borrowed,
+            )?,
+        };
         fits.insert(*l, f);
     }
     let smoothing = smooth_fits(

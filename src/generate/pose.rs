@@ -423,39 +423,56 @@ pub fn fit_vertebra_with(
         }
         Method::Lsq => {
             let loo = leave_one_out(level, patient, model);
-            let sigma = noise.or_else(|| noise_sd(&loo));
-            // The candidate: the landmark least compatible with the fit of
-            // the others (largest standardised error).
-            let worst = loo
-                .iter()
-                .filter(|x| x.d2.is_finite())
-                .max_by(|a, b| a.d2.total_cmp(&b.d2))
-                .map(|x| {
-                    // Error threshold equivalent to sqrt(d2) = k sigma along
-                    // the candidate's error direction.
-                    let along = if x.d2 > 0.0 {
-                        x.error / x.d2.sqrt()
-                    } else {
-                        1.0
-                    };
-                    let t = (OUTLIER_MIN_MM * 1e-3)
-                        .max(outlier_sigmas * sigma.unwrap_or(f64::INFINITY) * along);
-                    (x.code, x.error, t)
-                });
-            let outlier = worst.filter(|(_, e, t)| e > t).map(|(c, e, _)| (c, e));
-            let skip = outlier.map(|o| o.0);
-            let scale = scale_factors_borrowing(level, patient, model, skip, borrowed)?;
-            let scaled = scaled_points(model, &scale);
-            let pose = kabsch(level, patient, &scaled, skip)?;
-            Ok(VertebraFit {
-                scale,
-                residuals: residuals(&pose, patient, &scaled, skip),
-                pose,
-                outlier,
-                loo_max: worst,
-            })
+            fit_lsq(level, patient, model, &loo, outlier_sigmas, noise, borrowed)
         }
     }
+}
+
+/// The [`Method::Lsq`] fit of [`fit_vertebra_with`], given the vertebra's
+/// [`leave_one_out`] statistics `loo` (computed once where the set-wide
+/// noise estimate needs them too).
+pub(crate) fn fit_lsq(
+    level: Level,
+    patient: &Points,
+    model: &Points,
+    loo: &[Loo],
+    outlier_sigmas: f64,
+    noise: Option<f64>,
+    borrowed: &Borrowed,
+) -> Result<VertebraFit> {
+    let pts: Vec<Point3<f64>> = patient.values().copied().collect();
+    require_spread(level, &pts)?;
+    let sigma = noise.or_else(|| noise_sd(loo));
+    // The candidate: the landmark least compatible with the fit of
+    // the others (largest standardised error).
+    let worst = loo
+        .iter()
+        .filter(|x| x.d2.is_finite())
+        .max_by(|a, b| a.d2.total_cmp(&b.d2))
+        .map(|x| {
+            // Error threshold equivalent to sqrt(d2) = k sigma along
+            // the candidate's error direction.
+            let along = if x.d2 > 0.0 {
+                x.error / x.d2.sqrt()
+            } else {
+                1.0
+            };
+            let t = (OUTLIER_MIN_MM * 1e-3)
+                .max(outlier_sigmas * sigma.unwrap_or(f64::INFINITY) * along);
+            (x.code, x.error, t)
+        });
+    let outlier = worst.filter(|(_, e, t)| e > t).map(|(c, e, _)| (c, e));
+    let skip = outlier.map(|o| o.0);
+    let scale = scale_factors_borrowing(level, patient, model, skip, borrowed)?;
+    let scaled = scaled_points(model, &scale);
+    let pose = kabsch(level, patient, &scaled, skip)?;
+    Ok(VertebraFit {
+        scale,
+        residuals: residuals(&pose, patient, &scaled, skip),
+        pose,
+        outlier,
+        loo_max: worst,
+    })
 }
 
 /// Leave-one-out statistics of one landmark ([`Method::Lsq`]).

@@ -143,6 +143,18 @@ impl MeshQuery {
         }
     }
 
+    /// Is `p` farther than `r` from the surface? Equal to
+    /// `distance(p) > r`, but the search stops at the triangles within
+    /// about `2 r` of `p`.
+    pub fn farther_than(&self, p: &Point3<f64>, r: f64) -> bool {
+        if r.is_nan() || r <= 0.0 {
+            return self.distance(p) > r;
+        }
+        // The capped distance is exact below the cap, and the cap is past r.
+        let mut hint = u32::MAX;
+        self.distance_near(p, &mut hint, 2.0 * r) > r
+    }
+
     /// Every crossing of the ray `origin + t dir`, `0 <= t <= max_t`, with
     /// the surface, sorted by `t`; crossings at the same `t` (a ray through
     /// an edge or a vertex) are reported once.
@@ -384,6 +396,25 @@ mod tests {
                     (got - want).abs() < 1e-12,
                     "{p:?} cap {cap}: {got} vs {want}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn farther_than_is_the_distance_compared() {
+        // Points around and inside the box, radii below, at and above
+        // their distances.
+        let q = MeshQuery::new(&unit_box()).unwrap();
+        for i in 0..300 {
+            let t = i as f64 * 0.41;
+            let p = Point3::new(
+                0.5 + 0.9 * t.sin(),
+                0.5 + 0.7 * (1.3 * t).cos(),
+                0.2 * t.cos(),
+            );
+            let d = q.distance(&p);
+            for r in [0.0, 0.5 * d, d, d * (1.0 + 1e-15), 1.5 * d, 0.01, 0.3, 2.0] {
+                assert_eq!(q.farther_than(&p, r), d > r, "{p:?} r {r} d {d}");
             }
         }
     }
