@@ -165,7 +165,11 @@ fn linear_mode(
     s: &Vector3<f64>,
 ) -> Result<LinearMode> {
     let lam = DVector::from_fn(e0.len(), |k, _| 1.0 / (s[k % 3] * s[k % 3]));
-    let lj = DMatrix::from_diagonal(&lam) * jac;
+    // diag(lam) * jac, row by row.
+    let mut lj = jac.clone();
+    for (mut row, l) in lj.row_iter_mut().zip(lam.iter()) {
+        row *= *l;
+    }
     let hessian = w + jac.transpose() * &lj;
     let ch = hessian.cholesky().ok_or_else(not_pd)?;
     let x = ch.solve(&(-(lj.transpose() * e0)));

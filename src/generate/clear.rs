@@ -31,7 +31,7 @@ use crate::mesh::MeshQuery;
 use crate::osim::xml::{Element, Node};
 use crate::osim::Document;
 use nalgebra::{Point3, Vector3};
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 
 /// Distance kept between a via point and the bone surface (m).
 pub const CLEARANCE: f64 = 0.002;
@@ -79,6 +79,18 @@ pub fn clear_paths(
     let q = kin.default_values();
     let poses = kin.body_poses(&q)?;
     let spheres = wrapped::spheres_at(&model, &poses);
+    let bones: Vec<Bone> = vertebrae
+        .iter()
+        .filter_map(|(name, query)| {
+            let pose = *poses.get(name)?;
+            Some(Bone {
+                name,
+                query,
+                pose,
+                to_local: pose.inverse(),
+            })
+        })
+        .collect();
     let mut pending: Option<BTreeSet<String>> = None;
     for _ in 0..MAX_ROUNDS {
         let model = doc.model()?;
@@ -155,8 +167,7 @@ pub fn clear_paths(
                 &a,
                 &b,
                 &c.vertebra,
-                vertebrae,
-                &poses,
+                &bones,
                 |p| {
                     m.wraps.iter().all(|w| {
                         spheres
@@ -208,14 +219,12 @@ fn place_via(
     a: &Point3<f64>,
     b: &Point3<f64>,
     vertebra: &str,
-    vertebrae: &[(String, &MeshQuery)],
-    poses: &BTreeMap<String, nalgebra::Isometry3<f64>>,
+    bones: &[Bone],
     outside_wraps: impl Fn(&Point3<f64>) -> bool,
     end_bodies: &[Option<String>],
 ) -> Option<Point3<f64>> {
-    let x = poses.get(vertebra)?;
-    let (_, mq) = vertebrae.iter().find(|(n, _)| n == vertebra)?;
-    let inv = x.inverse();
+    let bone = bones.iter().find(|b| b.name == vertebra)?;
+    let (mq, x, inv) = (bone.query, &bone.pose, bone.to_local);
     let (la, lb) = (inv * a, inv * b);
     // Points along the chord inside the bone (vertebra frame): its middle
     // first, then its quarters (a detour from the middle may be blocked by
@@ -255,8 +264,8 @@ fn place_via(
                 }
                 // Each new segment's run inside each other vertebra, once,
                 // stopping as soon as the point cannot be wanted.
-                let first = runs_inside(a, g, vertebrae, poses, end_bodies.get(..1));
-                let second = runs_inside(g, b, vertebrae, poses, end_bodies.get(1..2));
+                let first = runs_inside(a, g, bones, end_bodies.get(..1));
+                let second = runs_inside(g, b, bones, end_bodies.get(1..2));
                 let mut inside = [0.0, 0.0];
                 let mut deep = false;
                 for (k, run) in first.map(|r| (0, r)).chain(second.map(|r| (1, r))) {
@@ -289,7 +298,7 @@ fn place_via(
     // path's end bodies, if that is shorter than the direct segment's run;
     // the next round clears what its new segments still cross, and the
     // self-check reports what is left.
-    let direct: f64 = runs_inside(a, b, vertebrae, poses, Some(end_bodies)).sum();
+    let direct: f64 = runs_inside(a, b, bones, Some(end_bodies)).sum();
     let progress = least(|d| d.least).filter(|(inside, _, _)| *inside < direct);
     clear
         .map(|(_, p)| p)
@@ -413,23 +422,31 @@ fn detour_from(
     }
 }
 
+/// A vertebra the paths are cleared from: its body, its mesh query (body
+/// frame) and its pose (body frame to ground) with the inverse.
+struct Bone<'a> {
+    name: &'a str,
+    query: &'a MeshQuery,
+    pose: nalgebra::Isometry3<f64>,
+    to_local: nalgebra::Isometry3<f64>,
+}
+
 /// Length (m) of the segment `a`-`b` (ground) inside each vertebra but
-/// those named in `skip`, in the order of `vertebrae`, computed as the
+/// those named in `skip`, in the order of `bones`, computed as the
 /// iterator is consumed.
 fn runs_inside<'a>(
     a: &'a Point3<f64>,
     b: &'a Point3<f64>,
-    vertebrae: &'a [(String, &MeshQuery)],
-    poses: &'a BTreeMap<String, nalgebra::Isometry3<f64>>,
+    bones: &'a [Bone],
     skip: Option<&'a [Option<String>]>,
 ) -> impl Iterator<Item = f64> + 'a {
     let skip = skip.unwrap_or(&[]);
-    vertebrae
+    bones
         .iter()
-        .filter(move |(n, _)| !skip.iter().flatten().any(|s| s == n))
-        .filter_map(move |(n, mq)| {
-            let inv = poses.get(n)?.inverse();
-            Some(mq.segment_length_inside(&(inv * a), &(inv * b)))
+        .filter(move |bone| !skip.iter().flatten().any(|s| s == bone.name))
+        .map(move |bone| {
+            let inv = &bone.to_local;
+            bone.query.segment_length_inside(&(inv * a), &(inv * b))
         })
 }
 

@@ -295,8 +295,8 @@ impl SlabRay {
     }
 
     /// Does the ray meet the box `mins`-`maxs`? The slab test of parry's
-    /// solid `Aabb` ray cast, operation for operation (the same answers),
-    /// without a division per box.
+    /// solid `Aabb` ray cast, with the reciprocal direction computed once
+    /// per ray instead of a division per box.
     fn hits_box(&self, mins: &Point3<f64>, maxs: &Point3<f64>) -> bool {
         let (mut tmin, mut tmax) = (0.0_f64, self.max_t);
         for k in 0..3 {
@@ -311,8 +311,14 @@ impl SlabRay {
             if near > far {
                 std::mem::swap(&mut near, &mut far);
             }
-            tmin = tmin.max(near);
-            tmax = tmax.min(far);
+            // Plain comparisons: no NaN arises (finite bounds and
+            // reciprocals), and the sign of a zero bound compares equal.
+            if near > tmin {
+                tmin = near;
+            }
+            if far < tmax {
+                tmax = far;
+            }
             if tmin > tmax {
                 return false;
             }
