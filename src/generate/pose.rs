@@ -99,8 +99,8 @@ pub fn dimensions(p: &Points, exclude: Option<Code>) -> [Option<f64>; 3] {
         Some((p.get(&a)? - p.get(&b)?).norm())
     };
     let mean = |v: &[Option<f64>]| -> Option<f64> {
-        let x: Vec<f64> = v.iter().flatten().copied().collect();
-        (!x.is_empty()).then(|| x.iter().sum::<f64>() / x.len() as f64)
+        let n = v.iter().flatten().count();
+        (n > 0).then(|| v.iter().flatten().sum::<f64>() / n as f64)
     };
     [
         mean(&[d(Code::SA, Code::SP), d(Code::IA, Code::IP)]),
@@ -328,22 +328,22 @@ fn scaled_points(model: &Points, s: &Vector3<f64>) -> Points {
     model.iter().map(|(c, p)| (*c, scale_point(p, s))).collect()
 }
 
-/// Rigid fit of the scaled model markers onto the landmarks (codes present
-/// in both, minus `skip`).
+/// Rigid fit of the scaled model markers (`scaled` gives a code's) onto
+/// the landmarks (codes present in both, minus `skip`).
 fn kabsch(
     level: Level,
     patient: &Points,
-    scaled: &Points,
+    scaled: impl Fn(&Code) -> Option<Point3<f64>>,
     skip: Option<Code>,
 ) -> Result<Isometry3<f64>> {
-    let mut src = Vec::new();
-    let mut dst = Vec::new();
+    let mut src = Vec::with_capacity(patient.len());
+    let mut dst = Vec::with_capacity(patient.len());
     for (c, p) in patient {
         if Some(*c) == skip {
             continue;
         }
-        if let Some(m) = scaled.get(c) {
-            src.push(*m);
+        if let Some(m) = scaled(c) {
+            src.push(m);
             dst.push(*p);
         }
     }
@@ -465,7 +465,7 @@ pub(crate) fn fit_lsq(
     let skip = outlier.map(|o| o.0);
     let scale = scale_factors_borrowing(level, patient, model, skip, borrowed)?;
     let scaled = scaled_points(model, &scale);
-    let pose = kabsch(level, patient, &scaled, skip)?;
+    let pose = kabsch(level, patient, |c| scaled.get(c).copied(), skip)?;
     Ok(VertebraFit {
         scale,
         residuals: residuals(&pose, patient, &scaled, skip),
@@ -492,9 +492,9 @@ pub struct Loo {
 /// Prediction of landmark `c` by the scaling and fit of the others.
 fn predict(level: Level, patient: &Points, model: &Points, c: Code) -> Option<Point3<f64>> {
     let s = scale_factors(level, patient, model, Some(c)).ok()?;
-    let scaled = scaled_points(model, &s);
-    let pose = kabsch(level, patient, &scaled, Some(c)).ok()?;
-    Some(pose * scaled.get(&c)?)
+    let scaled = |code: &Code| model.get(code).map(|m| scale_point(m, &s));
+    let pose = kabsch(level, patient, scaled, Some(c)).ok()?;
+    Some(pose * scaled(&c)?)
 }
 
 /// Step (m) of the finite differences of the leave-one-out predictor.

@@ -21,9 +21,17 @@ fn walk_mut(e: &mut Element, f: &mut dyn FnMut(&mut Element)) {
     }
 }
 
+/// Is `text` the socket path of `body` (`/bodyset/<body>` or
+/// `bodyset/<body>`, surrounding whitespace ignored)?
 fn is_body_socket(text: &str, body: &str) -> bool {
     let t = text.trim();
-    t == format!("/bodyset/{body}") || t == format!("bodyset/{body}")
+    t.strip_prefix('/').unwrap_or(t).strip_prefix("bodyset/") == Some(body)
+}
+
+/// Does the socket `prop` of `e` name `body`?
+fn on_body(e: &Element, prop: &str, body: &str) -> bool {
+    e.child(prop)
+        .is_some_and(|c| is_body_socket(&c.text(), body))
 }
 
 fn scale_prop(e: &mut Element, prop: &str, s: &Vector3<f64>, file: &std::path::Path) -> Result<()> {
@@ -136,10 +144,7 @@ pub fn scale_body(doc: &mut Document, body: &str, s: &Vector3<f64>) -> Result<Sc
         }
         let r = match e.name.as_str() {
             "PhysicalOffsetFrame" => {
-                if e.child_text("socket_parent")
-                    .map(|t| is_body_socket(&t, body))
-                    == Some(true)
-                {
+                if on_body(e, "socket_parent", body) {
                     count.offset_frames += 1;
                     scale_prop(e, "translation", s, &file)
                 } else {
@@ -147,10 +152,7 @@ pub fn scale_body(doc: &mut Document, body: &str, s: &Vector3<f64>) -> Result<Sc
                 }
             }
             "Marker" | "PathPoint" | "ConditionalPathPoint" => {
-                if e.child_text("socket_parent_frame")
-                    .map(|t| is_body_socket(&t, body))
-                    == Some(true)
-                {
+                if on_body(e, "socket_parent_frame", body) {
                     if e.name == "Marker" {
                         count.markers += 1;
                     } else {
@@ -162,10 +164,7 @@ pub fn scale_body(doc: &mut Document, body: &str, s: &Vector3<f64>) -> Result<Sc
                 }
             }
             "MovingPathPoint" => {
-                if e.child_text("socket_parent_frame")
-                    .map(|t| is_body_socket(&t, body))
-                    == Some(true)
-                {
+                if on_body(e, "socket_parent_frame", body) {
                     count
                         .moving_points_not_scaled
                         .push(e.name_attr().to_string());
@@ -187,6 +186,27 @@ pub fn scale_body(doc: &mut Document, body: &str, s: &Vector3<f64>) -> Result<Sc
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn body_sockets_are_matched_whole() {
+        for t in [
+            "/bodyset/lumbar1",
+            "bodyset/lumbar1",
+            "  /bodyset/lumbar1\n",
+        ] {
+            assert!(is_body_socket(t, "lumbar1"), "{t:?}");
+        }
+        for t in [
+            "/bodyset/lumbar10",
+            "/bodyset/lumbar",
+            "//bodyset/lumbar1",
+            "/jointset/lumbar1",
+            "lumbar1",
+            "/bodyset/lumbar1/frame",
+        ] {
+            assert!(!is_body_socket(t, "lumbar1"), "{t:?}");
+        }
+    }
 
     /// Inertia of a solid box of mass m, sides a b c about its centre.
     fn box_inertia(m: f64, a: f64, b: f64, c: f64) -> [f64; 6] {
