@@ -287,10 +287,11 @@ fn centroid(pts: &[Point3<f64>]) -> Point3<f64> {
 
 /// Refuse landmark sets that cannot determine a rotation: all points of the
 /// vertebra within 1 mm of a line.
-fn require_spread(level: Level, p: &[Point3<f64>]) -> Result<()> {
-    let c = centroid(p);
+fn require_spread(level: Level, patient: &Points) -> Result<()> {
+    let p: Vec<Point3<f64>> = patient.values().copied().collect();
+    let c = centroid(&p);
     let mut cov = nalgebra::Matrix3::zeros();
-    for q in p {
+    for q in &p {
         let d = q - c;
         cov += d * d.transpose();
     }
@@ -388,8 +389,7 @@ pub fn fit_vertebra_with(
     noise: Option<f64>,
     borrowed: &Borrowed,
 ) -> Result<VertebraFit> {
-    let pts: Vec<Point3<f64>> = patient.values().copied().collect();
-    require_spread(level, &pts)?;
+    require_spread(level, patient)?;
     match method {
         Method::Thesis => {
             let scale = scale_factors_borrowing(level, patient, model, None, borrowed)?;
@@ -440,8 +440,7 @@ pub(crate) fn fit_lsq(
     noise: Option<f64>,
     borrowed: &Borrowed,
 ) -> Result<VertebraFit> {
-    let pts: Vec<Point3<f64>> = patient.values().copied().collect();
-    require_spread(level, &pts)?;
+    require_spread(level, patient)?;
     let sigma = noise.or_else(|| noise_sd(loo));
     // The candidate: the landmark least compatible with the fit of
     // the others (largest standardised error).
