@@ -340,7 +340,8 @@ impl Wanted {
 /// point), all m.
 type Candidate = (f64, f64, Point3<f64>);
 
-/// The detours found from one start.
+/// The detours found from one start. The grazes are searched to the end
+/// only when no detour clears (a clearing one makes them unused).
 struct Detour {
     /// The shortest clearing one (offset steps, point).
     clear: Option<(usize, Point3<f64>)>,
@@ -562,6 +563,28 @@ mod tests {
         let (steps, g) = found.clear.expect("a clearing detour");
         assert_eq!(steps, 3);
         assert!((g - x * (mid + u * 0.003)).norm() < 1e-15, "{g}");
+    }
+
+    /// A shorter clearing offset in a later direction wins over a longer
+    /// one in an earlier direction.
+    #[test]
+    fn the_shortest_clearing_offset_wins_whatever_the_direction() {
+        let (a, b) = (Point3::new(0.0, -0.1, 0.0), Point3::new(0.0, 0.2, 0.0));
+        let mid = Point3::new(0.0, 0.05, 0.0);
+        let (u, v) = (Vector3::z(), Vector3::x());
+        let x = nalgebra::Isometry3::identity();
+        // Along u (the first direction) clear from 20 mm; along v (the
+        // tenth, at 90 degrees) from 4 mm; nowhere else.
+        let score = |p: &Point3<f64>, _: &Point3<f64>, _: Wanted| {
+            let d = p - mid;
+            let along = |w: &Vector3<f64>| (d.normalize() - w).norm() < 1e-9;
+            let clear = (along(&u) && d.norm() > 0.0195) || (along(&v) && d.norm() > 0.0035);
+            clear.then_some(Fit::Clear)
+        };
+        let found = detour_from(&mid, &u, &v, &x, score, &a, &b);
+        let (steps, g) = found.clear.expect("a clearing detour");
+        assert_eq!(steps, 4);
+        assert!((g - (mid + v * 0.004)).norm() < 1e-12, "{g}");
     }
 
     /// Offsets up to 50 mm are searched, the last one included.

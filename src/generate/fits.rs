@@ -195,6 +195,7 @@ pub(super) fn fit_levels(
     for (k, l) in vert_levels.iter().enumerate() {
         let borrowed = input.borrowed.get(l).unwrap_or(&[None; 3]);
         let (points, model) = (&patient[l], &markers[l].1);
+        // Lsq fits with the statistics above; the thesis method has none.
         let f = match loo.get(k) {
             Some(v) => pose::fit_lsq(
                 *l,
