@@ -516,18 +516,6 @@ fn scale_bodies(
     Ok((scales, scaling))
 }
 
-/// The merged, scaled meshes of a body (None when none was found); the
-/// files not found are added to `missing`.
-fn mesh_of(
-    b: &crate::osim::model::Body,
-    source: &dyn MeshSource,
-    missing: &mut Vec<String>,
-) -> Result<Option<crate::mesh::TriMesh>> {
-    let loaded = crate::mesh::source::body_mesh(b, source)?;
-    missing.extend(loaded.missing);
-    Ok(loaded.mesh)
-}
-
 /// The file name of `path` (the whole string when it has none).
 fn file_name_of(path: &str) -> String {
     // the embedded base is named by its label, not a path

@@ -2,11 +2,11 @@
 //! rigid sacral registration of the patient's landmarks onto them.
 
 use super::pose::Points;
-use super::{mesh_of, Registration};
+use super::Registration;
 use crate::error::{Error, Result};
 use crate::landmarks::frames::frame_from_axes;
 use crate::landmarks::{Code, LandmarkId, LandmarkSet, Level};
-use crate::mesh::source::MeshSource;
+use crate::mesh::source::{body_mesh, MeshSource};
 use crate::mesh::umeyama;
 use crate::osim::model::Model;
 use crate::osim::Document;
@@ -57,8 +57,7 @@ pub fn base_sacrum(
     let Some(b) = model.bodies.iter().find(|b| &b.name == body) else {
         return Ok(None);
     };
-    let mut missing = Vec::new();
-    Ok(mesh_of(b, meshes, &mut missing)?.map(|m| (m, s1.clone())))
+    Ok(body_mesh(b, meshes)?.mesh.map(|m| (m, s1.clone())))
 }
 
 /// Sacral frame from S1 endplate points: Y normal to the endplate (from the
