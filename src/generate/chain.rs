@@ -35,7 +35,7 @@
 //! flatten a curve: a spine posed by rotations about its joints has zero
 //! mismatch whatever its curvature, so the estimate is unbiased for it.
 
-use super::smooth::{maximise, posterior_mode, Posterior};
+use super::smooth::{maximise, posterior_mode, rows_scaled, Posterior};
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
 
@@ -165,11 +165,7 @@ fn linear_mode(
     s: &Vector3<f64>,
 ) -> Result<LinearMode> {
     let lam = DVector::from_fn(e0.len(), |k, _| 1.0 / (s[k % 3] * s[k % 3]));
-    // diag(lam) * jac, row by row.
-    let mut lj = jac.clone();
-    for (mut row, l) in lj.row_iter_mut().zip(lam.iter()) {
-        row *= *l;
-    }
+    let lj = rows_scaled(jac.clone(), &lam);
     let hessian = w + jac.transpose() * &lj;
     let ch = hessian.cholesky().ok_or_else(not_pd)?;
     let x = ch.solve(&(-(lj.transpose() * e0)));
